@@ -1,0 +1,240 @@
+"""Configuration: frozen pydantic models loaded from TOML, with a stable hash.
+
+Every value of the paper's Table I is a field of :class:`SensorConfig`, its unit in its name. A
+:class:`Config` bundles the sensor, the modulation frequencies, the scene-parameter prior, the simulator
+options and the sampling plan; :func:`config_sha256` identifies it, so that a dataset, a model card and a
+correction run can tell whether they were made from the same configuration.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from mpi_lidar.errors import ConfigError
+
+PAPER_FREQUENCIES_HZ = (12.5e6, 18.75e6, 25e6, 31.25e6)
+PAPER_SAMPLES = 1_338_670
+
+NonNegative = Annotated[float, Field(ge=0)]
+Positive = Annotated[float, Field(gt=0)]
+Unit = Annotated[float, Field(ge=0, le=1)]
+Interval = tuple[float, float]
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class SensorConfig(_Frozen):
+    """The AMCW coaxial scanning LiDAR of Table I, plus the integration time of section IV.B."""
+
+    gamma_r_v2: Positive = 0.1794
+    modulation_contrast: Annotated[float, Field(gt=0, le=1)] = 1.0
+    speed_of_light_m_per_s: Positive = 3.0e8
+    demodulation_amplitude_v: Positive = 0.4785
+    tia_gain_v_per_a: Positive = 50e3
+    transit_time_s: Positive = 6e-9
+    integration_time_s: Positive = 16e-6
+    wavelength_m: Positive = 852e-9
+    planck_j_s: Positive = 6.62606896e-34
+    quantum_efficiency: Annotated[float, Field(gt=0, le=1)] = 0.67
+    avalanche_gain: Annotated[float, Field(ge=1)] = 50.0
+    excess_noise_factor: Annotated[float, Field(ge=1)] = 4.862
+    electron_charge_c: Positive = 1.60217663e-19
+    apd_area_m2: NonNegative = 0.7854e-6
+    dark_current_fom_a_per_m2: NonNegative = 1e-5
+    temperature_k: Positive = 297.0
+    bandgap_ev: Positive = 1.1116
+    boltzmann_j_per_k: Positive = 1.380649e-23
+    bandwidth_hz: Positive = 50e6
+    tia_noise_psd_a2_per_hz: NonNegative = 4.314e-24
+    load_resistance_ohm: Positive = 50.0
+
+    @model_validator(mode="after")
+    def _integration_spans_bins(self) -> SensorConfig:
+        if self.integration_time_s < 2 * self.transit_time_s:
+            raise ValueError("integration_time_s must span at least two transit-time bins")
+        return self
+
+
+class PriorConfig(_Frozen):
+    """How scene parameters are drawn.
+
+    ``reciprocal`` (default): surface albedos a, b ~ U(albedo), coupling kappa ~ U(coupling),
+    rho_SAS = rho_SAB = rho_BAS = a and rho_ABA = kappa * b. ``independent``: the four BRDF values are
+    independent U(rho). ``explicit``: each BRDF value has its own range (rho_sas, rho_sab, rho_aba,
+    rho_bas). All schemes draw d_AS ~ U(d_as_m) and d_AB ~ U(d_ab_m).
+    """
+
+    scheme: Literal["reciprocal", "independent", "explicit"] = "reciprocal"
+    d_as_m: Interval = (1.4, 2.4)
+    d_ab_m: Interval = (0.0, 0.15)
+    albedo: Interval = (0.14, 1.0)
+    coupling: Interval = (0.0, 1.0)
+    rho: Interval = (0.0, 1.0)
+    rho_sas: Interval = (0.0, 1.0)
+    rho_sab: Interval = (0.0, 1.0)
+    rho_aba: Interval = (0.0, 1.0)
+    rho_bas: Interval = (0.0, 1.0)
+
+    @field_validator("d_as_m", "d_ab_m", "albedo", "coupling", "rho", "rho_sas", "rho_sab", "rho_aba", "rho_bas")
+    @classmethod
+    def _ordered_interval(cls, value: Interval) -> Interval:
+        low, high = value
+        if not (math.isfinite(low) and math.isfinite(high)) or low > high:
+            raise ValueError(f"expected [low, high] with low <= high, got {list(value)}")
+        return value
+
+    @model_validator(mode="after")
+    def _physical_ranges(self) -> PriorConfig:
+        if self.d_as_m[0] <= 0:
+            raise ValueError(f"d_as_m must be positive distances, got {list(self.d_as_m)}")
+        if self.d_ab_m[0] < 0:
+            raise ValueError(f"d_ab_m must be non-negative distances, got {list(self.d_ab_m)}")
+        for name in ("albedo", "coupling", "rho", "rho_sas", "rho_sab", "rho_aba", "rho_bas"):
+            low, high = getattr(self, name)
+            if low < 0 or high > 1:
+                raise ValueError(f"{name} must lie in [0, 1] (a reflectance), got {[low, high]}")
+        return self
+
+
+class SimulatorConfig(_Frozen):
+    """Simulator fidelity and the noise terms the paper leaves open (all default 0)."""
+
+    fidelity: Literal["moment", "waveform"] = "moment"
+    noise_scale: NonNegative = 1.0
+    round_photons: bool = True
+    whole_cycles: bool = False
+    background_mean_electrons: NonNegative = 0.0
+    background_std_electrons: NonNegative = 0.0
+    tia_noise_mean_electrons: float = 0.0
+    random_noise_std_v: NonNegative = 0.0
+
+
+class DatasetConfig(_Frozen):
+    """The sampling plan: how many rows, in chunks of how many, from which seed, and the test share."""
+
+    samples: Annotated[int, Field(ge=1)] = 20_000
+    chunk_rows: Annotated[int, Field(ge=1)] = 5_000
+    seed: Annotated[int, Field(ge=0)] = 20260101
+    test_fraction: Annotated[float, Field(gt=0, lt=1)] = 0.2
+
+    @model_validator(mode="after")
+    def _chunk_fits(self) -> DatasetConfig:
+        if self.chunk_rows > self.samples:
+            raise ValueError(
+                f"chunk_rows ({self.chunk_rows}) is larger than samples ({self.samples}); "
+                "lower chunk_rows or raise samples"
+            )
+        return self
+
+
+class Config(_Frozen):
+    """Everything that determines a simulated dataset, byte for byte."""
+
+    sensor: SensorConfig = SensorConfig()
+    frequencies_hz: tuple[float, ...] = PAPER_FREQUENCIES_HZ
+    prior: PriorConfig = PriorConfig()
+    simulator: SimulatorConfig = SimulatorConfig()
+    dataset: DatasetConfig = DatasetConfig()
+
+    @model_validator(mode="after")
+    def _demodulable_frequencies(self) -> Config:
+        freqs = self.frequencies_hz
+        if not freqs:
+            raise ValueError("frequencies_hz is empty; give at least one modulation frequency")
+        nyquist_hz = 1 / (2 * self.sensor.transit_time_s)
+        for f in freqs:
+            if not math.isfinite(f) or f <= 0:
+                raise ValueError(f"frequencies_hz must be positive, got {f}")
+            if f >= nyquist_hz:
+                raise ValueError(
+                    f"frequency {f:g} Hz cannot be demodulated: bins of {self.sensor.transit_time_s:g} s "
+                    f"sample below its Nyquist rate (limit {nyquist_hz:g} Hz)"
+                )
+            if f * self.sensor.integration_time_s < 1:
+                raise ValueError(f"frequency {f:g} Hz completes less than one cycle in the integration time")
+        if len(set(freqs)) != len(freqs):
+            raise ValueError(f"frequencies_hz has duplicates: {list(freqs)}")
+        return self
+
+    def replace(self, **sections: object) -> Config:
+        """A copy with whole sections or nested fields replaced, validated again.
+
+        ``config.replace(simulator={"noise_scale": 0})`` changes one field of one section.
+        """
+        data = self.model_dump()
+        for key, value in sections.items():
+            if isinstance(value, dict) and isinstance(data.get(key), dict):
+                data[key] = {**data[key], **value}
+            elif isinstance(value, BaseModel):
+                data[key] = value.model_dump()
+            else:
+                data[key] = value
+        return Config.model_validate(data)
+
+
+PRESETS: dict[str, dict[str, object]] = {
+    "quick": {"dataset": {"samples": 20_000, "chunk_rows": 5_000}},
+    "paper": {"dataset": {"samples": PAPER_SAMPLES, "chunk_rows": 65_536, "test_fraction": 0.2}},
+}
+
+
+def preset(name: str) -> Config:
+    """The named preset: ``quick`` (20,000 rows) or ``paper`` (1,338,670 rows, 80/20 split)."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}")
+    return Config().replace(**PRESETS[name])
+
+
+def config_sha256(config: Config) -> str:
+    """A stable identity: SHA-256 of the canonical JSON of every field (sorted keys, repr floats)."""
+    return hashlib.sha256(config_json(config).encode()).hexdigest()
+
+
+def config_json(config: Config) -> str:
+    return json.dumps(config.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+
+
+def config_from_json(text: str) -> Config:
+    return Config.model_validate_json(text)
+
+
+def load_config(path: str | Path, base: Config | None = None) -> Config:
+    """Read a TOML file whose tables (``[sensor]``, ``[prior]``, ...) override ``base`` (default: defaults).
+
+    Raises :class:`ConfigError` with one line naming the file and the offending field.
+    """
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    return validate_overrides(data, base or Config(), source=str(path))
+
+
+def validate_overrides(overrides: dict[str, object], base: Config, source: str) -> Config:
+    try:
+        return base.replace(**overrides)
+    except ValidationError as exc:
+        raise ConfigError(f"{source}: {describe_validation_error(exc)}") from None
+
+
+def describe_validation_error(exc: ValidationError) -> str:
+    """The first problem of a pydantic error as 'field.path: message', one line."""
+    first = exc.errors()[0]
+    where = ".".join(str(part) for part in first["loc"]) or "config"
+    message = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        message = "unknown field (check its spelling against the documented configuration)"
+    more = len(exc.errors()) - 1
+    return f"{where}: {message}" + (f" (and {more} more problem{'s' * (more > 1)})" if more else "")

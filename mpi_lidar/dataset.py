@@ -1,0 +1,320 @@
+"""Labelled datasets: chunked sampling, simulation and the Zarr store layout.
+
+A dataset is generated chunk by chunk. Chunk i draws its rows from a generator seeded by (seed, i), so
+the bytes of a chunk never depend on which process writes it or in which order. Each chunk writes its own
+row range of every array, then marks itself complete in ``chunk_done``: a chunk whose mark is set is
+complete, and a re-run skips it.
+
+Layout (Zarr v3, one group): ``features`` float32 (n, 2F) = [depth per frequency, amplitude per frequency];
+``target`` float64 (n,) true d_AS [m]; ``theta`` float64 (n, 6) scene parameters; ``split`` uint8 (n,)
+0 = train, 1 = test; ``chunk_done`` uint8 (chunks,). Root attributes carry the schema, frequencies,
+feature and theta names, the configuration and its SHA-256, and the package version.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+
+from mpi_lidar import __version__
+from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
+from mpi_lidar.errors import StoreError
+from mpi_lidar.physics import SensorModel, make_sensor
+from mpi_lidar.sampling import THETA_NAMES, sample_theta
+
+SCHEMA = "mpi-lidar/dataset@1"
+SPLIT_CODES = {"train": 0, "test": 1}
+ARRAYS = ("features", "target", "theta", "split", "chunk_done")
+# Stream of the seed tree reserved for summary statistics, apart from the chunk streams (seed, i).
+SUMMARY_STREAM = (1, 0)
+
+
+@dataclass(frozen=True)
+class SamplingPlan:
+    """n rows in chunks of ``chunk_rows`` (the last one shorter), drawn from ``seed``."""
+
+    samples: int
+    chunk_rows: int
+    seed: int
+
+    @classmethod
+    def from_config(cls, config: Config) -> SamplingPlan:
+        d = config.dataset
+        return cls(d.samples, d.chunk_rows, d.seed)
+
+    @property
+    def chunks(self) -> int:
+        return -(-self.samples // self.chunk_rows)
+
+    def rows(self, index: int) -> slice:
+        if not 0 <= index < self.chunks:
+            raise IndexError(f"chunk {index} outside 0..{self.chunks - 1}")
+        return slice(index * self.chunk_rows, min((index + 1) * self.chunk_rows, self.samples))
+
+
+@dataclass(frozen=True)
+class Chunk:
+    features: NDArray[np.float32]
+    target: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    split: NDArray[np.uint8]
+
+
+def feature_names(frequencies_hz: tuple[float, ...]) -> list[str]:
+    """Column names of ``features``: depth_<f>MHz then amplitude_<f>MHz, in frequency order."""
+    labels = [f"{f / 1e6:g}MHz" for f in frequencies_hz]
+    return [f"depth_{x}" for x in labels] + [f"amplitude_{x}" for x in labels]
+
+
+def seeded_rng(seed: int, *stream: int) -> np.random.Generator:
+    """A generator for one stream of the seed tree: chunk i uses stream (i,)."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=stream))
+
+
+@lru_cache(maxsize=8)
+def cached_sensor(config: Config) -> SensorModel:
+    return make_sensor(config)
+
+
+def simulate_chunk(config: Config, index: int) -> Chunk:
+    """Draw, simulate and split chunk ``index`` of the configured plan; a pure function of both."""
+    plan = SamplingPlan.from_config(config)
+    rows = plan.rows(index)
+    n = rows.stop - rows.start
+    rng = seeded_rng(plan.seed, index)
+    theta = sample_theta(config.prior, n, rng)
+    depth, amplitude = cached_sensor(config).measure(theta, rng)
+    split = np.zeros(n, dtype=np.uint8)
+    split[rng.permutation(n)[: round(n * config.dataset.test_fraction)]] = SPLIT_CODES["test"]
+    features = np.concatenate([depth, amplitude], axis=1).astype(np.float32)
+    return Chunk(features=features, target=theta[:, 0].copy(), theta=theta, split=split)
+
+
+# --- the store ----------------------------------------------------------------------------------------
+
+
+def _root_attributes(config: Config) -> dict[str, object]:
+    return {
+        "schema": SCHEMA,
+        "frequencies_hz": list(config.frequencies_hz),
+        "feature_names": feature_names(config.frequencies_hz),
+        "theta_names": list(THETA_NAMES),
+        "split_codes": SPLIT_CODES,
+        "config": json.loads(config_json(config)),
+        "config_sha256": config_sha256(config),
+        "package_version": __version__,
+        "samples": config.dataset.samples,
+        "chunk_rows": config.dataset.chunk_rows,
+    }
+
+
+def _build_layout(path: Path, config: Config) -> None:
+    plan = SamplingPlan.from_config(config)
+    n, rows, width = plan.samples, plan.chunk_rows, 2 * len(config.frequencies_hz)
+    compressors = [zarr.codecs.BloscCodec(cname="zstd", clevel=3, shuffle="shuffle")]
+    group = zarr.open_group(store=str(path), mode="w-")
+    specs = {
+        "features": ((n, width), (rows, width), "float32", ("sample", "feature")),
+        "target": ((n,), (rows,), "float64", ("sample",)),
+        "theta": ((n, len(THETA_NAMES)), (rows, len(THETA_NAMES)), "float64", ("sample", "parameter")),
+        "split": ((n,), (rows,), "uint8", ("sample",)),
+    }
+    for name, (shape, chunks, dtype, dims) in specs.items():
+        group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, compressors=compressors,
+                           fill_value=0, dimension_names=dims)
+    group["features"].attrs["columns"] = feature_names(config.frequencies_hz)
+    group["theta"].attrs["columns"] = list(THETA_NAMES)
+    group["target"].attrs["units"] = "m"
+    group.create_array("chunk_done", shape=(plan.chunks,), chunks=(1,), dtype="uint8", fill_value=0,
+                       dimension_names=("chunk",))
+    group.attrs.update(_root_attributes(config))
+
+
+def create_store(path: str | Path, config: Config) -> zarr.Group:
+    """Create an empty dataset store for ``config``, or reopen the one already there for the same config.
+
+    The layout is built under a temporary name beside ``path`` and renamed into place, so a crash never
+    leaves a half-made store. A store made from another configuration, or anything at ``path`` that is
+    not a dataset store (other than an empty directory), is refused with :class:`StoreError`.
+    """
+    path = Path(path)
+    if path.exists() and not _is_empty_dir(path):
+        group = open_store(path)
+        _check_same_config(path, group, config)
+        return zarr.open_group(store=str(path), mode="r+")
+    staging = path.parent / f".{path.name}.creating-{uuid.uuid4().hex[:8]}"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _build_layout(staging, config)
+        os.replace(staging, path)
+    except OSError as exc:
+        raise StoreError(f"cannot create dataset store {path}: {exc.strerror or exc}; "
+                         "choose a writable --out with free space") from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return zarr.open_group(store=str(path), mode="r+")
+
+
+def _is_empty_dir(path: Path) -> bool:
+    return path.is_dir() and not any(path.iterdir())
+
+
+def _check_same_config(path: Path, group: zarr.Group, config: Config) -> None:
+    found = group.attrs.get("config_sha256")
+    if found != config_sha256(config):
+        raise StoreError(
+            f"dataset store {path} was written by another configuration (sha256 {str(found)[:12]}, this one "
+            f"{config_sha256(config)[:12]}); refusing to mix them: choose another --out or delete the store"
+        )
+
+
+def open_store(path: str | Path, mode: str = "r") -> zarr.Group:
+    """Open a dataset store after checking its schema and arrays; :class:`StoreError` on anything else."""
+    path = Path(path)
+    if not path.exists():
+        raise StoreError(f"dataset store {path} does not exist; create it with 'mpi-lidar simulate --out {path}'")
+    try:
+        group = zarr.open_group(store=str(path), mode=mode)
+        attrs = dict(group.attrs)
+    except Exception as exc:  # zarr raises several types for foreign or broken metadata
+        raise StoreError(f"{path} is not a readable Zarr store ({type(exc).__name__}: {exc})") from None
+    if attrs.get("schema") != SCHEMA:
+        raise StoreError(f"{path} is not an mpi-lidar dataset (schema {attrs.get('schema')!r}, "
+                         f"expected {SCHEMA!r})")
+    _check_layout(path, group, attrs)
+    return group
+
+
+def _check_layout(path: Path, group: zarr.Group, attrs: dict[str, object]) -> None:
+    try:
+        n, width = int(attrs["samples"]), 2 * len(attrs["frequencies_hz"])
+        chunks = -(-n // int(attrs["chunk_rows"]))
+        expected = {
+            "features": ((n, width), np.float32), "target": ((n,), np.float64),
+            "theta": ((n, len(THETA_NAMES)), np.float64), "split": ((n,), np.uint8),
+            "chunk_done": ((chunks,), np.uint8),
+        }
+        for name, (shape, dtype) in expected.items():
+            array = group[name]
+            if array.shape != shape or array.dtype != dtype:
+                raise StoreError(f"dataset {path}: array {name!r} is {array.dtype}{array.shape}, "
+                                 f"expected {np.dtype(dtype)}{shape}; the store is damaged: regenerate it")
+    except KeyError as exc:
+        raise StoreError(f"dataset {path} lacks {exc}; the store is truncated: regenerate it") from None
+
+
+def store_config(group: zarr.Group) -> Config:
+    return config_from_json(json.dumps(group.attrs["config"]))
+
+
+def completed_chunks(group: zarr.Group) -> NDArray[np.bool_]:
+    return group["chunk_done"][:].astype(bool)
+
+
+def is_complete(path: str | Path) -> bool:
+    return bool(completed_chunks(open_store(path)).all())
+
+
+def write_chunk(path: str | Path, config: Config, index: int) -> bool:
+    """Simulate chunk ``index`` into its row range of the store; skip it if already complete.
+
+    Returns True when the chunk was written, False when it was already complete. The completion mark is
+    written after the data, so a chunk interrupted part-way is redone on the next run.
+    """
+    group = zarr.open_group(store=str(path), mode="r+")
+    if group["chunk_done"][index]:
+        return False
+    chunk = simulate_chunk(config, index)
+    rows = SamplingPlan.from_config(config).rows(index)
+    group["features"][rows] = chunk.features
+    group["target"][rows] = chunk.target
+    group["theta"][rows] = chunk.theta
+    group["split"][rows] = chunk.split
+    group["chunk_done"][index] = 1
+    return True
+
+
+def generate(
+    path: str | Path, config: Config, on_chunk: Callable[[int, bool], None] | None = None
+) -> zarr.Group:
+    """Generate the whole dataset in this process, chunk by chunk, resuming an interrupted store."""
+    group = create_store(path, config)
+    for index in np.flatnonzero(~completed_chunks(group)):
+        written = write_chunk(path, config, int(index))
+        if on_chunk is not None:
+            on_chunk(int(index), written)
+    return group
+
+
+# --- summary --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DatasetSummary:
+    """Raw depth errors of a dataset, per frequency. Errors in metres."""
+
+    path: str
+    samples: int
+    train: int
+    test: int
+    frequencies_hz: tuple[float, ...]
+    mae_m: tuple[float, ...]
+    rmse_m: tuple[float, ...]
+    noise_only_mae_m: tuple[float, ...]
+    noise_only_rows: int
+    config_sha256: str
+
+    def to_markdown(self) -> str:
+        lines = [
+            f"Dataset `{self.path}`: {self.samples:,} rows ({self.train:,} train, {self.test:,} test), "
+            f"config {self.config_sha256[:12]}",
+            "",
+            "| frequency | raw MAE [mm] | raw RMSE [mm] | noise-only MAE [mm] |",
+            "|---|---|---|---|",
+        ]
+        for f, mae, rmse, noise in zip(self.frequencies_hz, self.mae_m, self.rmse_m, self.noise_only_mae_m,
+                                       strict=True):
+            lines.append(f"| {f / 1e6:g} MHz | {mae * 1e3:.3f} | {rmse * 1e3:.3f} | {noise * 1e3:.3f} |")
+        lines += ["", f"Noise-only: the same scenes without the A -> B -> A path, first {self.noise_only_rows:,} rows."]
+        return "\n".join(lines)
+
+
+def summarize(path: str | Path, noise_only_rows: int = 200_000) -> DatasetSummary:
+    """Raw MAE and RMSE of each frequency's depth against the truth, and the noise-only MAE.
+
+    The noise-only MAE simulates the first ``noise_only_rows`` scenes again without multipath, from a
+    stream of the seed tree reserved for it, so it is reproducible and independent of the stored noise.
+    """
+    group = open_store(path)
+    config = store_config(group)
+    n_freq = len(config.frequencies_hz)
+    depth = group["features"][:, :n_freq].astype(np.float64)
+    error = depth - group["target"][:][:, None]
+    split = group["split"][:]
+    rows = min(noise_only_rows, config.dataset.samples)
+    theta = group["theta"][:rows]
+    clean_depth, _ = cached_sensor(config).measure(theta, seeded_rng(config.dataset.seed, *SUMMARY_STREAM),
+                                                   multipath=False)
+    noise_error = clean_depth - theta[:, :1]
+    return DatasetSummary(
+        path=str(path),
+        samples=config.dataset.samples,
+        train=int((split == SPLIT_CODES["train"]).sum()),
+        test=int((split == SPLIT_CODES["test"]).sum()),
+        frequencies_hz=config.frequencies_hz,
+        mae_m=tuple(np.abs(error).mean(0).tolist()),
+        rmse_m=tuple(np.sqrt((error**2).mean(0)).tolist()),
+        noise_only_mae_m=tuple(np.abs(noise_error).mean(0).tolist()),
+        noise_only_rows=rows,
+        config_sha256=group.attrs["config_sha256"],
+    )

@@ -1,0 +1,15 @@
+"""The one exception type the CLI turns into a single error line and exit code 2."""
+
+from __future__ import annotations
+
+
+class MpiLidarError(Exception):
+    """A user-facing error: the message says what was wrong, where, and what to do."""
+
+
+class ConfigError(MpiLidarError):
+    """A configuration file or value that cannot be used."""
+
+
+class StoreError(MpiLidarError):
+    """A dataset or scan store that is missing, foreign, truncated or from another configuration."""

@@ -1,0 +1,91 @@
+"""Two-path light transport of the coaxial scanning LiDAR (paper eq 11-15).
+
+The beam hits point A; the direct path returns A -> S, the multipath returns A -> B -> A -> S. Both reach
+the detector as phasors of the cross correlation at each modulation frequency.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def direct_amplitude(gamma_r: float, rho_sas: ArrayLike, d_as: ArrayLike) -> NDArray[np.float64]:
+    """Amplitude of the direct path's cross correlation, eq 12.
+
+    Parameters
+    ----------
+    gamma_r : Initial value of the cross correlation. [V^2]
+    rho_sas : BRDF from S to S through A. [1]
+    d_as : Distance from the sensor to A. [m]
+    """
+    return gamma_r * np.asarray(rho_sas, dtype=np.float64) / np.asarray(d_as, dtype=np.float64) ** 2
+
+
+def multipath_amplitude(
+    gamma_r: float, rho_sab: ArrayLike, rho_aba: ArrayLike, rho_bas: ArrayLike, d_as: ArrayLike
+) -> NDArray[np.float64]:
+    """Amplitude of the A -> B -> A path's cross correlation, eq 13.
+
+    Parameters
+    ----------
+    gamma_r : Initial value of the cross correlation. [V^2]
+    rho_sab, rho_aba, rho_bas : BRDFs of the three reflections. [1]
+    d_as : Distance from the sensor to A. [m]
+    """
+    product = np.asarray(rho_sab, dtype=np.float64) * np.asarray(rho_aba) * np.asarray(rho_bas)
+    return gamma_r * product / np.asarray(d_as, dtype=np.float64) ** 2
+
+
+def round_trip_phase(frequency_hz: ArrayLike, path_m: ArrayLike, c: float) -> NDArray[np.float64]:
+    """Phase delay of a path, eq 14 (path = d_AS) and eq 15 (path = d_AS + d_AB), not wrapped.
+
+    Parameters
+    ----------
+    frequency_hz : Modulation frequency. [Hz]
+    path_m : One-way length of the path; the light travels it twice. [m]
+    c : Speed of light. [m/s]
+    """
+    return 4 * np.pi * np.asarray(frequency_hz, dtype=np.float64) * np.asarray(path_m, dtype=np.float64) / c
+
+
+def two_path_phasors(
+    theta: NDArray[np.float64], frequencies_hz: ArrayLike, gamma_r: float, c: float, multipath: bool = True
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Direct and multipath amplitudes and phases for each sample and frequency, eq 12-15.
+
+    Parameters
+    ----------
+    theta : Scene parameters, shape (n, 6), columns (d_AS [m], d_AB [m], rho_SAS, rho_SAB, rho_ABA, rho_BAS).
+    frequencies_hz : Modulation frequencies, shape (F,). [Hz]
+    gamma_r : Initial value of the cross correlation. [V^2]
+    c : Speed of light. [m/s]
+    multipath : False drops the A -> B -> A path (its amplitude becomes 0).
+
+    Returns
+    -------
+    gamma_d, phi_d, gamma_m, phi_m : each shape (n, F); amplitudes [V^2], phases [rad].
+    """
+    d_as, d_ab, rho_sas, rho_sab, rho_aba, rho_bas = np.asarray(theta, dtype=np.float64).T
+    freqs = np.asarray(frequencies_hz, dtype=np.float64)[None, :]
+    gamma_d = np.broadcast_to(direct_amplitude(gamma_r, rho_sas, d_as)[:, None], (d_as.size, freqs.size))
+    gamma_m = multipath_amplitude(gamma_r, rho_sab, rho_aba, rho_bas, d_as)[:, None] * float(multipath)
+    gamma_m = np.broadcast_to(gamma_m, gamma_d.shape)
+    phi_d = round_trip_phase(freqs, d_as[:, None], c)
+    phi_m = round_trip_phase(freqs, (d_as + d_ab)[:, None], c)
+    return gamma_d, phi_d, gamma_m, phi_m
+
+
+def two_path_phase_bias(ratio: ArrayLike, delta_phase: ArrayLike) -> NDArray[np.float64]:
+    """Phase error that the multipath adds to the direct phase (closed form of eq 11).
+
+    arg(1 + r e^{j dphi}) = atan(r sin(dphi) / (1 + r cos(dphi))), taken with atan2 so r > 1 stays right.
+
+    Parameters
+    ----------
+    ratio : Gamma_M / Gamma_D. [1]
+    delta_phase : phi_M - phi_D. [rad]
+    """
+    r = np.asarray(ratio, dtype=np.float64)
+    dphi = np.asarray(delta_phase, dtype=np.float64)
+    return np.arctan2(r * np.sin(dphi), 1 + r * np.cos(dphi))
