@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import click
@@ -42,9 +41,12 @@ def cli() -> None:
 @click.option("--chunk-rows", type=int, help="Rows per chunk.")
 @click.option("--seed", type=int, help="Seed of the sampling plan.")
 @click.option("--fidelity", type=click.Choice(["moment", "waveform"]), help="Simulator fidelity.")
+@click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
+              help="Dask worker processes of a local cluster; 0 runs in this process.")
+@click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786) instead of a local cluster.")
 def simulate(
     out: Path, config_file: Path | None, preset_name: str, samples: int | None, chunk_rows: int | None,
-    seed: int | None, fidelity: str | None,
+    seed: int | None, fidelity: str | None, workers: int, scheduler: str | None,
 ) -> None:
     """Simulate a labelled dataset and print its raw-error summary.
 
@@ -61,18 +63,21 @@ def simulate(
     simulator = {"fidelity": fidelity} if fidelity else {}
     config = build_config(config_file, preset_name, {"dataset": dataset_overrides, "simulator": simulator})
 
-    started = time.perf_counter()
-    store = dataset.create_store(out, config)
+    from mpi_lidar.cluster import dask_client
+
     plan = dataset.SamplingPlan.from_config(config)
-    todo = [int(i) for i in (~dataset.completed_chunks(store)).nonzero()[0]]
-    rows_written = sum(plan.rows(i).stop - plan.rows(i).start for i in todo)
+    store = dataset.create_store(out, config)
+    todo = int((~dataset.completed_chunks(store)).sum())
     with _progress() as progress:
-        task = progress.add_task("simulating chunks", total=len(todo))
-        dataset.generate(out, config, on_chunk=lambda _index, _written: progress.advance(task))
-    elapsed = time.perf_counter() - started
+        task = progress.add_task("simulating chunks", total=todo)
+        if todo and workers > 0:
+            with dask_client(scheduler, workers) as client:
+                report = dataset.generate(out, config, client, on_chunk=lambda _i: progress.advance(task))
+        else:
+            report = dataset.generate(out, config, on_chunk=lambda _i: progress.advance(task))
     click.echo(dataset.summarize(out).to_markdown())
-    click.echo(f"\n{len(todo)} of {plan.chunks} chunks simulated in {elapsed:.1f} s "
-               f"({rows_written / elapsed:,.0f} rows/s, {config.simulator.fidelity} fidelity)")
+    click.echo(f"\n{report.chunks_written} of {plan.chunks} chunks simulated in {report.wall_s:.1f} s "
+               f"({report.rows_per_s:,.0f} rows/s, {config.simulator.fidelity} fidelity)")
 
 
 def _progress() -> Progress:

@@ -16,14 +16,17 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
+import dask.array as da
 import numpy as np
 import zarr
+from distributed import Client, as_completed
 from numpy.typing import NDArray
 
 from mpi_lidar import __version__
@@ -37,6 +40,7 @@ SPLIT_CODES = {"train": 0, "test": 1}
 ARRAYS = ("features", "target", "theta", "split", "chunk_done")
 # Stream of the seed tree reserved for summary statistics, apart from the chunk streams (seed, i).
 SUMMARY_STREAM = (1, 0)
+CHUNK_RETRIES = 2
 
 
 @dataclass(frozen=True)
@@ -244,16 +248,161 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
     return True
 
 
+@dataclass(frozen=True)
+class GenerationReport:
+    """What one generation run did."""
+
+    chunks_written: int
+    chunks_skipped: int
+    rows_written: int
+    wall_s: float
+
+    @property
+    def rows_per_s(self) -> float:
+        return self.rows_written / self.wall_s if self.wall_s > 0 else 0.0
+
+
 def generate(
-    path: str | Path, config: Config, on_chunk: Callable[[int, bool], None] | None = None
-) -> zarr.Group:
-    """Generate the whole dataset in this process, chunk by chunk, resuming an interrupted store."""
+    path: str | Path,
+    config: Config,
+    client: Client | None = None,
+    on_chunk: Callable[[int], None] | None = None,
+) -> GenerationReport:
+    """Generate the dataset, resuming an interrupted store; one task per incomplete chunk.
+
+    With a Dask ``client`` each chunk is a task that writes straight into its own region of the store
+    (nothing is gathered on the client; a failed task is retried, and a lost worker's tasks are rerun by
+    the scheduler). Without one, the chunks run in this process. Both write identical bytes.
+    """
+    started = time.perf_counter()
     group = create_store(path, config)
-    for index in np.flatnonzero(~completed_chunks(group)):
-        written = write_chunk(path, config, int(index))
-        if on_chunk is not None:
-            on_chunk(int(index), written)
-    return group
+    plan = SamplingPlan.from_config(config)
+    todo = [int(i) for i in np.flatnonzero(~completed_chunks(group))]
+    try:
+        for index in _run_chunks(str(path), config, todo, client):
+            if on_chunk is not None:
+                on_chunk(index)
+    except OSError as exc:
+        raise StoreError(f"writing dataset {path} failed: {exc.strerror or exc}; free space or fix "
+                         "permissions, then run again: finished chunks are kept and skipped") from None
+    rows = sum(plan.rows(i).stop - plan.rows(i).start for i in todo)
+    return GenerationReport(len(todo), plan.chunks - len(todo), rows, time.perf_counter() - started)
+
+
+def _run_chunks(path: str, config: Config, todo: list[int], client: Client | None) -> Iterator[int]:
+    if client is None:
+        for index in todo:
+            write_chunk(path, config, index)
+            yield index
+        return
+    futures = {client.submit(write_chunk, path, config, index, retries=CHUNK_RETRIES, pure=False): index
+               for index in todo}
+    for future in as_completed(futures):
+        future.result()
+        yield futures[future]
+
+
+# --- readers ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    """What a store says about itself."""
+
+    path: str
+    config: Config
+    config_sha256: str
+    frequencies_hz: tuple[float, ...]
+    feature_names: tuple[str, ...]
+    theta_names: tuple[str, ...]
+    samples: int
+    chunks_done: int
+    chunks: int
+    package_version: str
+
+    @property
+    def complete(self) -> bool:
+        return self.chunks_done == self.chunks
+
+
+def dataset_info(path: str | Path) -> DatasetInfo:
+    group = open_store(path)
+    done = completed_chunks(group)
+    attrs = group.attrs
+    return DatasetInfo(
+        path=str(path),
+        config=store_config(group),
+        config_sha256=attrs["config_sha256"],
+        frequencies_hz=tuple(attrs["frequencies_hz"]),
+        feature_names=tuple(attrs["feature_names"]),
+        theta_names=tuple(attrs["theta_names"]),
+        samples=int(attrs["samples"]),
+        chunks_done=int(done.sum()),
+        chunks=done.size,
+        package_version=str(attrs["package_version"]),
+    )
+
+
+def _complete_info(path: str | Path) -> DatasetInfo:
+    info = dataset_info(path)
+    if not info.complete:
+        raise StoreError(f"dataset {path} is incomplete ({info.chunks_done} of {info.chunks} chunks); "
+                         f"finish it with 'mpi-lidar simulate --out {path}' and the same configuration")
+    return info
+
+
+@dataclass(frozen=True)
+class LazyDataset:
+    """Dask arrays over a complete store, chunked as stored; nothing is read until computed."""
+
+    info: DatasetInfo
+    features: da.Array
+    target: da.Array
+    theta: da.Array
+    split: da.Array
+
+
+def read_lazy(path: str | Path) -> LazyDataset:
+    """Open a complete dataset as dask arrays (for training on a cluster)."""
+    info = _complete_info(path)
+    arrays = {name: da.from_zarr(str(path), component=name) for name in ("features", "target", "theta", "split")}
+    return LazyDataset(info=info, **arrays)
+
+
+@dataclass(frozen=True)
+class Subsample:
+    """Rows of one split held in memory (for tuning), with their row numbers in the store."""
+
+    info: DatasetInfo
+    rows: NDArray[np.int64]
+    features: NDArray[np.float32]
+    target: NDArray[np.float64]
+    theta: NDArray[np.float64]
+
+
+def read_subsample(
+    path: str | Path, split: str = "train", max_rows: int | None = None, seed: int = 0
+) -> Subsample:
+    """Read the rows of ``split`` ("train", "test" or "all"), or a seeded random ``max_rows`` of them."""
+    info = _complete_info(path)
+    group = open_store(path)
+    if split == "all":
+        rows = np.arange(info.samples)
+    elif split in SPLIT_CODES:
+        rows = np.flatnonzero(group["split"][:] == SPLIT_CODES[split])
+    else:
+        raise StoreError(f"unknown split {split!r}; choose train, test or all")
+    if max_rows is not None and max_rows < rows.size:
+        rows = np.sort(np.random.default_rng(seed).choice(rows, size=max_rows, replace=False))
+    if rows.size == 0:
+        raise StoreError(f"dataset {path} has no {split} rows")
+    return Subsample(
+        info=info,
+        rows=rows,
+        features=group["features"].get_orthogonal_selection((rows, slice(None))),
+        target=group["target"].get_orthogonal_selection(rows),
+        theta=group["theta"].get_orthogonal_selection((rows, slice(None))),
+    )
 
 
 # --- summary --------------------------------------------------------------------------------------------
