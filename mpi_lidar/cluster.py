@@ -36,7 +36,7 @@ def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator[Clie
     if workers < 1:
         raise MpiLidarError(f"--workers must be at least 1, got {workers}")
     with (
-        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                      silence_logs=logging.ERROR) as cluster,
         Client(cluster) as client,
     ):
