@@ -1,4 +1,4 @@
-"""Command line: ``mpi-lidar simulate ...``. Every user error is one line on stderr and exit code 2."""
+"""Command line: mpi-lidar simulate | tune | train | evaluate. A user error is one line on stderr, exit 2."""
 
 from __future__ import annotations
 
@@ -10,6 +10,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from mpi_lidar.config import PRESETS, Config, load_config, preset, validate_overrides
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.features import (
+    DEFAULT_FEATURE_SET,
+    DEFAULT_TARGET_MODE,
+    FEATURE_SETS,
+    TARGET_MODES,
+    FeatureSpec,
+)
 
 EXIT_USER_ERROR = 2
 
@@ -80,12 +87,137 @@ def simulate(
                f"({report.rows_per_s:,.0f} rows/s, {config.simulator.fidelity} fidelity)")
 
 
+def cluster_options(command):
+    """--workers and --scheduler, shared by every command that runs on Dask."""
+    command = click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")(command)
+    return click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
+                        help="Worker processes of the local Dask cluster (ignored with --scheduler).")(command)
+
+
+def model_options(command):
+    command = click.option("--target", "target_mode", type=click.Choice(TARGET_MODES),
+                           help=f"Target mode (default {DEFAULT_TARGET_MODE}, or the study's).")(command)
+    return click.option("--feature-set", type=click.Choice(FEATURE_SETS),
+                        help=f"Model inputs (default {DEFAULT_FEATURE_SET}, or the study's).")(command)
+
+
+def feature_spec(data: Path, feature_set: str | None, target_mode: str | None) -> FeatureSpec:
+    from mpi_lidar import dataset
+
+    info = dataset.dataset_info(data)
+    return FeatureSpec(info.frequencies_hz, feature_set or DEFAULT_FEATURE_SET, target_mode or DEFAULT_TARGET_MODE)
+
+
+@cli.command()
+@click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
+@click.option("--storage", help="Optuna storage URL (default: sqlite file optuna.db beside the dataset).")
+@click.option("--study", "study_name", default="xgboost", show_default=True, help="Study name in the storage.")
+@click.option("--trials", type=click.IntRange(min=1), default=30, show_default=True,
+              help="Finished trials the study should hold; a re-run resumes or extends it.")
+@click.option("--tune-rows", type=click.IntRange(min=100), default=100_000, show_default=True,
+              help="Train rows each trial learns from.")
+@model_options
+@cluster_options
+def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_rows: int, feature_set: str | None,
+         target_mode: str | None, workers: int, scheduler: str | None) -> None:
+    """Tune XGBoost with Optuna TPE, trials running in parallel on Dask workers."""
+    from mpi_lidar import tune as tuning
+    from mpi_lidar.cluster import dask_client
+
+    storage = storage or tuning.default_storage(data)
+    settings = tuning.TuneSettings(str(data), feature_spec(data, feature_set, target_mode), tune_rows=tune_rows)
+    study = tuning.open_study(storage, study_name, settings)
+    todo = max(0, trials - tuning.count(study, *tuning.FINISHED))
+    with _progress() as progress, dask_client(scheduler, workers) as client:
+        task = progress.add_task("trials", total=todo)
+        report = tuning.tune(client, storage, study_name, settings, trials, on_trial=lambda _n: progress.advance(task))
+    click.echo(f"study {study_name!r} in {tuning.masked(storage)}: {report.trials_run} trials run in "
+               f"{report.wall_s:.1f} s; {report.complete} complete, {report.pruned} pruned, {report.failed} failed")
+    if report.best_value_m is not None:
+        click.echo(f"best validation MAE {1e3 * report.best_value_m:.3f} mm with {report.best_params}")
+
+
+@cli.command()
+@click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Model directory to create.")
+@click.option("--params", "params_file", type=click.Path(path_type=Path), help="JSON or TOML file of parameters.")
+@click.option("--study", "study_name", help="Take the best parameters of this Optuna study.")
+@click.option("--storage", help="Optuna storage URL of --study (default: sqlite file beside the dataset).")
+@model_options
+@cluster_options
+def train(data: Path, out: Path, params_file: Path | None, study_name: str | None, storage: str | None,
+          feature_set: str | None, target_mode: str | None, workers: int, scheduler: str | None) -> None:
+    """Train the final XGBoost model through xgboost.dask on the whole train split."""
+    from mpi_lidar import tune as tuning
+    from mpi_lidar.cluster import dask_client
+    from mpi_lidar.train import train_and_save
+
+    if params_file and study_name:
+        raise MpiLidarError("give either --params or --study, not both")
+    params = load_params(params_file) if params_file else None
+    if study_name:
+        study = tuning.load_existing_study(storage or tuning.default_storage(data), study_name)
+        settings = study.user_attrs.get("settings", {})
+        feature_set = feature_set or settings.get("feature_set")
+        target_mode = target_mode or settings.get("target_mode")
+        params = tuning.best_params(study)
+    spec = feature_spec(data, feature_set, target_mode)
+    with dask_client(scheduler, workers) as client:
+        out_dir, result = train_and_save(client, data, out, spec, params)
+    click.echo(f"model written to {out_dir}: {result.best_iteration + 1} trees, validation MAE "
+               f"{1e3 * result.validation_mae_m:.3f} mm, {result.fit_rows:,} rows in {result.wall_s:.1f} s")
+
+
+def load_params(path: Path) -> dict[str, object]:
+    """XGBoost parameters from a JSON or TOML file of scalars."""
+    import json
+    import tomllib
+
+    from mpi_lidar.train import DEFAULT_PARAMS
+
+    try:
+        text = path.read_text()
+        params = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+    except FileNotFoundError:
+        raise MpiLidarError(f"parameter file {path} does not exist") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise MpiLidarError(f"parameter file {path} is not valid {path.suffix[1:] or 'JSON'}: {exc}") from None
+    if not isinstance(params, dict) or not all(isinstance(v, int | float | str) for v in params.values()):
+        raise MpiLidarError(f"parameter file {path} must hold one table of scalar parameters")
+    unknown = sorted(set(params) - set(DEFAULT_PARAMS))
+    if unknown:
+        raise MpiLidarError(f"parameter file {path}: unknown parameters {unknown}; known: {sorted(DEFAULT_PARAMS)}")
+    return params
+
+
+@cli.command()
+@click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
+@click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
+@click.option("--report", "report_dir", type=click.Path(path_type=Path), required=True, help="Report directory.")
+@click.option("--split", type=click.Choice(["test", "train"]), default="test", show_default=True)
+def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
+    """Evaluate a model on a dataset split: metrics table, error histogram, report files."""
+    from mpi_lidar.evaluate import evaluate_model
+    from mpi_lidar.model import load_model
+    from mpi_lidar.report import evaluation_report, write_report
+
+    model = load_model(model_dir)
+    evaluation = evaluate_model(model, data, split)
+    report, figures = evaluation_report(evaluation, model.card)
+    write_report(report, report_dir, figures)
+    click.echo(report.blocks[1].markdown())
+    click.echo(f"\nreport written to {report_dir}")
+
+
 def _progress() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     transient=True, disable=not sys.stderr.isatty())
 
 
 def main() -> None:
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
         cli.main(standalone_mode=False)
     except click.ClickException as exc:

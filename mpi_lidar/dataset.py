@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
 from mpi_lidar.errors import StoreError
+from mpi_lidar.features import raw_feature_names
 from mpi_lidar.physics import SensorModel, make_sensor
 from mpi_lidar.sampling import THETA_NAMES, sample_theta
 
@@ -74,12 +75,6 @@ class Chunk:
     split: NDArray[np.uint8]
 
 
-def feature_names(frequencies_hz: tuple[float, ...]) -> list[str]:
-    """Column names of ``features``: depth_<f>MHz then amplitude_<f>MHz, in frequency order."""
-    labels = [f"{f / 1e6:g}MHz" for f in frequencies_hz]
-    return [f"depth_{x}" for x in labels] + [f"amplitude_{x}" for x in labels]
-
-
 def seeded_rng(seed: int, *stream: int) -> np.random.Generator:
     """A generator for one stream of the seed tree: chunk i uses stream (i,)."""
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=stream))
@@ -111,7 +106,7 @@ def _root_attributes(config: Config) -> dict[str, object]:
     return {
         "schema": SCHEMA,
         "frequencies_hz": list(config.frequencies_hz),
-        "feature_names": feature_names(config.frequencies_hz),
+        "feature_names": raw_feature_names(config.frequencies_hz),
         "theta_names": list(THETA_NAMES),
         "split_codes": SPLIT_CODES,
         "config": json.loads(config_json(config)),
@@ -136,7 +131,7 @@ def _build_layout(path: Path, config: Config) -> None:
     for name, (shape, chunks, dtype, dims) in specs.items():
         group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, compressors=compressors,
                            fill_value=0, dimension_names=dims)
-    group["features"].attrs["columns"] = feature_names(config.frequencies_hz)
+    group["features"].attrs["columns"] = raw_feature_names(config.frequencies_hz)
     group["theta"].attrs["columns"] = list(THETA_NAMES)
     group["target"].attrs["units"] = "m"
     group.create_array("chunk_done", shape=(plan.chunks,), chunks=(1,), dtype="uint8", fill_value=0,

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import html
+import json
 import os
+import shutil
+import uuid
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib
@@ -12,6 +17,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from mpi_lidar import dataset
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.evaluate import Evaluation
 
 
 def generation_markdown(summary: dataset.DatasetSummary, run: dataset.GenerationReport, workers: str) -> str:
@@ -59,3 +66,127 @@ def depth_error_histogram(store: str | Path, png: str | Path, frequency_index: i
     ax.set_title(f"Raw depth error, {error_mm.size:,} samples (99.5% shown)")
     ax.legend()
     return save_figure(fig, png)
+
+
+# --- report directories ---------------------------------------------------------------------------------
+
+REPORT_MARKER = ".mpi-lidar-report"
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table rendered both as markdown and as HTML."""
+
+    headers: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+
+    def markdown(self) -> str:
+        lines = ["| " + " | ".join(self.headers) + " |", "|" + "---|" * len(self.headers)]
+        lines += ["| " + " | ".join(row) + " |" for row in self.rows]
+        return "\n".join(lines)
+
+    def html(self) -> str:
+        head = "".join(f"<th>{html.escape(h)}</th>" for h in self.headers)
+        body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in self.rows)
+        return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+@dataclass
+class Report:
+    """A titled report of text, tables and figures, written as report.md, report.html, PNGs and JSON."""
+
+    title: str
+    blocks: list[str | Table | Path] = field(default_factory=list)
+    data: dict[str, object] = field(default_factory=dict)
+
+    def markdown(self) -> str:
+        parts = [f"# {self.title}"]
+        for block in self.blocks:
+            if isinstance(block, Table):
+                parts.append(block.markdown())
+            elif isinstance(block, Path):
+                parts.append(f"![{block.stem}]({block.name})")
+            else:
+                parts.append(block)
+        return "\n\n".join(parts) + "\n"
+
+    def html(self) -> str:
+        parts = [f"<h1>{html.escape(self.title)}</h1>"]
+        for block in self.blocks:
+            if isinstance(block, Table):
+                parts.append(block.html())
+            elif isinstance(block, Path):
+                parts.append(f'<img src="{html.escape(block.name)}" alt="{html.escape(block.stem)}">')
+            else:
+                parts.append(f"<p>{html.escape(block)}</p>")
+        style = ("body{font-family:sans-serif;max-width:60em;margin:2em auto}"
+                 "td,th{padding:.2em .6em;border:1px solid #ccc}")
+        return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(self.title)}</title>"
+                f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
+
+
+def write_report(report: Report, report_dir: str | Path, figures: dict[str, plt.Figure]) -> Path:
+    """Write the report directory atomically: built beside it, then swapped in.
+
+    A previous report of ours at the same place is replaced; any other existing directory is refused.
+    """
+    report_dir = Path(report_dir)
+    if report_dir.exists() and not (report_dir / REPORT_MARKER).exists():
+        for fig in figures.values():
+            plt.close(fig)
+        raise MpiLidarError(f"{report_dir} exists and is not an mpi-lidar report; choose another --report")
+    staging = report_dir.parent / f".{report_dir.name}.writing-{uuid.uuid4().hex[:8]}"
+    retired = report_dir.parent / f".{report_dir.name}.old-{uuid.uuid4().hex[:8]}"
+    try:
+        staging.mkdir(parents=True)
+        for name, fig in figures.items():
+            save_figure(fig, staging / name)
+        (staging / "report.md").write_text(report.markdown())
+        (staging / "report.html").write_text(report.html())
+        (staging / "metrics.json").write_text(json.dumps(report.data, indent=2, sort_keys=True, default=float) + "\n")
+        (staging / REPORT_MARKER).write_text("")
+        if report_dir.exists():
+            os.replace(report_dir, retired)
+        os.replace(staging, report_dir)
+    except OSError as exc:
+        raise MpiLidarError(f"cannot write report {report_dir}: {exc.strerror or exc}") from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        shutil.rmtree(retired, ignore_errors=True)
+    return report_dir
+
+
+def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> plt.Figure:
+    """Overlaid histograms of signed errors (e.g. before and after correction), MAE in the legend."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    finite = np.concatenate([e[np.isfinite(e)] for e in errors_mm.values()])
+    limit = float(np.quantile(np.abs(finite), 0.995)) if finite.size else 1.0
+    for label, e in errors_mm.items():
+        e = e[np.isfinite(e)]
+        ax.hist(e, bins=120, range=(-limit, limit), histtype="stepfilled", alpha=0.45,
+                label=f"{label}: MAE {np.abs(e).mean():.3f} mm")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("samples")
+    ax.legend()
+    return fig
+
+
+def evaluation_report(evaluation: Evaluation, model_card: dict[str, object]) -> tuple[Report, dict[str, plt.Figure]]:
+    """Report of a model on a dataset split: the metrics table and the error histogram before/after."""
+    table = Table(
+        ("estimate", "rows", "MAE [mm]", "RMSE [mm]", "max abs error [mm]", "bias [mm]"),
+        tuple((name, f"{m.rows:,}", f"{1e3 * m.mae_m:.3f}", f"{1e3 * m.rmse_m:.3f}", f"{1e3 * m.max_abs_m:.2f}",
+               f"{1e3 * m.bias_m:+.3f}") for name, m in evaluation.metrics.items()),
+    )
+    figure = error_histogram_figure(
+        {evaluation.raw_label: 1e3 * evaluation.raw_error_m, "corrected": 1e3 * evaluation.corrected_error_m},
+        "depth error [mm]",
+    )
+    report = Report(
+        title=f"Evaluation on the {evaluation.split} split",
+        blocks=[f"Dataset `{evaluation.data_path}`; model trained on dataset "
+                f"{model_card['dataset']['config_sha256'][:12]} with the {model_card['feature_set']} feature set "
+                f"and the {model_card['target_mode']} target.", table, Path("error_hist.png")],
+        data={**evaluation.as_dict(), "model": {k: model_card[k] for k in ("feature_set", "target_mode", "params")}},
+    )
+    return report, {"error_hist.png": figure}
