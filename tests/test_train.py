@@ -1,0 +1,144 @@
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from mpi_lidar import dataset
+from mpi_lidar.config import Config
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.evaluate import evaluate_model
+from mpi_lidar.features import FeatureSpec
+from mpi_lidar.model import load_model, save_model
+from mpi_lidar.report import evaluation_report, write_report
+from mpi_lidar.train import train_and_save
+
+FREQS = Config().frequencies_hz
+FAST = {"max_depth": 6, "learning_rate": 0.3, "subsample": 1.0, "colsample_bytree": 1.0, "min_child_weight": 1.0,
+        "reg_lambda": 1.0, "gamma": 0.0}
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, cluster_client, small_dataset):
+    """One model per target mode, trained through xgboost.dask on the shared cluster."""
+    root = tmp_path_factory.mktemp("models")
+    models = {}
+    for target in ("absolute", "residual"):
+        out, _ = train_and_save(cluster_client, small_dataset, root / target, FeatureSpec(FREQS, "raw", target),
+                                FAST, num_boost_round=200, early_stopping_rounds=10)
+        models[target] = out
+    return models
+
+
+def test_train_and_save__card_describes_model_and_data(trained, small_dataset):
+    card = json.loads((trained["residual"] / "card.json").read_text())
+    info = dataset.dataset_info(small_dataset)
+    assert card["frequencies_hz"] == list(FREQS)
+    assert card["raw_feature_names"] == list(info.feature_names)
+    assert card["target_mode"] == "residual" and card["residual_reference"] == "depth_31.25MHz"
+    assert card["dataset"]["config_sha256"] == info.config_sha256
+    assert card["params"]["max_depth"] == 6
+    assert 0 < card["metrics"]["validation_mae_m"] < 0.02
+    assert card["training"]["fit_rows"] + card["training"]["validation_rows"] == 6_400
+    assert {"xgboost-cpu", "numpy", "mpi-lidar"} <= set(card["versions"])
+    assert (trained["residual"] / "model.ubj").read_bytes()[:1] == b"{"  # UBJSON, not a pickle
+
+
+@pytest.mark.parametrize("target", ["absolute", "residual"])
+def test_evaluate_model__correction_beats_raw_depth_on_test_split(trained, small_dataset, target):
+    evaluation = evaluate_model(load_model(trained[target]), small_dataset)
+    raw, corrected = evaluation.metrics["raw depth 31.25MHz"], evaluation.metrics["corrected (XGBoost)"]
+    assert corrected.rows == raw.rows == 1_600
+    assert corrected.mae_m < 0.85 * raw.mae_m
+    assert abs(corrected.bias_m) < 0.3 * abs(raw.bias_m)
+
+
+def test_predict_depth__inplace_and_dask_agree(trained, small_dataset, cluster_client):
+    model = load_model(trained["residual"])
+    lazy = dataset.read_lazy(small_dataset)
+    in_process = model.predict_depth(lazy.features[:3000].compute())
+    on_cluster = model.predict_depth_dask(cluster_client, lazy.features[:3000]).compute()
+    np.testing.assert_allclose(on_cluster, in_process, rtol=0, atol=1e-6)
+
+
+def test_predict_depth__residual_is_added_to_the_reference_depth(trained, small_dataset):
+    model = load_model(trained["residual"])
+    sub = dataset.read_subsample(small_dataset, split="test", max_rows=50)
+    residual = model.booster.inplace_predict(sub.features)
+    np.testing.assert_allclose(model.predict_depth(sub.features), sub.features[:, 3] + residual, atol=1e-6)
+
+
+def test_feature_spec__engineered_transform_is_the_same_on_numpy_and_dask(small_dataset):
+    spec = FeatureSpec(FREQS, "engineered", "residual")
+    lazy = dataset.read_lazy(small_dataset)
+    eager = spec.transform(lazy.features.compute())
+    assert eager.shape == (8_000, len(spec.names)) == (8_000, 16)
+    np.testing.assert_array_equal(spec.transform(lazy.features).compute(), eager)
+    np.testing.assert_allclose(eager[:, 8], eager[:, 0] - eager[:, 3], atol=1e-6)
+
+
+def test_save_model__existing_directory_is_not_overwritten(trained):
+    model = load_model(trained["absolute"])
+    before = (trained["absolute"] / "card.json").read_text()
+    with pytest.raises(MpiLidarError, match="already exists"):
+        save_model(trained["absolute"], model.booster, {})
+    assert (trained["absolute"] / "card.json").read_text() == before
+
+
+def test_load_model__tampered_model_file_is_refused(trained, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(trained["absolute"], copy)
+    (copy / "model.ubj").write_bytes((copy / "model.ubj").read_bytes()[:-10])
+    with pytest.raises(MpiLidarError, match="does not match the hash"):
+        load_model(copy)
+
+
+def test_load_model__card_features_that_do_not_match_the_model_are_refused(trained, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(trained["absolute"], copy)
+    card = json.loads((copy / "card.json").read_text())
+    card["feature_set"] = "engineered"
+    (copy / "card.json").write_text(json.dumps(card))
+    with pytest.raises(MpiLidarError, match="do not match"):
+        load_model(copy)
+
+
+def test_load_model__directory_without_card_is_refused(tmp_path):
+    (tmp_path / "model.ubj").write_bytes(b"{}")
+    with pytest.raises(MpiLidarError, match="not a model directory"):
+        load_model(tmp_path)
+
+
+def test_check_compatible__other_frequencies_are_refused_in_one_line(trained):
+    model = load_model(trained["absolute"])
+    three = (12.5e6, 25e6, 31.25e6)
+    with pytest.raises(MpiLidarError, match="12.5, 25, 31.25 MHz but the model expects") as error:
+        model.check_compatible(three, FeatureSpec(three).raw_names, "scan x")
+    assert "\n" not in str(error.value)
+
+
+def test_train_and_save__dataset_without_train_rows_is_refused(tmp_path, cluster_client):
+    path = tmp_path / "all_test.zarr"
+    dataset.generate(path, Config().replace(dataset={"samples": 1, "chunk_rows": 1, "test_fraction": 0.6}))
+    with pytest.raises(MpiLidarError, match="no train rows"):
+        train_and_save(cluster_client, path, tmp_path / "m", FeatureSpec(FREQS), FAST)
+    assert not (tmp_path / "m").exists()
+
+
+def test_write_report__files_written_and_foreign_directory_refused(trained, small_dataset, tmp_path):
+    model = load_model(trained["absolute"])
+    report, figures = evaluation_report(evaluate_model(model, small_dataset), model.card)
+    out = write_report(report, tmp_path / "report", figures)
+    assert {p.name for p in out.iterdir()} >= {"report.md", "report.html", "metrics.json", "error_hist.png"}
+    assert (out / "error_hist.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+    assert metrics["corrected (XGBoost)"]["mae_m"] < metrics["raw depth 31.25MHz"]["mae_m"]
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep")
+    report, figures = evaluation_report(evaluate_model(model, small_dataset), model.card)
+    with pytest.raises(MpiLidarError, match="not an mpi-lidar report"):
+        write_report(report, foreign, figures)
+    assert (foreign / "notes.txt").read_text() == "keep"
