@@ -180,7 +180,7 @@ def test_open_store__truncated_store_is_refused(tmp_path, reference_store):
     broken = tmp_path / "broken.zarr"
     shutil.copytree(reference_store, broken)
     shutil.rmtree(broken / "theta")
-    with pytest.raises(StoreError, match="truncated|damaged|not a readable"):
+    with pytest.raises(StoreError, match=r"truncated|damaged|not a readable"):
         dataset.open_store(broken)
 
 
@@ -215,7 +215,7 @@ def test_read_lazy__incomplete_store_is_refused(tmp_path):
     config = small_config()
     dataset.create_store(path, config)
     dataset.write_chunk(path, config, 0)
-    with pytest.raises(StoreError, match="incomplete \\(1 of 8 chunks\\)"):
+    with pytest.raises(StoreError, match=r"incomplete \(1 of 8 chunks\)"):
         dataset.read_lazy(path)
 
 

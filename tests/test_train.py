@@ -114,7 +114,7 @@ def test_load_model__directory_without_card_is_refused(tmp_path):
 def test_check_compatible__other_frequencies_are_refused_in_one_line(trained):
     model = load_model(trained["absolute"])
     three = (12.5e6, 25e6, 31.25e6)
-    with pytest.raises(MpiLidarError, match="12.5, 25, 31.25 MHz but the model expects") as error:
+    with pytest.raises(MpiLidarError, match=r"12\.5, 25, 31\.25 MHz but the model expects") as error:
         model.check_compatible(three, FeatureSpec(three).raw_names, "scan x")
     assert "\n" not in str(error.value)
 
