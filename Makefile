@@ -9,7 +9,7 @@ RUN_DIR ?= runs/quick
 .PHONY: run test lint bench clean-venv
 
 run: $(VENV)/.installed
-	$(VENV)/bin/mpi-lidar simulate --preset quick --out $(RUN_DIR)/dataset.zarr
+	$(VENV)/bin/mpi-lidar pipeline --preset quick --out $(RUN_DIR)
 
 test: $(VENV)/.installed
 	$(VENV)/bin/python -m pytest

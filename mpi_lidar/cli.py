@@ -1,4 +1,4 @@
-"""Command line: mpi-lidar simulate | tune | train | evaluate. A user error is one line on stderr, exit 2."""
+"""Command line: mpi-lidar pipeline | simulate | tune | train | evaluate. A user error is one line on stderr, exit 2."""
 
 from __future__ import annotations
 
@@ -207,6 +207,29 @@ def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
     write_report(report, report_dir, figures)
     click.echo(report.blocks[1].markdown())
     click.echo(f"\nreport written to {report_dir}")
+
+
+@cli.command()
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("runs/quick"), show_default=True,
+              help="Run directory: dataset.zarr, optuna.db, model/, report/.")
+@click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file overriding the preset.")
+@click.option("--preset", "preset_name", type=click.Choice(sorted(PRESETS)), default="quick", show_default=True)
+@click.option("--trials", type=click.IntRange(min=1), default=6, show_default=True, help="Tuning budget.")
+@click.option("--tune-rows", type=click.IntRange(min=100), default=20_000, show_default=True)
+@cluster_options
+def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: int, tune_rows: int, workers: int,
+             scheduler: str | None) -> None:
+    """The main job: simulate, tune, train and evaluate into one run directory (resumable)."""
+    from mpi_lidar.cluster import dask_client
+    from mpi_lidar.pipeline import run_pipeline
+
+    config = build_config(config_file, preset_name, {})
+    with dask_client(scheduler, workers) as client:
+        result = run_pipeline(client, out_dir, config, trials, tune_rows, echo=click.echo)
+    metrics = result.evaluation.metrics
+    raw, corrected = metrics[result.evaluation.raw_label], metrics["corrected (XGBoost)"]
+    click.echo(f"test split: {result.evaluation.raw_label} MAE {1e3 * raw.mae_m:.3f} mm -> corrected "
+               f"{1e3 * corrected.mae_m:.3f} mm; report in {result.report_dir}/report.html")
 
 
 def _progress() -> Progress:
