@@ -29,7 +29,7 @@ Interval = tuple[float, float]
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
 
 class SensorConfig(_Frozen):
@@ -163,7 +163,23 @@ class Config(_Frozen):
                 raise ValueError(f"frequency {f:g} Hz completes less than one cycle in the integration time")
         if len(set(freqs)) != len(freqs):
             raise ValueError(f"frequencies_hz has duplicates: {list(freqs)}")
+        if self.simulator.whole_cycles:
+            self._check_whole_cycle_windows()
         return self
+
+    def _check_whole_cycle_windows(self) -> None:
+        from mpi_lidar.physics.demod import whole_cycle_bins  # physics imports this module
+
+        s = self.sensor
+        window = round(s.integration_time_s / s.transit_time_s)
+        for f in self.frequencies_hz:
+            try:
+                whole_cycle_bins(f, s.transit_time_s, max_bins=window)
+            except ValueError:
+                raise ValueError(
+                    f"frequency {f:g} Hz completes no whole number of cycles within {window} bins of "
+                    f"{s.transit_time_s:g} s; set simulator.whole_cycles = false or choose a commensurate frequency"
+                ) from None
 
     def replace(self, **sections: object) -> Config:
         """A copy with whole sections or nested fields replaced, validated again.

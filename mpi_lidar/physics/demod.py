@@ -87,7 +87,9 @@ def phase_from_taps(taps: ArrayLike) -> NDArray[np.float64]:
     taps : Taps (C0, C1, C2, C3) along the last axis. [V^2]
     """
     c = np.asarray(taps, dtype=np.float64)
-    return np.mod(np.arctan2(c[..., 3] - c[..., 1], c[..., 0] - c[..., 2]), 2 * np.pi)
+    phase = np.mod(np.arctan2(c[..., 3] - c[..., 1], c[..., 0] - c[..., 2]), 2 * np.pi)
+    # np.mod(-tiny, 2 pi) rounds to exactly 2 pi; that phase is 0.
+    return np.where(phase >= 2 * np.pi, 0.0, phase)
 
 
 def amplitude_from_taps(taps: ArrayLike) -> NDArray[np.float64]:

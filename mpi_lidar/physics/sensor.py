@@ -234,17 +234,27 @@ class SensorModel(ABC):
         gamma_d, phi_d, gamma_m, phi_m = two_path_phasors(
             np.atleast_2d(theta), self.frequencies_hz, s.gamma_r_v2, s.speed_of_light_m_per_s, multipath
         )
+        r_d = received_voltage_amplitude(gamma_d, s.modulation_contrast, s.demodulation_amplitude_v)
+        r_m = received_voltage_amplitude(gamma_m, s.modulation_contrast, s.demodulation_amplitude_v)
+        return self.waveforms_from_phasors(r_d + r_m, r_d * np.exp(1j * phi_d) + r_m * np.exp(1j * phi_m))
+
+    def waveforms_from_phasors(self, dc_v: ArrayLike, phasor_v: ArrayLike) -> list[PhotonWaveform]:
+        """Photon waveforms of any sum of paths, given per sample and frequency (n, F).
+
+        A sum of paths R_k (1 + alpha cos(w t - phi_k)) has the constant part sum R_k = ``dc_v`` and the
+        oscillating part alpha Re(sum R_k e^{j phi_k} e^{-j w t}), with ``phasor_v`` = sum R_k e^{j phi_k}.
+
+        Parameters
+        ----------
+        dc_v : Sum of the received voltage amplitudes of all paths, shape (n, F). [V]
+        phasor_v : Sum of R_k e^{j phi_k}, complex, shape (n, F). [V]
+        """
         to_photons = 1.0 / self.chain.volts_per_photon
-        r_d = received_voltage_amplitude(gamma_d, s.modulation_contrast, s.demodulation_amplitude_v) * to_photons
-        r_m = received_voltage_amplitude(gamma_m, s.modulation_contrast, s.demodulation_amplitude_v) * to_photons
-        alpha = s.modulation_contrast
-        # R (1 + alpha cos(wt - phi)) = R + R alpha cos(phi) cos(wt) + R alpha sin(phi) sin(wt)
+        dc = np.atleast_2d(np.asarray(dc_v, dtype=np.float64)) * to_photons
+        phasor = np.atleast_2d(np.asarray(phasor_v, dtype=np.complex128)) * to_photons
+        alpha = self.config.sensor.modulation_contrast
         return [
-            PhotonWaveform(
-                constant=r_d[:, j] + r_m[:, j],
-                cosine=alpha * (r_d[:, j] * np.cos(phi_d[:, j]) + r_m[:, j] * np.cos(phi_m[:, j])),
-                sine=alpha * (r_d[:, j] * np.sin(phi_d[:, j]) + r_m[:, j] * np.sin(phi_m[:, j])),
-            )
+            PhotonWaveform(constant=dc[:, j], cosine=alpha * phasor[:, j].real, sine=alpha * phasor[:, j].imag)
             for j in range(self.frequencies_hz.size)
         ]
 
@@ -253,8 +263,16 @@ class SensorModel(ABC):
         return 2 * np.pi * self.frequencies_hz[j] * demod.bin_times(self.bins[j], self.config.sensor.transit_time_s)
 
     @abstractmethod
+    def sample_taps(self, waveforms: list[PhotonWaveform], rng: np.random.Generator) -> NDArray[np.float64]:
+        """Random taps for given photon waveforms (one per frequency), shape (n, F, 4). [V^2]"""
+
     def taps(self, theta: ArrayLike, rng: np.random.Generator, multipath: bool = True) -> NDArray[np.float64]:
-        """Random taps, shape (n, F, 4). [V^2]"""
+        """Random taps of two-path scenes, shape (n, F, 4). [V^2]"""
+        return self.sample_taps(self.photon_waveforms(theta, multipath), rng)
+
+    def taps_from_phasors(self, dc_v: ArrayLike, phasor_v: ArrayLike, rng: np.random.Generator) -> NDArray:
+        """Random taps of arbitrary light (e.g. a rendered scene), see :meth:`waveforms_from_phasors`. [V^2]"""
+        return self.sample_taps(self.waveforms_from_phasors(dc_v, phasor_v), rng)
 
     def measure(
         self, theta: ArrayLike, rng: np.random.Generator, multipath: bool = True
@@ -273,15 +291,16 @@ class WaveformSensor(SensorModel):
 
     batch_rows = 256
 
-    def taps(self, theta: ArrayLike, rng: np.random.Generator, multipath: bool = True) -> NDArray[np.float64]:
-        theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
-        out = np.empty((theta.shape[0], self.frequencies_hz.size, 4))
+    def sample_taps(self, waveforms: list[PhotonWaveform], rng: np.random.Generator) -> NDArray[np.float64]:
+        n = waveforms[0].constant.size
+        out = np.empty((n, self.frequencies_hz.size, 4))
         bin_s = self.config.sensor.transit_time_s
         m = self.config.sensor.demodulation_amplitude_v
-        for start in range(0, theta.shape[0], self.batch_rows):
+        for start in range(0, n, self.batch_rows):
             rows = slice(start, start + self.batch_rows)
-            for j, waveform in enumerate(self.photon_waveforms(theta[rows], multipath)):
-                photons = self.chain.bin_photons(waveform.at(self.phases(j)))
+            for j, waveform in enumerate(waveforms):
+                part = PhotonWaveform(waveform.constant[rows], waveform.cosine[rows], waveform.sine[rows])
+                photons = self.chain.bin_photons(part.at(self.phases(j)))
                 voltage = self.chain.sample_bin_voltage(photons, rng)
                 out[rows, j] = demod.correlate_taps(voltage, self.frequencies_hz[j], bin_s, m)
         return out
