@@ -232,6 +232,63 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                f"{1e3 * corrected.mae_m:.3f} mm; report in {result.report_dir}/report.html")
 
 
+@cli.command()
+@click.argument("scans", nargs=-1, required=True)
+@click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output directory.")
+@click.option("--gate", type=click.Choice(["all", "consistency"]), default="all", show_default=True,
+              help="Which valid pixels get corrected.")
+@click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
+              help="Worker processes of a local Dask cluster; 0 runs in this process.")
+@click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
+def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, workers: int,
+            scheduler: str | None) -> None:
+    """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary."""
+    import time
+
+    from mpi_lidar.cluster import dask_client
+    from mpi_lidar.correct import CorrectionOptions, correct_archive
+    from mpi_lidar.scan_report import write_batch_report
+
+    options = CorrectionOptions(gate=gate)
+    started = time.perf_counter()
+    with _progress() as progress:
+        task = progress.add_task("scans", total=None)
+        advance = lambda _outcome: progress.advance(task)  # noqa: E731
+        if workers == 0 and not scheduler:
+            outcomes = correct_archive(list(scans), model_dir, out_dir, options, on_scan=advance)
+        else:
+            with dask_client(scheduler, workers) as client:
+                outcomes = correct_archive(list(scans), model_dir, out_dir, options, client, on_scan=advance)
+    summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
+    click.echo(summary.joinpath("report.md").read_text())
+    failed = [o for o in outcomes if o.status == "failed"]
+    for outcome in failed:
+        click.echo(f"error: scan {outcome.source}: {outcome.reason}", err=True)
+    if failed:
+        sys.exit(1)
+
+
+@cli.command("import-scan")
+@click.argument("source", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Scan store to write (.scan.zarr).")
+@click.option("--frequencies", help="Comma-separated frequencies in Hz, if the .npz does not hold frequencies_hz.")
+def import_scan(source: Path, out: Path, frequencies: str | None) -> None:
+    """Import a scan from an .npz of arrays (depth and amplitude (F, H, W), or taps (F, 4, H, W), plus extras)."""
+    from mpi_lidar.scans import load_npz, write_scan
+
+    freqs = None
+    if frequencies:
+        try:
+            freqs = tuple(float(f) for f in frequencies.split(","))
+        except ValueError:
+            raise MpiLidarError(f"--frequencies must be comma-separated numbers in Hz, got {frequencies!r}") from None
+    scan = load_npz(source, freqs)
+    write_scan(scan, out)
+    click.echo(f"scan {scan.name}: {scan.shape[0]} x {scan.shape[1]} pixels at {len(scan.frequencies_hz)} "
+               f"frequencies written to {out}")
+
+
 def _progress() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     transient=True, disable=not sys.stderr.isatty())

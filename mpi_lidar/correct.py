@@ -1,0 +1,330 @@
+"""Batch correction of scans: validity mask, a gate that skips pixels needing no correction, inference.
+
+Each pixel gets one flag saying what was done (:class:`Flag`). Invalid pixels (no finite value, no return
+above the noise floor, saturated, frequencies that disagree by more than a phase wrap could explain) keep
+NaN. Valid pixels the gate lets through are corrected by the model; the others keep the raw depth of the
+highest frequency, exactly as measured.
+
+Per scan the outputs go into ``<out>/<scan name>/`` (``corrected.zarr``, report files, point clouds),
+built in a temporary directory and renamed into place, so a scan's outputs are all there or not at all. A
+scan already corrected by the same model with the same options (same content hashes) is skipped.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import re
+import shutil
+import time
+import uuid
+from abc import ABC, abstractmethod
+from dataclasses import asdict, dataclass, field
+from enum import IntEnum
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import zarr
+from distributed import Client, as_completed
+from numpy.typing import NDArray
+from scipy import stats
+
+from mpi_lidar.config import Config, SensorConfig
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.model import CorrectionModel, load_model
+from mpi_lidar.physics.moments import MomentSensor
+from mpi_lidar.physics.sensor import PhotonWaveform
+from mpi_lidar.scans import SCAN_SUFFIX, Scan, read_scan
+
+CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
+SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+
+
+class Flag(IntEnum):
+    """What was done to a pixel."""
+
+    CORRECTED = 0
+    NOT_NEEDED = 1
+    NOT_FINITE = 2
+    NO_RETURN = 3
+    SATURATED = 4
+    INCONSISTENT = 5
+
+
+INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
+
+
+@dataclass(frozen=True)
+class CorrectionOptions:
+    """Thresholds of the validity mask and the gate; their hash is part of a corrected scan's identity."""
+
+    gate: str = "all"
+    min_amplitude_sigmas: float = 5.0
+    saturation_amplitude_v2: float = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
+    max_depth_spread_m: float = 0.3
+    consistency_p_value: float = 0.01
+    tile_pixels: int = 262_144
+
+    def sha256(self) -> str:
+        return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()
+
+
+@lru_cache(maxsize=4)
+def noise_floor_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
+    """Std of each tap quadrature with no light [V^2]: the amplitude of a pixel with no return is of this order."""
+    model = MomentSensor(Config(sensor=sensor, frequencies_hz=frequencies_hz))
+    dark = [PhotonWaveform(np.zeros(1), np.zeros(1), np.zeros(1)) for _ in frequencies_hz]
+    _, cov = model.waveform_moments(dark)
+    return np.sqrt(cov[0, :, 0, 0])
+
+
+def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: CorrectionOptions,
+                   sensor: SensorConfig) -> NDArray[np.uint8]:
+    """Flag per pixel: NOT_NEEDED for valid pixels (the gate decides later), else the first reason it is invalid."""
+    f = len(frequencies_hz)
+    depth, amplitude = raw[:, :f], raw[:, f:]
+    flags = np.full(raw.shape[0], Flag.NOT_NEEDED, dtype=np.uint8)
+    spread = depth.max(axis=1) - depth.min(axis=1) if raw.size else np.zeros(0)  # NaN rows: NOT_FINITE
+    floor = options.min_amplitude_sigmas * noise_floor_v2(sensor, tuple(frequencies_hz))
+    rules = [
+        (Flag.INCONSISTENT, spread > options.max_depth_spread_m),
+        (Flag.SATURATED, (amplitude > options.saturation_amplitude_v2).any(axis=1)),
+        (Flag.NO_RETURN, (amplitude < floor[None, :]).any(axis=1)),
+        (Flag.NOT_FINITE, ~np.isfinite(raw).all(axis=1)),
+    ]
+    for flag, where in rules:  # later rules win: the most basic reason is reported
+        flags[where] = flag
+    return flags
+
+
+class Gate(ABC):
+    """Decides which valid pixels need correction.
+
+    Contract: ``needs_correction(raw, frequencies_hz, sensor)`` takes the raw measurements (n, 2F) of valid
+    pixels and returns a bool (n,): True where the model should correct. It must be much cheaper than
+    inference, since its purpose is to skip work.
+    """
+
+    name: str
+
+    @abstractmethod
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        """Bool (n,)."""
+
+
+class CorrectAll(Gate):
+    """Every valid pixel is corrected (the paper's pixel-wise correction)."""
+
+    name = "all"
+
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        return np.ones(raw.shape[0], dtype=bool)
+
+
+class ConsistencyGate(Gate):
+    """Corrects pixels whose per-frequency depths disagree by more than their predicted noise allows.
+
+    A pixel with no multipath has the same depth at every frequency up to noise; chi^2 of the depths around
+    their inverse-variance mean, with the depth noise predicted from each amplitude, follows chi^2(F-1).
+    Pixels below the (1 - p) quantile are skipped. At Table I noise and d_AB <= 15 cm the multipath offset
+    is almost the same at every frequency, so this test misses most multipath: it is cheap, not sufficient.
+    """
+
+    name = "consistency"
+
+    def __init__(self, p_value: float):
+        self.p_value = p_value
+
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        f = len(frequencies_hz)
+        freqs = np.asarray(frequencies_hz)
+        depth = raw[:, :f].astype(np.float64)
+        amplitude = np.maximum(raw[:, f:].astype(np.float64), 1e-12)
+        metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * freqs)
+        sigma = noise_floor_v2(sensor, tuple(frequencies_hz))[None, :] / amplitude * metres_per_rad[None, :]
+        weight = sigma**-2
+        mean = (weight * depth).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
+        chi2 = (weight * (depth - mean) ** 2).sum(1)
+        return chi2 > stats.chi2.ppf(1 - self.p_value, df=f - 1)
+
+
+def make_gate(options: CorrectionOptions) -> Gate:
+    gates = {"all": lambda: CorrectAll(), "consistency": lambda: ConsistencyGate(options.consistency_p_value)}
+    if options.gate not in gates:
+        raise MpiLidarError(f"unknown gate {options.gate!r}; choose one of {', '.join(gates)}")
+    return gates[options.gate]()
+
+
+@dataclass(frozen=True)
+class Correction:
+    """A corrected scan: depth (H, W) [m] (NaN where invalid), flags (H, W), and what it cost."""
+
+    depth: NDArray[np.float32]
+    flags: NDArray[np.uint8]
+    inference_s: float
+    total_s: float
+
+    def counts(self) -> dict[str, int]:
+        values, counts = np.unique(self.flags, return_counts=True)
+        found = dict(zip(values.tolist(), counts.tolist(), strict=True))
+        return {flag.name.lower(): int(found.get(int(flag), 0)) for flag in Flag}
+
+
+def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
+                 sensor: SensorConfig | None = None) -> Correction:
+    """Correct one scan in this process, pixel by pixel, in tiles of ``options.tile_pixels``."""
+    started = time.perf_counter()
+    model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
+    sensor = sensor or SensorConfig()
+    raw = scan.raw_pixels()
+    flags = validity_flags(raw, scan.frequencies_hz, options, sensor)
+    valid = np.flatnonzero(flags == Flag.NOT_NEEDED)
+    needs = valid[make_gate(options).needs_correction(raw[valid], scan.frequencies_hz, sensor)]
+    depth = raw[:, len(scan.frequencies_hz) - 1].copy()
+    depth[flags != Flag.NOT_NEEDED] = np.nan
+    inference_started = time.perf_counter()
+    for start in range(0, needs.size, options.tile_pixels):
+        tile = needs[start:start + options.tile_pixels]
+        depth[tile] = model.predict_depth(raw[tile])
+    inference_s = time.perf_counter() - inference_started
+    flags[needs] = Flag.CORRECTED
+    h, w = scan.shape
+    return Correction(depth.reshape(h, w).astype(np.float32), flags.reshape(h, w), inference_s,
+                      time.perf_counter() - started)
+
+
+# --- one scan, with its outputs ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ScanOutcome:
+    """What happened to one scan of a batch."""
+
+    source: str
+    name: str
+    status: str  # "corrected", "skipped" (already done) or "failed"
+    reason: str = ""
+    output: str = ""
+    counts: dict[str, int] = field(default_factory=dict)
+    metrics: dict[str, dict[str, float]] = field(default_factory=dict)
+    seconds: float = 0.0
+    notes: tuple[str, ...] = ()
+
+
+def safe_scan_name(name: str) -> str:
+    """The scan's name as an output directory name; anything that could escape the output directory is refused."""
+    if not SAFE_NAME.match(name) or ".." in name:
+        raise MpiLidarError(f"scan name {name!r} is not a safe directory name (letters, digits, . _ -); "
+                            "rename the scan")
+    return name
+
+
+def _already_done(target: Path, scan_sha: str, model_sha: str, options_sha: str) -> bool:
+    try:
+        attrs = zarr.open_group(store=str(target / "corrected.zarr"), mode="r").attrs
+    except Exception:  # no store, or a foreign one: not done
+        return False
+    return (attrs.get("scan_sha256"), attrs.get("model_sha256"), attrs.get("options_sha256")) == (
+        scan_sha, model_sha, options_sha)
+
+
+def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
+                 options: CorrectionOptions) -> ScanOutcome:
+    """Correct one scan and write its outputs; any failure becomes a 'failed' outcome with its reason."""
+    started = time.perf_counter()
+    source = str(source)
+    try:
+        return _process_scan(source, Path(model_dir), Path(out_dir), options, started)
+    except MpiLidarError as exc:
+        return ScanOutcome(source, Path(source).name, "failed", str(exc), seconds=time.perf_counter() - started)
+    except (OSError, ValueError, KeyError) as exc:
+        return ScanOutcome(source, Path(source).name, "failed", f"{type(exc).__name__}: {exc}",
+                           seconds=time.perf_counter() - started)
+
+
+@lru_cache(maxsize=4)
+def _cached_model(model_dir: str) -> CorrectionModel:
+    return load_model(model_dir)
+
+
+def _process_scan(source: str, model_dir: Path, out_dir: Path, options: CorrectionOptions,
+                  started: float) -> ScanOutcome:
+    from mpi_lidar.scan_report import scan_metrics, write_scan_outputs
+
+    scan = read_scan(source)
+    name = safe_scan_name(scan.name)
+    target = out_dir / name
+    model = _cached_model(str(model_dir))
+    scan_sha, model_sha, options_sha = scan.content_sha256(), model.card["model_sha256"], options.sha256()
+    if _already_done(target, scan_sha, model_sha, options_sha):
+        return ScanOutcome(source, name, "skipped", "already corrected with this model and options",
+                           output=str(target), seconds=time.perf_counter() - started)
+    correction = correct_scan(scan, model, options)
+    metrics = scan_metrics(scan, correction)
+    identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
+    notes = write_scan_outputs(target, scan, correction, metrics, identity, options)
+    return ScanOutcome(source, name, "corrected", output=str(target), counts=correction.counts(), metrics=metrics,
+                       seconds=time.perf_counter() - started, notes=tuple(notes))
+
+
+def staged_directory(target: Path) -> Path:
+    staging = target.parent / f".{target.name}.writing-{uuid.uuid4().hex[:8]}"
+    staging.mkdir(parents=True)
+    return staging
+
+
+def swap_into_place(staging: Path, target: Path) -> None:
+    """Replace ``target`` with the finished ``staging`` directory; the old outputs go only once the new are in."""
+    retired = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
+    if target.exists():
+        target.rename(retired)
+    staging.rename(target)
+    shutil.rmtree(retired, ignore_errors=True)
+
+
+# --- a batch ----------------------------------------------------------------------------------------------
+
+
+def expand_archive(inputs: list[str]) -> list[str]:
+    """Scan stores named directly, found in a directory, or matched by a glob; sorted and unique."""
+    found: list[str] = []
+    for item in inputs:
+        path = Path(item)
+        if path.name.endswith(SCAN_SUFFIX) or (path.is_dir() and (path / "zarr.json").exists()):
+            found.append(str(path))
+        elif path.is_dir():
+            found += sorted(str(p) for p in path.glob(f"*{SCAN_SUFFIX}"))
+        else:
+            matches = sorted(glob.glob(item))
+            if not matches:
+                raise MpiLidarError(f"{item} matches no scan; give *{SCAN_SUFFIX} stores, a directory or a glob")
+            found += matches
+    return sorted(dict.fromkeys(found))
+
+
+def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
+                    client: Client | None = None, on_scan=None) -> list[ScanOutcome]:
+    """Correct every scan, one task per scan on Dask (or in this process); a bad scan fails alone."""
+    load_model(model_dir)  # a broken model fails the whole batch at once, with one clear line
+    make_gate(options)
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
+    sources = expand_archive(inputs)
+    outcomes: list[ScanOutcome] = []
+    if client is None:
+        for source in sources:
+            outcomes.append(process_scan(source, model_dir, out_dir, options))
+            if on_scan:
+                on_scan(outcomes[-1])
+    else:
+        futures = [client.submit(process_scan, s, str(model_dir), str(out_dir), options, pure=False) for s in sources]
+        for future in as_completed(futures):
+            outcomes.append(future.result())
+            if on_scan:
+                on_scan(outcomes[-1])
+    return sorted(outcomes, key=lambda o: o.source)

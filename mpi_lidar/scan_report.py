@@ -1,0 +1,212 @@
+"""Outputs of a corrected scan and of a batch: metrics, maps, histograms, point clouds, reports."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import zarr
+from matplotlib.colors import ListedColormap
+
+from mpi_lidar import geometry
+from mpi_lidar.correct import (
+    CORRECTED_SCHEMA,
+    INVALID_FLAGS,
+    Correction,
+    CorrectionOptions,
+    Flag,
+    ScanOutcome,
+    staged_directory,
+    swap_into_place,
+)
+from mpi_lidar.evaluate import error_metrics
+from mpi_lidar.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
+from mpi_lidar.scans import Scan
+
+FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43"]
+
+
+def _regions(scan: Scan, correction: Correction) -> dict[str, np.ndarray]:
+    if scan.reference_depth is None:
+        return {}
+    usable = np.isfinite(scan.reference_depth) & ~np.isin(correction.flags, [int(f) for f in INVALID_FLAGS])
+    regions = {"whole map": usable}
+    if scan.reference_mask is not None:
+        regions["masked region"] = usable & scan.reference_mask
+    return regions
+
+
+def scan_metrics(scan: Scan, correction: Correction) -> dict[str, dict[str, float]]:
+    """MAE, RMSE and max error of the raw highest-frequency depth and of the corrected depth, per region. [m]"""
+    raw = scan.depth[-1]
+    metrics = {}
+    for region, where in _regions(scan, correction).items():
+        before = error_metrics(raw[where], scan.reference_depth[where])
+        after = error_metrics(correction.depth[where], scan.reference_depth[where])
+        metrics[region] = {"pixels": before.rows, "raw_mae_m": before.mae_m, "raw_rmse_m": before.rmse_m,
+                           "raw_max_abs_m": before.max_abs_m, "corrected_mae_m": after.mae_m,
+                           "corrected_rmse_m": after.rmse_m, "corrected_max_abs_m": after.max_abs_m}
+    return metrics
+
+
+def maps_figure(scan: Scan, correction: Correction) -> plt.Figure:
+    """Raw and corrected depth, amplitude, error maps before and after (Fig. 7/8 b-f), and the flag map."""
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5))
+    label = f"{scan.frequencies_hz[-1] / 1e6:g} MHz"
+    finite = scan.depth[-1][np.isfinite(correction.depth)]
+    limits = np.quantile(finite, [0.01, 0.99]) if finite.size else (0.0, 1.0)
+    _image(axes[0, 0], scan.depth[-1], f"raw depth {label} [m]", "viridis", limits)
+    _image(axes[0, 1], correction.depth, "corrected depth [m]", "viridis", limits)
+    _image(axes[0, 2], scan.amplitude[-1], f"amplitude {label} [V$^2$]", "magma", None)
+    if scan.reference_depth is not None:
+        raw_error = 1e3 * (scan.depth[-1] - scan.reference_depth)
+        corrected_error = 1e3 * (correction.depth - scan.reference_depth)
+        valid = np.isfinite(corrected_error)
+        span = float(np.quantile(np.abs(raw_error[valid]), 0.99)) if valid.any() else 1.0
+        raw_error[~valid] = np.nan
+        _image(axes[1, 0], raw_error, "raw error [mm]", "RdBu_r", (-span, span))
+        _image(axes[1, 1], corrected_error, "corrected error [mm]", "RdBu_r", (-span, span))
+    else:
+        for ax in axes[1, :2]:
+            ax.text(0.5, 0.5, "no reference depth:\nerror maps skipped", ha="center", va="center")
+            ax.set_axis_off()
+    flag_image = axes[1, 2].imshow(correction.flags, cmap=ListedColormap(FLAG_COLOURS), vmin=-0.5,
+                                   vmax=len(Flag) - 0.5, interpolation="nearest")
+    bar = fig.colorbar(flag_image, ax=axes[1, 2], ticks=range(len(Flag)))
+    bar.ax.set_yticklabels([f.name.lower().replace("_", " ") for f in Flag])
+    axes[1, 2].set_title("what was done per pixel")
+    axes[1, 2].set_axis_off()
+    fig.suptitle(f"scan {scan.name}")
+    fig.tight_layout()
+    return fig
+
+
+def _image(ax: plt.Axes, values: np.ndarray, title: str, cmap: str, limits) -> None:
+    shown = ax.imshow(values, cmap=cmap, vmin=None if limits is None else limits[0],
+                      vmax=None if limits is None else limits[1], interpolation="nearest")
+    ax.figure.colorbar(shown, ax=ax)
+    ax.set_title(title)
+    ax.set_axis_off()
+
+
+def point_cloud_figure(raw_points: np.ndarray, corrected_points: np.ndarray) -> plt.Figure:
+    """Top and side views of the raw and corrected point clouds (Fig. 9)."""
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8), sharex="row", sharey="row")
+    for column, (label, points) in enumerate((("raw", raw_points), ("corrected", corrected_points))):
+        p = points.reshape(-1, 3)
+        p = p[np.isfinite(p).all(axis=1)]
+        axes[0, column].scatter(p[:, 0], p[:, 2], s=0.3, c=p[:, 1], cmap="viridis")
+        axes[0, column].set_title(f"{label}: top view")
+        axes[0, column].set_xlabel("x [m]")
+        axes[0, column].set_ylabel("z (forward) [m]")
+        axes[1, column].scatter(p[:, 2], p[:, 1], s=0.3, c=p[:, 0], cmap="viridis")
+        axes[1, column].set_title(f"{label}: side view")
+        axes[1, column].set_xlabel("z (forward) [m]")
+        axes[1, column].set_ylabel("y (up) [m]")
+    fig.tight_layout()
+    return fig
+
+
+def metrics_table(metrics: dict[str, dict[str, float]]) -> Table:
+    rows = []
+    for region, m in metrics.items():
+        rows.append((region, f"{m['pixels']:,}", f"{1e3 * m['raw_mae_m']:.3f}", f"{1e3 * m['corrected_mae_m']:.3f}",
+                     f"{1e3 * m['raw_rmse_m']:.3f}", f"{1e3 * m['corrected_rmse_m']:.3f}",
+                     f"{1e3 * m['raw_max_abs_m']:.2f}", f"{1e3 * m['corrected_max_abs_m']:.2f}"))
+    return Table(("region", "pixels", "raw MAE [mm]", "corrected MAE [mm]", "raw RMSE [mm]", "corrected RMSE [mm]",
+                  "raw max [mm]", "corrected max [mm]"), tuple(rows))
+
+
+def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]],
+                       identity: dict[str, str], options: CorrectionOptions) -> list[str]:
+    """Everything for one scan, written into a staging directory and swapped in at the end."""
+    staging = staged_directory(target)
+    notes: list[str] = []
+    try:
+        _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options)
+        figures = {"maps.png": maps_figure(scan, correction)}
+        if scan.reference_depth is not None:
+            where = _regions(scan, correction)["whole map"]
+            figures["error_hist.png"] = error_histogram_figure(
+                {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz": 1e3 * (scan.depth[-1] - scan.reference_depth)[where],
+                 "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
+        else:
+            notes.append("no reference depth: errors, error maps and histogram skipped")
+        rays = scan.rays()
+        if rays is not None:
+            raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan), rays)
+            corrected_points = geometry.point_cloud(correction.depth, rays)
+            geometry.write_ply(staging / "raw.ply", raw_points, scan.amplitude[-1])
+            geometry.write_ply(staging / "corrected.ply", corrected_points, scan.amplitude[-1])
+            figures["point_cloud.png"] = point_cloud_figure(raw_points, corrected_points)
+        else:
+            notes.append("no scan geometry: point clouds and views skipped")
+        for name, fig in figures.items():
+            save_figure(fig, staging / name)
+        report = scan_report(scan, correction, metrics, notes, sorted(figures))
+        (staging / "report.md").write_text(report.markdown())
+        (staging / "report.html").write_text(report.html())
+        (staging / "metrics.json").write_text(json.dumps(report.data, indent=2, sort_keys=True) + "\n")
+        (staging / REPORT_MARKER).write_text("")
+        swap_into_place(staging, target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        plt.close("all")
+    return notes
+
+
+def _write_corrected_store(path: Path, scan: Scan, correction: Correction, identity: dict[str, str],
+                           options: CorrectionOptions) -> None:
+    group = zarr.open_group(store=str(path), mode="w-")
+    group.create_array("corrected_depth", data=correction.depth, dimension_names=("y", "x"))
+    group.create_array("flags", data=correction.flags, dimension_names=("y", "x"))
+    group.attrs.update({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
+                        "options": options.__dict__, "flag_codes": {f.name.lower(): int(f) for f in Flag},
+                        "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz)})
+
+
+def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]], notes: list[str],
+                figures: list[str]) -> Report:
+    counts = correction.counts()
+    total = max(sum(counts.values()), 1)
+    flags = Table(("pixels", "count", "share"),
+                  tuple((name.replace("_", " "), f"{n:,}", f"{100 * n / total:.1f} %") for name, n in counts.items()))
+    blocks: list = [f"Scan `{scan.name}`, {scan.shape[0]} x {scan.shape[1]} pixels at "
+                    + ", ".join(f"{f / 1e6:g}" for f in scan.frequencies_hz) + " MHz. "
+                    f"Correction {correction.total_s:.2f} s (inference {correction.inference_s:.2f} s).", flags]
+    if metrics:
+        blocks.append(metrics_table(metrics))
+    blocks += list(notes) + [Path(name) for name in figures]
+    return Report(title=f"Correction of {scan.name}", blocks=blocks,
+                  data={"scan": scan.name, "counts": counts, "metrics": metrics, "notes": notes,
+                        "seconds": {"total": correction.total_s, "inference": correction.inference_s}})
+
+
+def batch_report(outcomes: list[ScanOutcome], wall_s: float) -> Report:
+    """One table over the batch: status, skipped share, MAE before/after on the whole map and the mask."""
+    rows = []
+    for o in outcomes:
+        total = max(sum(o.counts.values()), 1)
+        not_needed = f"{100 * o.counts.get('not_needed', 0) / total:.1f} %" if o.counts else ""
+        whole, masked = o.metrics.get("whole map", {}), o.metrics.get("masked region", {})
+        rows.append((o.name, o.status, not_needed, _mm(whole, "raw_mae_m"), _mm(whole, "corrected_mae_m"),
+                     _mm(masked, "raw_mae_m"), _mm(masked, "corrected_mae_m"), f"{o.seconds:.2f}",
+                     o.reason or "; ".join(o.notes)))
+    table = Table(("scan", "status", "not needed", "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]",
+                   "masked corrected MAE [mm]", "seconds", "notes"), tuple(rows))
+    failed = sum(o.status == "failed" for o in outcomes)
+    summary = (f"{len(outcomes)} scans in {wall_s:.1f} s: {sum(o.status == 'corrected' for o in outcomes)} corrected, "
+               f"{sum(o.status == 'skipped' for o in outcomes)} already done, {failed} failed.")
+    return Report(title="Batch correction", blocks=[summary, table],
+                  data={"wall_s": wall_s, "scans": [o.__dict__ for o in outcomes]})
+
+
+def _mm(metrics: dict[str, float], key: str) -> str:
+    return f"{1e3 * metrics[key]:.3f}" if key in metrics else ""
+
+
+def write_batch_report(outcomes: list[ScanOutcome], wall_s: float, out_dir: str | Path) -> Path:
+    return write_report(batch_report(outcomes, wall_s), Path(out_dir) / "summary", {})
