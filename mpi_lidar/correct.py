@@ -31,11 +31,11 @@ from distributed import Client, as_completed
 from numpy.typing import NDArray
 from scipy import stats
 
-from mpi_lidar.config import Config, SensorConfig
+from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.model import CorrectionModel, load_model
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.physics.sensor import PhotonWaveform
+from mpi_lidar.physics.sensor import received_voltage_amplitude
 from mpi_lidar.scans import SCAN_SUFFIX, Scan, read_scan
 
 CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
@@ -72,12 +72,28 @@ class CorrectionOptions:
 
 
 @lru_cache(maxsize=4)
+def _noise_model(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> MomentSensor:
+    # Rounding off: the closed-form moments, which is all a noise prediction needs.
+    return MomentSensor(Config(sensor=sensor, frequencies_hz=frequencies_hz,
+                               simulator=SimulatorConfig(round_photons=False)))
+
+
 def noise_floor_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
     """Std of each tap quadrature with no light [V^2]: the amplitude of a pixel with no return is of this order."""
-    model = MomentSensor(Config(sensor=sensor, frequencies_hz=frequencies_hz))
-    dark = [PhotonWaveform(np.zeros(1), np.zeros(1), np.zeros(1)) for _ in frequencies_hz]
-    _, cov = model.waveform_moments(dark)
-    return np.sqrt(cov[0, :, 0, 0])
+    return quadrature_noise_v2(sensor, frequencies_hz, np.zeros((1, len(frequencies_hz))))[0]
+
+
+def quadrature_noise_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray) -> NDArray:
+    """Std of a tap quadrature (n, F) [V^2] for single-path light of the measured amplitudes (n, F) [V^2].
+
+    Shot noise grows with the signal, so the depth noise of a pixel is this over its amplitude, times c / 4 pi f.
+    """
+    model = _noise_model(sensor, tuple(frequencies_hz))
+    r = received_voltage_amplitude(np.maximum(amplitude_v2, 0.0), sensor.modulation_contrast,
+                                   sensor.demodulation_amplitude_v)
+    waveforms = model.waveforms_from_phasors(r, r.astype(np.complex128))
+    _, cov = model.waveform_moments(waveforms)
+    return np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
 
 
 def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: CorrectionOptions,
@@ -127,7 +143,8 @@ class ConsistencyGate(Gate):
     """Corrects pixels whose per-frequency depths disagree by more than their predicted noise allows.
 
     A pixel with no multipath has the same depth at every frequency up to noise; chi^2 of the depths around
-    their inverse-variance mean, with the depth noise predicted from each amplitude, follows chi^2(F-1).
+    their inverse-variance mean, with each depth's noise predicted by the moment model at the measured
+    amplitude (thermal, TIA and shot noise), follows chi^2(F-1).
     Pixels below the (1 - p) quantile are skipped. At Table I noise and d_AB <= 15 cm the multipath offset
     is almost the same at every frequency, so this test misses most multipath: it is cheap, not sufficient.
     """
@@ -143,7 +160,7 @@ class ConsistencyGate(Gate):
         depth = raw[:, :f].astype(np.float64)
         amplitude = np.maximum(raw[:, f:].astype(np.float64), 1e-12)
         metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * freqs)
-        sigma = noise_floor_v2(sensor, tuple(frequencies_hz))[None, :] / amplitude * metres_per_rad[None, :]
+        sigma = quadrature_noise_v2(sensor, tuple(frequencies_hz), amplitude) / amplitude * metres_per_rad[None, :]
         weight = sigma**-2
         mean = (weight * depth).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
         chi2 = (weight * (depth - mean) ** 2).sum(1)
@@ -292,15 +309,17 @@ def expand_archive(inputs: list[str]) -> list[str]:
     found: list[str] = []
     for item in inputs:
         path = Path(item)
-        if path.name.endswith(SCAN_SUFFIX) or (path.is_dir() and (path / "zarr.json").exists()):
-            found.append(str(path))
-        elif path.is_dir():
-            found += sorted(str(p) for p in path.glob(f"*{SCAN_SUFFIX}"))
-        else:
+        if glob.has_magic(item):
             matches = sorted(glob.glob(item))
             if not matches:
                 raise MpiLidarError(f"{item} matches no scan; give *{SCAN_SUFFIX} stores, a directory or a glob")
             found += matches
+        elif path.name.endswith(SCAN_SUFFIX) or (path.is_dir() and (path / "zarr.json").exists()):
+            found.append(str(path))
+        elif path.is_dir():
+            found += sorted(str(p) for p in path.glob(f"*{SCAN_SUFFIX}"))
+        else:
+            raise MpiLidarError(f"{item} is not a scan store or a directory of *{SCAN_SUFFIX} stores")
     return sorted(dict.fromkeys(found))
 
 

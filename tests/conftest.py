@@ -51,3 +51,17 @@ def postgres_url():
     yield POSTGRES_ADMIN_URL.rsplit("/", 1)[0] + f"/{name}"
     with psycopg.connect(POSTGRES_ADMIN_URL, autocommit=True) as admin:
         admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(scope="session")
+def small_model(tmp_path_factory, cluster_client, small_dataset) -> Path:
+    """A quickly trained residual model on the small dataset (through xgboost.dask)."""
+    from mpi_lidar.features import FeatureSpec
+    from mpi_lidar.train import train_and_save
+
+    params = {"max_depth": 6, "learning_rate": 0.3, "subsample": 1.0, "colsample_bytree": 1.0,
+              "min_child_weight": 1.0, "reg_lambda": 1.0, "gamma": 0.0}
+    out, _ = train_and_save(cluster_client, small_dataset, tmp_path_factory.mktemp("model") / "model",
+                            FeatureSpec(Config().frequencies_hz, "raw", "residual"), params,
+                            num_boost_round=150, early_stopping_rounds=10)
+    return out

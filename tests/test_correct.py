@@ -1,0 +1,156 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import zarr
+
+from mpi_lidar.correct import (
+    CorrectionOptions,
+    Flag,
+    correct_archive,
+    correct_scan,
+    process_scan,
+)
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.model import load_model
+from mpi_lidar.scans import Scan, write_scan
+from tests.scan_factory import two_path_scan
+
+
+@pytest.fixture(scope="module")
+def archive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("archive")
+    for index, name in enumerate(("a", "b", "c")):
+        write_scan(two_path_scan(name, seed=index), root / f"{name}.scan.zarr")
+    return root
+
+
+def damaged(scan: Scan) -> Scan:
+    """Pixel (0,0) NaN, (0,1) no return, (0,2) saturated, (0,3) one frequency off by a wrap."""
+    depth, amplitude = scan.depth.copy(), scan.amplitude.copy()
+    depth[1, 0, 0] = np.nan
+    amplitude[:, 0, 1] = 1e-7
+    amplitude[:, 0, 2] = 5.0
+    depth[0, 0, 3] += 1.0
+    return replace(scan, depth=depth, amplitude=amplitude)
+
+
+def test_correct_scan__flags_say_what_was_done(small_model):
+    correction = correct_scan(damaged(two_path_scan("d")), load_model(small_model), CorrectionOptions())
+    assert [correction.flags[0, j] for j in range(4)] == [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED,
+                                                         Flag.INCONSISTENT]
+    assert np.isnan(correction.depth[0, :4]).all()
+    assert (correction.flags[1:] == Flag.CORRECTED).all()
+    assert np.isfinite(correction.depth[1:]).all()
+    assert correction.counts()["corrected"] == 24 * 32 - 4
+
+
+def test_correct_scan__corrected_pixels_are_the_model_prediction(small_model):
+    scan = two_path_scan("p")
+    model = load_model(small_model)
+    correction = correct_scan(scan, model, CorrectionOptions(tile_pixels=100))
+    np.testing.assert_allclose(correction.depth.ravel(), model.predict_depth(scan.raw_pixels()), atol=1e-6)
+
+
+def test_correct_scan__multipath_region_improves(small_model):
+    scan = two_path_scan("m", height=40, width=40)
+    correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
+    left = np.s_[:, :20]  # the multipath half
+    raw_error = np.abs(scan.depth[-1][left] - scan.reference_depth[left]).mean()
+    corrected_error = np.abs(correction.depth[left] - scan.reference_depth[left]).mean()
+    assert corrected_error < 0.7 * raw_error
+
+
+def test_consistency_gate__skips_about_all_pixels_without_multipath(small_model):
+    scan = two_path_scan("clean", height=60, width=60, multipath=False)
+    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(gate="consistency"))
+    skipped = (correction.flags == Flag.NOT_NEEDED).mean()
+    assert skipped > 0.97  # chi^2 at p = 0.01: about 1 % false alarms
+    untouched = correction.flags == Flag.NOT_NEEDED
+    np.testing.assert_array_equal(correction.depth[untouched], scan.depth[-1][untouched])
+
+
+def test_correct_scan__other_frequencies_are_refused(small_model):
+    scan = two_path_scan("f")
+    three = replace(scan, frequencies_hz=scan.frequencies_hz[1:], depth=scan.depth[1:], amplitude=scan.amplitude[1:])
+    with pytest.raises(MpiLidarError, match="model expects 12.5, 18.75, 25, 31.25 MHz"):
+        correct_scan(three, load_model(small_model), CorrectionOptions())
+
+
+def test_correct_archive__rerun_skips_finished_scans_and_redoes_missing(archive, small_model, tmp_path):
+    first = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions())
+    assert [o.status for o in first] == ["corrected"] * 3
+    stamp = (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns
+    import shutil
+
+    shutil.rmtree(tmp_path / "b")  # as if the batch had been interrupted before scan b
+    second = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions())
+    assert [o.status for o in second] == ["skipped", "corrected", "skipped"]
+    assert (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns == stamp
+    other_gate = correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path,
+                                 CorrectionOptions(gate="consistency"))
+    assert other_gate[0].status == "corrected", "other options are another correction"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "no staging directories left"
+
+
+def test_correct_archive__dask_and_in_process_agree(archive, small_model, tmp_path, cluster_client):
+    outcomes = correct_archive([str(archive / "*.scan.zarr")], small_model, tmp_path / "dask", CorrectionOptions(),
+                               client=cluster_client)
+    local = correct_archive([str(archive)], small_model, tmp_path / "local", CorrectionOptions())
+    assert [o.status for o in outcomes] == ["corrected"] * 3
+    for name in ("a", "b", "c"):
+        on_dask = zarr.open_group(str(tmp_path / "dask" / name / "corrected.zarr"), mode="r")["corrected_depth"][:]
+        here = zarr.open_group(str(tmp_path / "local" / name / "corrected.zarr"), mode="r")["corrected_depth"][:]
+        np.testing.assert_array_equal(on_dask, here)
+    assert [o.metrics for o in outcomes] == [o.metrics for o in local]
+
+
+def test_process_scan__bad_scans_fail_alone_with_a_reason(tmp_path, small_model, archive):
+    bad = tmp_path / "bad.scan.zarr"
+    bad.mkdir()
+    (bad / "zarr.json").write_text("{not json")
+    escaping = two_path_scan("../escape")
+    group_path = tmp_path / "escape.scan.zarr"
+    write_scan(replace(escaping, name="fine"), group_path)
+    zarr.open_group(str(group_path), mode="r+").attrs["name"] = "../escape"
+    outcomes = correct_archive([str(bad), str(group_path), str(archive / "a.scan.zarr")], small_model,
+                               tmp_path / "out", CorrectionOptions())
+    by_name = {o.source: o for o in outcomes}
+    assert by_name[str(bad)].status == "failed" and "not a readable Zarr store" in by_name[str(bad)].reason
+    assert by_name[str(group_path)].status == "failed" and "not a safe directory name" in by_name[str(group_path)].reason
+    assert by_name[str(archive / "a.scan.zarr")].status == "corrected"
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a"]
+    assert not (tmp_path / "escape").exists()
+
+
+def test_process_scan__unwritable_output_fails_cleanly(small_model, archive):
+    outcome = process_scan(archive / "a.scan.zarr", small_model, "/proc/self/forbidden", CorrectionOptions())
+    assert outcome.status == "failed" and outcome.reason
+
+
+def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(archive, small_model, tmp_path):
+    bad = tmp_path / "broken.scan.zarr"
+    bad.mkdir()
+    command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(archive / "a.scan.zarr"), str(bad),
+               "--model", str(small_model), "--out", str(tmp_path / "out"), "--workers", "0"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    assert result.returncode == 1
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "broken.scan.zarr" in errors[0]
+    assert "| a | corrected |" in result.stdout
+    assert (tmp_path / "out" / "summary" / "report.html").exists()
+    for name in ("maps.png", "error_hist.png", "point_cloud.png", "raw.ply", "corrected.ply", "report.md"):
+        assert (tmp_path / "out" / "a" / name).exists(), name
+
+
+def test_correct_cli__missing_model_is_one_line_exit_2(archive, tmp_path):
+    command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(archive), "--model", str(tmp_path / "nope"),
+               "--out", str(tmp_path / "out"), "--workers", "0"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0 and result.stderr.startswith("error:")
+    assert not (tmp_path / "out").exists()
