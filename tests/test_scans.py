@@ -69,7 +69,7 @@ def test_read_scan__foreign_and_truncated_stores_are_refused(tmp_path):
     import shutil
 
     shutil.rmtree(path / "amplitude")
-    with pytest.raises(ScanError, match="neither depth\\+amplitude nor taps|truncated|damaged"):
+    with pytest.raises(ScanError, match=r"neither depth\+amplitude nor taps|truncated|damaged"):
         read_scan(path)
 
 
@@ -87,7 +87,7 @@ def test_load_npz__imports_arrays_from_other_tools(tmp_path):
 def test_load_npz__object_arrays_are_refused_without_unpickling(tmp_path):
     np.save(tmp_path / "evil.npy", np.array([object()], dtype=object), allow_pickle=True)
     np.savez(tmp_path / "evil.npz", depth=np.array([{"a": 1}], dtype=object))
-    with pytest.raises(ScanError, match="not a readable .npz"):
+    with pytest.raises(ScanError, match=r"not a readable \.npz"):
         load_npz(tmp_path / "evil.npz", FREQS)
 
 
