@@ -1,0 +1,68 @@
+"""Scheduled dataset regeneration: build the deployment, or serve it with ``python -m flows.deploy``.
+
+Schedules only run against a real Prefect server (``prefect server start --host 127.0.0.1`` and
+``PREFECT_API_URL=http://127.0.0.1:4200/api``): a temporary ephemeral server would take the schedule with it
+when this process ends. See ``infra/README.md`` for the work-pool alternative (``prefect deploy``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from prefect import serve
+from prefect.deployments.runner import RunnerDeployment
+from prefect.settings import get_current_settings
+
+from flows.regenerate import regenerate_dataset_flow
+from mpi_lidar.cli import EXIT_USER_ERROR
+from mpi_lidar.config import PRESETS
+
+DEPLOYMENT_NAME = "nightly-regeneration"
+DEFAULT_ROOT = "runs/nightly"
+DEFAULT_CRON = "0 2 * * *"
+
+
+def build_deployments(
+    root: str = DEFAULT_ROOT, cron: str = DEFAULT_CRON, preset: str = "quick", workers: int = 2,
+    scheduler: str | None = None,
+) -> list[RunnerDeployment]:
+    """The regeneration deployment(s) of ``regenerate_dataset_flow`` on a cron schedule."""
+    parameters: dict[str, object] = {"root": root, "preset": preset, "workers": workers}
+    if scheduler:
+        parameters["scheduler"] = scheduler
+    deployment = regenerate_dataset_flow.to_deployment(
+        name=DEPLOYMENT_NAME,
+        cron=cron,
+        parameters=parameters,
+        description="Regenerate the dataset of the current configuration and code version; skip when complete.",
+        tags=["mpi-lidar", "dataset"],
+    )
+    return [deployment]
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m flows.deploy", description=__doc__.splitlines()[0])
+    parser.add_argument("--root", default=DEFAULT_ROOT, help=f"Directory of the stores (default {DEFAULT_ROOT}).")
+    parser.add_argument("--cron", default=DEFAULT_CRON, help=f"Cron schedule (default '{DEFAULT_CRON}').")
+    parser.add_argument("--preset", default="quick", choices=sorted(PRESETS))
+    parser.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes per run.")
+    parser.add_argument("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Serve the deployments until interrupted; refuse without a real server, where schedules would not run."""
+    args = parse_args(argv)
+    if not get_current_settings().api.url:
+        print("error: no PREFECT_API_URL; start 'prefect server start --host 127.0.0.1' and set "
+              "PREFECT_API_URL=http://127.0.0.1:4200/api (schedules do not run on an ephemeral server)",
+              file=sys.stderr)
+        sys.exit(EXIT_USER_ERROR)
+    root = str(Path(args.root).resolve())  # runs start in other directories than this one
+    serve(*build_deployments(root, args.cron, args.preset, args.workers, args.scheduler))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,87 @@
+"""Prefect flow: regenerate the dataset of a configuration and code version, for schedules.
+
+Each configuration and package version gets its own store, ``<root>/<key>/dataset.zarr`` with
+``key = sha256(config_sha256 + package version)[:16]``, so a new configuration or a new release writes a new
+store and never touches an older one. A complete store is left as it is and no cluster is started; an absent
+or interrupted one is generated (resumed) by :func:`flows.generate_dataset.generate_dataset_flow`. Finally
+``<root>/latest`` is pointed at the current key directory.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import uuid
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
+from prefect.runtime import flow_run
+
+from flows.generate_dataset import build_config_task, generate_dataset_flow
+from mpi_lidar import __version__, dataset
+from mpi_lidar.config import Config, config_sha256
+from mpi_lidar.errors import StoreError
+
+STORE_NAME = "dataset.zarr"
+LATEST_NAME = "latest"
+KEY_HEX_DIGITS = 16
+
+
+def store_key(config: Config, version: str = __version__) -> str:
+    """The store directory name of a configuration made by a package version."""
+    return hashlib.sha256((config_sha256(config) + version).encode()).hexdigest()[:KEY_HEX_DIGITS]
+
+
+@task(name="store-complete", cache_policy=NO_CACHE)
+def store_complete_task(store: str) -> bool:
+    """Whether the store exists and holds every chunk; a damaged store raises rather than being rewritten."""
+    if not Path(store).exists():
+        return False
+    return dataset.dataset_info(store).complete
+
+
+@task(name="point-latest", cache_policy=NO_CACHE)
+def point_latest_task(root: str, key: str) -> str:
+    """Point ``<root>/latest`` at ``<root>/<key>`` with one atomic rename of a fresh symlink.
+
+    The link is relative, so the root can be moved or mounted elsewhere. Anything at ``latest`` that is not
+    a symlink was made by someone else and is refused.
+    """
+    latest = Path(root) / LATEST_NAME
+    if latest.exists() and not latest.is_symlink():
+        raise StoreError(f"{latest} exists and is not a symlink; move it away so 'latest' can be updated")
+    staging = Path(root) / f".{LATEST_NAME}.{uuid.uuid4().hex[:8]}"
+    staging.symlink_to(key, target_is_directory=True)
+    try:
+        os.replace(staging, latest)
+    finally:
+        staging.unlink(missing_ok=True)
+    return str(latest)
+
+
+@flow(name="regenerate-dataset")
+def regenerate_dataset_flow(
+    root: str,
+    preset: str = "quick",
+    config_file: str | None = None,
+    workers: int = 2,
+    scheduler: str | None = None,
+) -> dict[str, object]:
+    """Make sure ``root`` holds the complete dataset of this configuration and code version.
+
+    Returns ``skipped`` (True when the store was already complete and nothing ran), the store ``path``,
+    its ``key``, the ``latest`` link, this ``flow_run_id`` and, when it generated, the ``generation`` result
+    of the subflow.
+    """
+    config = build_config_task(preset, config_file, None, None)
+    key = store_key(config)
+    store = str(Path(root) / key / STORE_NAME)
+    skipped = store_complete_task(store)
+    generation = None
+    if not skipped:
+        generation = generate_dataset_flow(out=store, preset=preset, config_file=config_file, workers=workers,
+                                           scheduler=scheduler)
+    latest = point_latest_task(root, key)
+    return {"skipped": skipped, "path": store, "key": key, "latest": latest, "generation": generation,
+            "flow_run_id": str(flow_run.id)}

@@ -1,0 +1,89 @@
+"""Where flow runs report to and where their tasks run: one Prefect API per run, a Dask task runner.
+
+Prefect with no ``PREFECT_API_URL`` runs in ephemeral mode: the first API client of a process starts a
+temporary server (:class:`~prefect.server.api.server.SubprocessASGIServer`) for that process alone. A Dask
+worker is another process, so without care every worker starts a server of its own on the same SQLite file
+(slow, and they race on its migrations) and the task runs it records may land on a server nobody reads.
+
+:func:`shared_api` closes that gap. If an API is configured it is used; otherwise it starts (or finds) the
+process's default temporary server, the very instance ``prefect.get_client()`` starts in ephemeral mode
+(``SubprocessASGIServer()``, keyed by port ``None``), so the flow and its tasks use one server. Its URL then
+goes into the current settings, which Prefect serialises into every task it ships to a Dask worker, and into
+``os.environ["PREFECT_API_URL"]``, which worker processes spawned from here inherit before they import Prefect.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from distributed import LocalCluster
+from prefect.server.api.server import SubprocessASGIServer
+from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+from prefect_dask import DaskTaskRunner
+
+from mpi_lidar.errors import MpiLidarError
+
+API_URL_VARIABLE = "PREFECT_API_URL"
+
+
+def api_url(startup_timeout_s: int | None = None) -> tuple[str, bool]:
+    """The API this process reports to, and whether this call started a temporary server for it.
+
+    ``startup_timeout_s`` None waits ``PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS``.
+    """
+    configured = get_current_settings().api.url
+    if configured:
+        return configured, False
+    server = SubprocessASGIServer()  # the process-wide default instance, shared with prefect.get_client()
+    started = not server.running
+    server.start(timeout=startup_timeout_s)
+    return server.api_url, started
+
+
+@contextmanager
+def shared_api(startup_timeout_s: int | None = None, stop_started: bool = False) -> Iterator[str]:
+    """This process and every process started inside the block report to one Prefect API; yields its URL.
+
+    ``stop_started`` stops a temporary server this call started when the block ends (for a test session);
+    a flow leaves it running, as ephemeral mode does, because the flow run itself still reports to it.
+    """
+    url, started = api_url(startup_timeout_s)
+    previous = os.environ.get(API_URL_VARIABLE)
+    os.environ[API_URL_VARIABLE] = url
+    try:
+        with temporary_settings(updates={PREFECT_API_URL: url}):
+            yield url
+    finally:
+        if previous is None:
+            os.environ.pop(API_URL_VARIABLE, None)
+        else:
+            os.environ[API_URL_VARIABLE] = previous
+        if started and stop_started:
+            SubprocessASGIServer().stop()
+
+
+def dask_task_runner(workers: int = 2, scheduler: str | None = None) -> DaskTaskRunner:
+    """A task runner on the scheduler at ``scheduler``, or on a LocalCluster of ``workers`` processes.
+
+    One thread per worker process, as in :func:`mpi_lidar.cluster.dask_client`: numpy does the inner work.
+    The cluster starts when the first task is submitted, not here.
+    """
+    if scheduler:
+        return DaskTaskRunner(address=scheduler)
+    if workers < 1:
+        raise MpiLidarError(f"workers must be at least 1, got {workers}")
+    return DaskTaskRunner(
+        cluster_class=LocalCluster,
+        cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
+                        "dashboard_address": None, "silence_logs": logging.ERROR},
+    )
+
+
+def describe_workers(workers: int, scheduler: str | None) -> str:
+    """How the chunks ran, for reports."""
+    if scheduler:
+        return f"Dask scheduler {scheduler}"
+    return f"LocalCluster, {workers} process{'es' * (workers != 1)} x 1 thread"
