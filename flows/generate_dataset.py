@@ -18,8 +18,7 @@ from prefect_dask import DaskTaskRunner
 
 from flows.runtime import dask_task_runner, describe_workers, shared_api
 from mpi_lidar import dataset, report
-from mpi_lidar.cli import build_config
-from mpi_lidar.config import Config, config_sha256
+from mpi_lidar.config import Config, config_sha256, resolve_config
 
 SUMMARY_ARTIFACT_KEY = "dataset-summary"
 CHUNK_RETRIES = 2
@@ -32,33 +31,17 @@ def histogram_path(out: str | Path) -> Path:
     return out.with_name(f"{out.name.removesuffix('.zarr')}.error_hist.png")
 
 
-def dataset_overrides(config_file: str | None, preset: str, samples: int | None, seed: int | None) -> dict[str, int]:
-    """The [dataset] overrides of ``mpi-lidar simulate``: fewer samples also shrink chunk_rows to fit."""
-    overrides: dict[str, int] = {}
-    if seed is not None:
-        overrides["seed"] = seed
-    if samples is not None:
-        base_rows = build_config(_path(config_file), preset, {}).dataset.chunk_rows
-        overrides |= {"samples": samples, "chunk_rows": max(1, min(base_rows, samples))}
-    return overrides
-
-
-def _path(config_file: str | None) -> Path | None:
-    return Path(config_file) if config_file else None
-
-
 @task(name="build-config", cache_policy=NO_CACHE)
 def build_config_task(preset: str, config_file: str | None, samples: int | None, seed: int | None) -> Config:
     """Preset, then the TOML file, then samples/seed: the same precedence as the CLI."""
-    overrides = dataset_overrides(config_file, preset, samples, seed)
-    return build_config(_path(config_file), preset, {"dataset": overrides})
+    return resolve_config(config_file, preset, samples=samples, seed=seed)
 
 
 @task(name="create-store", cache_policy=NO_CACHE)
 def create_store_task(out: str, config: Config) -> list[int]:
     """Create the store (or reopen one of the same config) and list the chunks still to write."""
     group = dataset.create_store(out, config)
-    return [int(i) for i, done in enumerate(dataset.completed_chunks(group)) if not done]
+    return dataset.incomplete_chunks(group)
 
 
 @task(name="write-chunk", task_run_name="write-chunk-{index}", cache_policy=NO_CACHE,
@@ -127,8 +110,7 @@ def generate_dataset_flow(
     if todo:
         with shared_api():
             written, chunks_s = write_chunks(dask_task_runner(workers, scheduler), out, config, todo)
-    rows = sum(plan.rows(i).stop - plan.rows(i).start for i in written)
-    run = dataset.GenerationReport(len(written), plan.chunks - len(written), rows, store_s + chunks_s)
+    run = dataset.GenerationReport(len(written), plan.chunks - len(written), plan.rows_in(written), store_s + chunks_s)
     summary = summarize_task(out)
     png = histogram_task(out, str(histogram_path(out)))
     publish_summary_task(summary, run, describe_workers(workers, scheduler))

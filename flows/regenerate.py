@@ -9,7 +9,6 @@ or interrupted one is generated (resumed) by :func:`flows.generate_dataset.gener
 
 from __future__ import annotations
 
-import hashlib
 import os
 import uuid
 from pathlib import Path
@@ -19,18 +18,11 @@ from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from flows.generate_dataset import build_config_task, generate_dataset_flow
-from mpi_lidar import __version__, dataset
-from mpi_lidar.config import Config, config_sha256
+from mpi_lidar import dataset
 from mpi_lidar.errors import StoreError
 
 STORE_NAME = "dataset.zarr"
 LATEST_NAME = "latest"
-KEY_HEX_DIGITS = 16
-
-
-def store_key(config: Config, version: str = __version__) -> str:
-    """The store directory name of a configuration made by a package version."""
-    return hashlib.sha256((config_sha256(config) + version).encode()).hexdigest()[:KEY_HEX_DIGITS]
 
 
 @task(name="store-complete", cache_policy=NO_CACHE)
@@ -75,7 +67,7 @@ def regenerate_dataset_flow(
     of the subflow.
     """
     config = build_config_task(preset, config_file, None, None)
-    key = store_key(config)
+    key = dataset.store_key(config)
     store = str(Path(root) / key / STORE_NAME)
     skipped = store_complete_task(store)
     generation = None

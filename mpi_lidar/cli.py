@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from mpi_lidar.config import PRESETS, Config, load_config, preset, validate_overrides
+from mpi_lidar.config import PRESETS, resolve_config
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.features import (
     DEFAULT_FEATURE_SET,
@@ -19,19 +19,6 @@ from mpi_lidar.features import (
 )
 
 EXIT_USER_ERROR = 2
-
-
-def build_config(
-    config_file: Path | None, preset_name: str, overrides: dict[str, dict[str, object]]
-) -> Config:
-    """Preset, then the TOML file's tables, then command-line overrides; validated at each step."""
-    config = preset(preset_name)
-    if config_file is not None:
-        config = load_config(config_file, base=config)
-    overrides = {section: values for section, values in overrides.items() if values}
-    if overrides:
-        config = validate_overrides(overrides, config, source="command line")
-    return config
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -62,19 +49,13 @@ def simulate(
     """
     from mpi_lidar import dataset
 
-    dataset_overrides: dict[str, object] = {"samples": samples, "seed": seed, "chunk_rows": chunk_rows}
-    dataset_overrides = {k: v for k, v in dataset_overrides.items() if v is not None}
-    if samples is not None and chunk_rows is None:
-        base_rows = build_config(config_file, preset_name, {}).dataset.chunk_rows
-        dataset_overrides["chunk_rows"] = max(1, min(base_rows, samples))
-    simulator = {"fidelity": fidelity} if fidelity else {}
-    config = build_config(config_file, preset_name, {"dataset": dataset_overrides, "simulator": simulator})
+    config = resolve_config(config_file, preset_name, samples=samples, chunk_rows=chunk_rows, seed=seed,
+                            fidelity=fidelity)
 
     from mpi_lidar.cluster import dask_client
 
     plan = dataset.SamplingPlan.from_config(config)
-    store = dataset.create_store(out, config)
-    todo = int((~dataset.completed_chunks(store)).sum())
+    todo = len(dataset.incomplete_chunks(dataset.create_store(out, config)))
     with _progress() as progress:
         task = progress.add_task("simulating chunks", total=todo)
         if todo and workers > 0:
@@ -223,7 +204,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
     from mpi_lidar.cluster import dask_client
     from mpi_lidar.pipeline import run_pipeline
 
-    config = build_config(config_file, preset_name, {})
+    config = resolve_config(config_file, preset_name)
     with dask_client(scheduler, workers) as client:
         result = run_pipeline(client, out_dir, config, trials, tune_rows, echo=click.echo)
     metrics = result.evaluation.metrics

@@ -238,6 +238,32 @@ def load_config(path: str | Path, base: Config | None = None) -> Config:
     return validate_overrides(data, base or Config(), source=str(path))
 
 
+def resolve_config(
+    config_file: str | Path | None = None,
+    preset_name: str = "quick",
+    *,
+    samples: int | None = None,
+    chunk_rows: int | None = None,
+    seed: int | None = None,
+    fidelity: str | None = None,
+) -> Config:
+    """Preset, then the TOML file's tables, then the given values; validated at each step.
+
+    Fewer ``samples`` than the chunk size shrink the chunks to fit, unless ``chunk_rows`` is given.
+    """
+    config = preset(preset_name)
+    if config_file is not None:
+        config = load_config(config_file, base=config)
+    sampling: dict[str, object] = {k: v for k, v in (("samples", samples), ("chunk_rows", chunk_rows),
+                                                     ("seed", seed)) if v is not None}
+    if samples is not None and chunk_rows is None:
+        sampling["chunk_rows"] = max(1, min(config.dataset.chunk_rows, samples))
+    overrides: dict[str, object] = {"dataset": sampling} if sampling else {}
+    if fidelity is not None:
+        overrides["simulator"] = {"fidelity": fidelity}
+    return validate_overrides(overrides, config, source="command line") if overrides else config
+
+
 def validate_overrides(overrides: dict[str, object], base: Config, source: str) -> Config:
     try:
         return base.replace(**overrides)

@@ -13,6 +13,7 @@ feature and theta names, the configuration and its SHA-256, and the package vers
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -60,6 +61,10 @@ class SamplingPlan:
     @property
     def chunks(self) -> int:
         return -(-self.samples // self.chunk_rows)
+
+    def rows_in(self, indices: list[int]) -> int:
+        """How many rows the given chunks hold."""
+        return sum(self.rows(i).stop - self.rows(i).start for i in indices)
 
     def rows(self, index: int) -> slice:
         if not 0 <= index < self.chunks:
@@ -220,6 +225,15 @@ def completed_chunks(group: zarr.Group) -> NDArray[np.bool_]:
     return group["chunk_done"][:].astype(bool)
 
 
+def incomplete_chunks(group: zarr.Group) -> list[int]:
+    return [int(i) for i in np.flatnonzero(~completed_chunks(group))]
+
+
+def store_key(config: Config, version: str = __version__) -> str:
+    """A directory name for the store of this configuration made by this package version."""
+    return hashlib.sha256((config_sha256(config) + version).encode()).hexdigest()[:16]
+
+
 def is_complete(path: str | Path) -> bool:
     return bool(completed_chunks(open_store(path)).all())
 
@@ -272,7 +286,7 @@ def generate(
     started = time.perf_counter()
     group = create_store(path, config)
     plan = SamplingPlan.from_config(config)
-    todo = [int(i) for i in np.flatnonzero(~completed_chunks(group))]
+    todo = incomplete_chunks(group)
     try:
         for index in _run_chunks(str(path), config, todo, client):
             if on_chunk is not None:
@@ -280,8 +294,7 @@ def generate(
     except OSError as exc:
         raise StoreError(f"writing dataset {path} failed: {exc.strerror or exc}; free space or fix "
                          "permissions, then run again: finished chunks are kept and skipped") from None
-    rows = sum(plan.rows(i).stop - plan.rows(i).start for i in todo)
-    return GenerationReport(len(todo), plan.chunks - len(todo), rows, time.perf_counter() - started)
+    return GenerationReport(len(todo), plan.chunks - len(todo), plan.rows_in(todo), time.perf_counter() - started)
 
 
 def _run_chunks(path: str, config: Config, todo: list[int], client: Client | None) -> Iterator[int]:

@@ -314,3 +314,13 @@ def test_config_sha256__equal_configs_equal_hashes(noise_scale, seed, samples):
     a, b = Config().replace(**sections), Config().replace(**sections)
     assert config_sha256(a) == config_sha256(b)
     assert (config_sha256(a) == config_sha256(Config())) == (a == Config())
+
+
+def test_resolve_config__fewer_samples_shrink_chunk_rows_unless_given():
+    from mpi_lidar.config import resolve_config
+
+    config = resolve_config(None, "quick", samples=300, seed=7)
+    assert (config.dataset.samples, config.dataset.chunk_rows, config.dataset.seed) == (300, 300, 7)
+    assert resolve_config(None, "quick") == resolve_config(None, "quick", samples=None)
+    with pytest.raises(ConfigError, match=r"chunk_rows \(400\) is larger than samples \(300\)"):
+        resolve_config(None, "quick", samples=300, chunk_rows=400)

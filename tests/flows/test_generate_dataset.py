@@ -9,10 +9,9 @@ import zarr
 from matplotlib import pyplot as plt
 
 from flows import generate_dataset
-from flows.generate_dataset import SUMMARY_ARTIFACT_KEY, dataset_overrides, generate_dataset_flow, histogram_path
+from flows.generate_dataset import SUMMARY_ARTIFACT_KEY, generate_dataset_flow, histogram_path
 from mpi_lidar import dataset
-from mpi_lidar.cli import build_config
-from mpi_lidar.config import config_sha256
+from mpi_lidar.config import config_sha256, resolve_config
 from tests.flows.helpers import CHUNKS, SAMPLES, artifacts, chunk_task_runs, wait_for
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -28,7 +27,7 @@ def generated(tmp_path_factory: pytest.TempPathFactory, config_file: Path) -> di
 def test_generate_dataset_flow__store_equals_in_process_generation(
     generated: dict[str, object], config_file: Path, tmp_path: Path
 ) -> None:
-    config = build_config(config_file, "quick", {})
+    config = resolve_config(config_file, "quick")
     reference = tmp_path / "reference.zarr"
     dataset.generate(reference, config)
     flow_store, library_store = zarr.open_group(generated["path"], mode="r"), zarr.open_group(reference, mode="r")
@@ -44,7 +43,7 @@ def test_generate_dataset_flow__result_counts_chunks_and_rows(generated: dict[st
     assert generated["chunks_skipped"] == 0
     assert generated["rows_written"] == SAMPLES
     assert generated["wall_s"] > 0 and generated["rows_per_s"] == pytest.approx(SAMPLES / generated["wall_s"])
-    assert generated["config_sha256"] == config_sha256(build_config(config_file, "quick", {}))
+    assert generated["config_sha256"] == config_sha256(resolve_config(config_file, "quick"))
 
 
 def test_generate_dataset_flow__writes_error_histogram_png_beside_store(generated: dict[str, object]) -> None:
@@ -93,10 +92,3 @@ def test_generate_dataset_flow__rerun_on_complete_store_writes_nothing(
 def test_histogram_path__replaces_zarr_suffix() -> None:
     assert histogram_path("runs/x/dataset.zarr") == Path("runs/x/dataset.error_hist.png")
     assert histogram_path("runs/x/store") == Path("runs/x/store.error_hist.png")
-
-
-def test_dataset_overrides__fewer_samples_shrink_chunk_rows() -> None:
-    assert dataset_overrides(None, "quick", 300, 7) == {"seed": 7, "samples": 300, "chunk_rows": 300}
-    assert dataset_overrides(None, "quick", None, None) == {}
-    config = build_config(None, "quick", {"dataset": dataset_overrides(None, "quick", 300, None)})
-    assert (config.dataset.samples, config.dataset.chunk_rows) == (300, 300)

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 
 from flows import generate_dataset
-from flows.regenerate import point_latest_task, regenerate_dataset_flow, store_key
+from flows.regenerate import point_latest_task, regenerate_dataset_flow
 from mpi_lidar import __version__, dataset
-from mpi_lidar.cli import build_config
-from mpi_lidar.config import config_sha256
+from mpi_lidar.config import config_sha256, resolve_config
+from mpi_lidar.dataset import store_key
 from mpi_lidar.errors import StoreError
 from tests.flows.helpers import CHUNKS, SEED, chunk_task_runs, subflow_runs, write_config
 
@@ -35,7 +35,7 @@ def first_run(tmp_path_factory: pytest.TempPathFactory, config_file: Path, dask_
 def test_regenerate_dataset_flow__first_run_generates_into_key_directory(
     first_run: dict[str, object], config_file: Path, dask_scheduler: str
 ) -> None:
-    config = build_config(config_file, "quick", {})
+    config = resolve_config(config_file, "quick")
     expected_key = hashlib.sha256((config_sha256(config) + __version__).encode()).hexdigest()[:16]
     assert first_run["skipped"] is False
     assert first_run["key"] == expected_key
@@ -78,7 +78,7 @@ def test_regenerate_dataset_flow__new_seed_gets_new_store_and_keeps_old(
 
 
 def test_store_key__changes_with_config_and_version(config_file: Path) -> None:
-    config = build_config(config_file, "quick", {})
+    config = resolve_config(config_file, "quick")
     key = store_key(config, "0.1.0")
     assert len(key) == 16 and int(key, 16) >= 0
     assert store_key(config, "0.2.0") != key
