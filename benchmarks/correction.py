@@ -14,11 +14,11 @@ import time
 from datetime import date
 
 import numpy as np
+from mpi_lidar.scenes import SCENES, render
 
 from mpi_lidar.config import Config
 from mpi_lidar.correct import CorrectionOptions, Flag, correct_scan
 from mpi_lidar.model import load_model
-from mpi_lidar.scenes import SCENES, render
 
 
 def main() -> None:
@@ -27,7 +27,7 @@ def main() -> None:
     parser.add_argument("--pixels", type=int, default=1_000_000)
     parser.add_argument("--scene", default="cornered_board", choices=sorted(SCENES))
     args = parser.parse_args()
-    side = int(round(np.sqrt(args.pixels)))
+    side = round(np.sqrt(args.pixels))
     started = time.perf_counter()
     scan = render(SCENES[args.scene](height=side, width=side), Config(), np.random.default_rng(0))
     render_s = time.perf_counter() - started
@@ -48,7 +48,8 @@ def main() -> None:
         corrected = np.abs(correction.depth[usable] - scan.reference_depth[usable]).mean()
         invalid = 1 - share[Flag.CORRECTED] - share[Flag.NOT_NEEDED]
         print(f"| {gate} | {flags.size / correction.total_s:,.0f} | {100 * share[Flag.CORRECTED]:.1f} % | "
-              f"{100 * share[Flag.NOT_NEEDED]:.1f} % | {100 * invalid:.1f} % | {1e3 * raw:.3f} | {1e3 * corrected:.3f} |")
+              f"{100 * share[Flag.NOT_NEEDED]:.1f} % | {100 * invalid:.1f} % | {1e3 * raw:.3f} | "
+              f"{1e3 * corrected:.3f} |")
 
 
 if __name__ == "__main__":
