@@ -142,8 +142,9 @@ def _tuning_data(data_path: str, spec: FeatureSpec, rows: int, seed: int) -> tup
     sub = dataset.read_subsample(data_path, split="train", max_rows=rows, seed=seed)
     x, y = spec.transform(sub.features), spec.target(sub.features, sub.target)
     holdout = np.arange(x.shape[0]) % 5 == 0
-    fit = xgb.QuantileDMatrix(x[~holdout], y[~holdout])
-    return fit, xgb.DMatrix(x[holdout], y[holdout])
+    # One thread, like the trial itself: a worker is one core, and parallelism comes from parallel trials.
+    fit = xgb.QuantileDMatrix(x[~holdout], y[~holdout], nthread=1)
+    return fit, xgb.DMatrix(x[holdout], y[holdout], nthread=1)
 
 
 def objective(trial: optuna.Trial, settings: TuneSettings) -> float:
