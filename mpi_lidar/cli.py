@@ -211,6 +211,11 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
     raw, corrected = metrics[result.evaluation.raw_label], metrics["corrected (XGBoost)"]
     click.echo(f"test split: {result.evaluation.raw_label} MAE {1e3 * raw.mae_m:.3f} mm -> corrected "
                f"{1e3 * corrected.mae_m:.3f} mm; report in {result.report_dir}/report.html")
+    for outcome in result.scans:
+        masked = outcome.metrics.get("masked region", {})
+        change = (f"masked MAE {1e3 * masked['raw_mae_m']:.3f} -> {1e3 * masked['corrected_mae_m']:.3f} mm"
+                  if masked else outcome.reason)
+        click.echo(f"scene {outcome.name}: {outcome.status}, {change}; {outcome.output}/report.html")
 
 
 @cli.command()
@@ -268,6 +273,21 @@ def import_scan(source: Path, out: Path, frequencies: str | None) -> None:
     write_scan(scan, out)
     click.echo(f"scan {scan.name}: {scan.shape[0]} x {scan.shape[1]} pixels at {len(scan.frequencies_hz)} "
                f"frequencies written to {out}")
+
+
+@cli.command("render-scenes")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Directory for the scans.")
+@click.option("--scene", "names", multiple=True, help="Scene name (repeatable); default: the demo scenes.")
+@click.option("--seed", type=int, default=0, show_default=True)
+def render_scenes_command(out_dir: Path, names: tuple[str, ...], seed: int) -> None:
+    """Render simulated scenes (cornered board, multi-object, flat wall, ...) as scan stores with references."""
+    from mpi_lidar.scenes import DEMO_SCENES, SCENES, render_scenes
+
+    unknown = sorted(set(names) - set(SCENES))
+    if unknown:
+        raise MpiLidarError(f"unknown scene {unknown[0]!r}; choose from {', '.join(SCENES)}")
+    for path in render_scenes(out_dir, names or DEMO_SCENES, seed=seed):
+        click.echo(f"wrote {path}")
 
 
 def _progress() -> Progress:

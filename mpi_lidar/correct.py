@@ -2,8 +2,9 @@
 
 Each pixel gets one flag saying what was done (:class:`Flag`). Invalid pixels (no finite value, no return
 above the noise floor, saturated, frequencies that disagree by more than a phase wrap could explain) keep
-NaN. Valid pixels the gate lets through are corrected by the model; the others keep the raw depth of the
-highest frequency, exactly as measured.
+NaN. Valid pixels whose depth lies outside the range the model was trained on keep their raw depth (trees
+do not extrapolate). Valid pixels the gate lets through are corrected by the model; the others keep the
+raw depth of the highest frequency, exactly as measured.
 
 Per scan the outputs go into ``<out>/<scan name>/`` (``corrected.zarr``, report files, point clouds),
 built in a temporary directory and renamed into place, so a scan's outputs are all there or not at all. A
@@ -51,6 +52,7 @@ class Flag(IntEnum):
     NO_RETURN = 3
     SATURATED = 4
     INCONSISTENT = 5
+    OUT_OF_RANGE = 6
 
 
 INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
@@ -64,6 +66,7 @@ class CorrectionOptions:
     min_amplitude_sigmas: float = 5.0
     saturation_amplitude_v2: float = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
     max_depth_spread_m: float = 0.3
+    range_tolerance_m: float = 0.02
     consistency_p_value: float = 0.01
     tile_pixels: int = 262_144
 
@@ -189,6 +192,12 @@ class Correction:
         return {flag.name.lower(): int(found.get(int(flag), 0)) for flag in Flag}
 
 
+def in_model_range(depth: NDArray, model: CorrectionModel, options: CorrectionOptions) -> NDArray[np.bool_]:
+    """Whether measured depths [m] lie in the d_AS range of the model's training prior (plus a tolerance)."""
+    low, high = model.card["dataset"]["prior"]["d_as_m"]
+    return (depth >= low - options.range_tolerance_m) & (depth <= high + options.range_tolerance_m)
+
+
 def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
                  sensor: SensorConfig | None = None) -> Correction:
     """Correct one scan in this process, pixel by pixel, in tiles of ``options.tile_pixels``."""
@@ -197,10 +206,12 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     sensor = sensor or SensorConfig()
     raw = scan.raw_pixels()
     flags = validity_flags(raw, scan.frequencies_hz, options, sensor)
+    flags[(flags == Flag.NOT_NEEDED) & ~in_model_range(raw[:, len(scan.frequencies_hz) - 1], model, options)] = (
+        Flag.OUT_OF_RANGE)
     valid = np.flatnonzero(flags == Flag.NOT_NEEDED)
     needs = valid[make_gate(options).needs_correction(raw[valid], scan.frequencies_hz, sensor)]
     depth = raw[:, len(scan.frequencies_hz) - 1].copy()
-    depth[flags != Flag.NOT_NEEDED] = np.nan
+    depth[np.isin(flags, [int(f) for f in INVALID_FLAGS])] = np.nan
     inference_started = time.perf_counter()
     for start in range(0, needs.size, options.tile_pixels):
         tile = needs[start:start + options.tile_pixels]

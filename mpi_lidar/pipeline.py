@@ -1,13 +1,15 @@
 """The main job: generate a dataset, tune, train and evaluate, into one run directory, on one cluster.
 
-Layout of ``out_dir``: ``dataset.zarr``, ``optuna.db`` (the study), ``model/`` and ``report/``. Every
-step is resumable: a complete dataset is not regenerated, the study resumes to its trial budget, and a
-model whose card matches the dataset and the study's best parameters is reused.
+Layout of ``out_dir``: ``dataset.zarr``, ``optuna.db`` (the study), ``model/``, ``report/``, then the demo
+scenes rendered into ``scenes/`` and corrected into ``corrected/``. Every step is resumable: a complete
+dataset is not regenerated, the study resumes to its trial budget, a model whose card matches the dataset
+and the study's best parameters is reused, existing scene scans are kept and corrected scans are skipped.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,11 +18,15 @@ from distributed import Client
 
 from mpi_lidar import dataset, tune
 from mpi_lidar.config import Config
+from mpi_lidar.correct import CorrectionOptions, ScanOutcome, correct_archive
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.evaluate import Evaluation, evaluate_model
 from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.model import CARD_FILE, load_model
 from mpi_lidar.report import evaluation_report, write_report
+from mpi_lidar.scan_report import write_batch_report
+from mpi_lidar.scans import SCAN_SUFFIX
+from mpi_lidar.scenes import DEMO_SCENES, render_scenes
 from mpi_lidar.train import BASE_PARAMS, train_and_save
 
 
@@ -32,6 +38,7 @@ class PipelineResult:
     model_reused: bool
     evaluation: Evaluation
     report_dir: Path
+    scans: list[ScanOutcome]
 
 
 def run_pipeline(
@@ -59,7 +66,21 @@ def run_pipeline(
     evaluation = evaluate_model(model, data)
     report, figures = evaluation_report(evaluation, model.card)
     write_report(report, report_dir, figures)
-    return PipelineResult(generation, tuning, model_dir, reused, evaluation, report_dir)
+
+    scans = demo_scans(out_dir / "scenes", config)
+    started = time.perf_counter()
+    outcomes = correct_archive([str(p) for p in scans], model_dir, out_dir / "corrected", CorrectionOptions(),
+                               client)
+    write_batch_report(outcomes, time.perf_counter() - started, out_dir / "corrected")
+    return PipelineResult(generation, tuning, model_dir, reused, evaluation, report_dir, outcomes)
+
+
+def demo_scans(scene_dir: Path, config: Config) -> list[Path]:
+    """The demo scenes as scans, rendered once (existing scans are kept)."""
+    missing = tuple(name for name in DEMO_SCENES if not (scene_dir / f"{name}{SCAN_SUFFIX}").exists())
+    if missing:
+        render_scenes(scene_dir, missing, config)
+    return [scene_dir / f"{name}{SCAN_SUFFIX}" for name in DEMO_SCENES]
 
 
 def _matching_model(model_dir: Path, data: Path, params: dict[str, object]) -> bool:

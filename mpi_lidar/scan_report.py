@@ -26,7 +26,7 @@ from mpi_lidar.evaluate import error_metrics
 from mpi_lidar.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
 from mpi_lidar.scans import Scan
 
-FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43"]
+FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84"]
 
 
 def _regions(scan: Scan, correction: Correction) -> dict[str, np.ndarray]:
