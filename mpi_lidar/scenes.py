@@ -86,9 +86,9 @@ class Rectangle(Surface):
     def intersect(self, origins: NDArray, directions: NDArray) -> NDArray[np.float64]:
         c, u, v, n = self._frame()
         denom = directions @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # rays parallel to the plane: no hit
             t = ((c - origins) @ n) / denom
-        hit = origins + t[:, None] * directions
+            hit = origins + t[:, None] * directions
         rel = hit - c
         inside = (np.abs(rel @ u) <= u @ u) & (np.abs(rel @ v) <= v @ v)
         return np.where(inside & (t > 1e-9) & (np.abs(denom) > 1e-12), t, np.inf)
