@@ -290,6 +290,29 @@ def render_scenes_command(out_dir: Path, names: tuple[str, ...], seed: int) -> N
         click.echo(f"wrote {path}")
 
 
+@cli.command()
+@click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
+@click.option("--report", "report_dir", type=click.Path(path_type=Path), required=True, help="Report directory.")
+@click.option("--model", "model_dir", type=click.Path(path_type=Path), help="XGBoost model directory for its row.")
+@click.option("--trials", type=click.IntRange(min=1), default=10, show_default=True, help="TPE trials per baseline.")
+@click.option("--train-rows", type=click.IntRange(min=10), default=100_000, show_default=True,
+              help="Train rows the scikit-learn baselines fit on.")
+@click.option("--svm-rows", type=click.IntRange(min=10), default=20_000, show_default=True)
+def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, train_rows: int, svm_rows: int) -> None:
+    """The paper's Table II: KNN, RF, SVM, DNN and XGBoost against raw and weighted depth."""
+    from mpi_lidar.baselines import table2 as make_table2
+    from mpi_lidar.report import write_report
+
+    with _progress() as progress:
+        task = progress.add_task("baselines", total=4)
+        result = make_table2(data, model_dir, train_rows=train_rows, trials=trials, svm_rows=svm_rows,
+                             on_row=lambda _row: progress.advance(task))
+    report, figures = result.to_report()
+    write_report(report, report_dir, figures)
+    click.echo(result.table().markdown())
+    click.echo(f"\nreport written to {report_dir}")
+
+
 def _progress() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     transient=True, disable=not sys.stderr.isatty())
