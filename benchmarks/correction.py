@@ -14,11 +14,11 @@ import time
 from datetime import date
 
 import numpy as np
-from mpi_lidar.scenes import SCENES, render
 
 from mpi_lidar.config import Config
 from mpi_lidar.correct import CorrectionOptions, Flag, correct_scan
 from mpi_lidar.model import load_model
+from mpi_lidar.scenes import SCENES, render
 
 
 def main() -> None:
