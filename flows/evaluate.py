@@ -1,0 +1,48 @@
+"""Prefect flows: evaluate a model on a dataset split, and the paper's Table II with its baselines."""
+
+from __future__ import annotations
+
+from prefect import flow, task
+from prefect.artifacts import create_markdown_artifact
+from prefect.cache_policies import NO_CACHE
+
+from mpi_lidar.baselines import table2
+from mpi_lidar.evaluate import evaluate_model
+from mpi_lidar.model import load_model
+from mpi_lidar.report import Report, evaluation_report, write_report
+
+EVALUATION_ARTIFACT_KEY = "evaluation"
+TABLE2_ARTIFACT_KEY = "table-2"
+
+
+def _publish(report: Report, report_dir: str, key: str) -> str:
+    markdown = report.markdown().replace("](", f"]({report_dir}/")
+    create_markdown_artifact(markdown=markdown, key=key, description=report.title)
+    return markdown
+
+
+@task(name="evaluate-model", cache_policy=NO_CACHE)
+def evaluate_task(data: str, model: str, report_dir: str, split: str) -> str:
+    """Metrics of raw, weighted and corrected depth, and the error histogram before and after correction."""
+    loaded = load_model(model)
+    report, figures = evaluation_report(evaluate_model(loaded, data, split), loaded.card)
+    write_report(report, report_dir, figures)
+    return _publish(report, report_dir, EVALUATION_ARTIFACT_KEY)
+
+
+@task(name="table-2", cache_policy=NO_CACHE)
+def table2_task(data: str, model: str | None, report_dir: str, trials: int, train_rows: int, svm_rows: int) -> str:
+    report, figures = table2(data, model, trials=trials, train_rows=train_rows, svm_rows=svm_rows).to_report()
+    write_report(report, report_dir, figures)
+    return _publish(report, report_dir, TABLE2_ARTIFACT_KEY)
+
+
+@flow(name="evaluate")
+def evaluate_flow(data: str, model: str, report: str, split: str = "test") -> str:
+    return evaluate_task(data, model, report, split)
+
+
+@flow(name="table-2")
+def table2_flow(data: str, report: str, model: str | None = None, trials: int = 10, train_rows: int = 100_000,
+                svm_rows: int = 20_000) -> str:
+    return table2_task(data, model, report, trials, train_rows, svm_rows)

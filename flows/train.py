@@ -1,0 +1,59 @@
+"""Prefect flow: train the final XGBoost model through xgboost.dask and publish its card."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.artifacts import create_markdown_artifact
+from prefect.cache_policies import NO_CACHE
+
+from mpi_lidar import dataset, tune
+from mpi_lidar.cluster import dask_client
+from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.model import CARD_FILE
+from mpi_lidar.train import train_and_save
+
+CARD_ARTIFACT_KEY = "model-card"
+
+
+@task(name="best-params", cache_policy=NO_CACHE)
+def best_params_task(storage: str, study: str) -> tuple[dict[str, object], dict[str, object]]:
+    """The study's best parameters and the settings it was tuned with."""
+    found = tune.load_existing_study(storage, study)
+    return tune.best_params(found), dict(found.user_attrs.get("settings", {}))
+
+
+@task(name="train-model", cache_policy=NO_CACHE)
+def train_task(data: str, out: str, spec: FeatureSpec, params: dict[str, object] | None, workers: int,
+               scheduler: str | None) -> str:
+    with dask_client(scheduler, workers) as client:
+        out_dir, _ = train_and_save(client, data, out, spec, params)
+    return str(out_dir)
+
+
+@task(name="publish-card", cache_policy=NO_CACHE)
+def publish_card_task(model_dir: str) -> str:
+    card = json.loads((Path(model_dir) / CARD_FILE).read_text())
+    lines = ["| card field | value |", "|---|---|"]
+    for key in ("feature_set", "target_mode", "num_boost_round", "metrics", "training", "params"):
+        lines.append(f"| {key} | `{json.dumps(card[key], sort_keys=True)}` |")
+    lines.append(f"| dataset | `{card['dataset']['config_sha256'][:12]}` ({card['dataset']['samples']:,} rows) |")
+    markdown = "\n".join(lines)
+    create_markdown_artifact(markdown=markdown, key=CARD_ARTIFACT_KEY, description=f"Model {model_dir}")
+    return markdown
+
+
+@flow(name="train")
+def train_flow(data: str, out: str, study: str | None = None, storage: str | None = None,
+               feature_set: str | None = None, target: str | None = None, workers: int = 2,
+               scheduler: str | None = None) -> dict[str, object]:
+    """Train on the whole train split with the study's best parameters (or the defaults)."""
+    params, settings = (best_params_task(storage or tune.default_storage(data), study) if study else (None, {}))
+    spec = FeatureSpec(dataset.dataset_info(data).frequencies_hz,
+                       feature_set or settings.get("feature_set") or DEFAULT_FEATURE_SET,
+                       target or settings.get("target_mode") or DEFAULT_TARGET_MODE)
+    model_dir = train_task(data, out, spec, params, workers, scheduler)
+    publish_card_task(model_dir)
+    return {"model_dir": model_dir}
