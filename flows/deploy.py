@@ -1,4 +1,7 @@
-"""Scheduled dataset regeneration: build the deployment, or serve it with ``python -m flows.deploy``.
+"""Deployments: scheduled dataset regeneration, and tuning, training and archive correction on demand.
+
+Build them, or serve them all with ``python -m flows.deploy``; trigger an on-demand one with
+``prefect deployment run 'tune/tune' --param data=...``.
 
 Schedules only run against a real Prefect server (``prefect server start --host 127.0.0.1`` and
 ``PREFECT_API_URL=http://127.0.0.1:4200/api``): a temporary ephemeral server would take the schedule with it
@@ -15,7 +18,10 @@ from prefect import serve
 from prefect.deployments.runner import RunnerDeployment
 from prefect.settings import get_current_settings
 
+from flows.correct import correct_archive_flow
 from flows.regenerate import regenerate_dataset_flow
+from flows.train import train_flow
+from flows.tune import tune_flow
 from mpi_lidar.cli import EXIT_USER_ERROR
 from mpi_lidar.config import PRESETS
 
@@ -42,6 +48,19 @@ def build_deployments(
     return [deployment]
 
 
+def on_demand_deployments(workers: int = 2, scheduler: str | None = None) -> list[RunnerDeployment]:
+    """Tuning, training and archive correction, run when triggered with their data as parameters."""
+    cluster: dict[str, object] = {"workers": workers, **({"scheduler": scheduler} if scheduler else {})}
+    return [
+        tune_flow.to_deployment(name="tune", parameters=cluster, tags=["mpi-lidar", "tuning"],
+                                description="Optuna TPE study on the shared storage; trials on Dask."),
+        train_flow.to_deployment(name="train", parameters=cluster, tags=["mpi-lidar", "training"],
+                                 description="Final model through xgboost.dask with a study's best parameters."),
+        correct_archive_flow.to_deployment(name="correct-archive", parameters=cluster, tags=["mpi-lidar", "scans"],
+                                           description="Batch correction of an archive of scans, one task per scan."),
+    ]
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m flows.deploy", description=__doc__.splitlines()[0])
     parser.add_argument("--root", default=DEFAULT_ROOT, help=f"Directory of the stores (default {DEFAULT_ROOT}).")
@@ -61,7 +80,8 @@ def main(argv: list[str] | None = None) -> None:
               file=sys.stderr)
         sys.exit(EXIT_USER_ERROR)
     root = str(Path(args.root).resolve())  # runs start in other directories than this one
-    serve(*build_deployments(root, args.cron, args.preset, args.workers, args.scheduler))
+    serve(*build_deployments(root, args.cron, args.preset, args.workers, args.scheduler),
+          *on_demand_deployments(args.workers, args.scheduler))
 
 
 if __name__ == "__main__":

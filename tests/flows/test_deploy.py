@@ -11,7 +11,7 @@ from prefect.flows import load_flow_from_entrypoint
 from prefect.settings import PREFECT_API_URL, temporary_settings
 
 from flows import deploy
-from flows.deploy import build_deployments
+from flows.deploy import build_deployments, on_demand_deployments
 from flows.regenerate import regenerate_dataset_flow
 from mpi_lidar.cli import EXIT_USER_ERROR
 
@@ -21,6 +21,10 @@ ENTRYPOINT = "flows/regenerate.py:regenerate_dataset_flow"
 
 def prefect_yaml_deployments() -> list[dict]:
     return yaml.safe_load((REPO / "infra" / "prefect.yaml").read_text())["deployments"]
+
+
+def nightly_spec() -> dict:
+    return {d["name"]: d for d in prefect_yaml_deployments()}["nightly-regeneration"]
 
 
 def test_build_deployments__nightly_cron_entrypoint_and_parameters(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -57,14 +61,15 @@ def test_main__serves_the_built_deployment_with_an_absolute_root(monkeypatch: py
     monkeypatch.setattr(deploy, "serve", lambda *deployments: served.extend(deployments))
     monkeypatch.chdir(REPO)
     deploy.main(["--root", "runs/nightly", "--cron", "15 1 * * *", "--workers", "1"])
-    (deployment,) = served
+    deployment, *on_demand = served
+    assert [d.name for d in on_demand] == ["tune", "train", "correct-archive"]
     assert deployment.parameters["root"] == str(REPO / "runs" / "nightly")
     assert deployment.parameters["workers"] == 1 and deployment.schedules[0].schedule.cron == "15 1 * * *"
 
 
 def test_prefect_yaml__entrypoint_loads_the_regeneration_flow(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(REPO)  # `prefect deploy --prefect-file infra/prefect.yaml` runs from the repository root
-    (spec,) = prefect_yaml_deployments()
+    spec = nightly_spec()
     path, function = spec["entrypoint"].split(":")
     assert (REPO / path).is_file() and spec["entrypoint"] == ENTRYPOINT
     flow = load_flow_from_entrypoint(spec["entrypoint"])
@@ -72,9 +77,27 @@ def test_prefect_yaml__entrypoint_loads_the_regeneration_flow(monkeypatch: pytes
 
 
 def test_prefect_yaml__schedule_parameters_and_work_pool() -> None:
-    (spec,) = prefect_yaml_deployments()
+    spec = nightly_spec()
     assert spec["name"] == "nightly-regeneration"
     assert [s["cron"] for s in spec["schedules"]] == ["0 2 * * *"]
     accepted = inspect.signature(regenerate_dataset_flow.fn).parameters
     assert set(spec["parameters"]) <= set(accepted) and "root" in spec["parameters"]
     assert spec["work_pool"]["name"] == "local"
+
+
+def test_on_demand_deployments__tune_train_correct_with_cluster_parameters(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(REPO)
+    deployments = on_demand_deployments(workers=3, scheduler="tcp://dask:8786")
+    assert [d.entrypoint for d in deployments] == [
+        "flows/tune.py:tune_flow", "flows/train.py:train_flow", "flows/correct.py:correct_archive_flow"]
+    assert all(d.parameters == {"workers": 3, "scheduler": "tcp://dask:8786"} and not d.schedules
+               for d in deployments)
+    in_yaml = {d["name"]: d["entrypoint"] for d in prefect_yaml_deployments()}
+    assert {d.entrypoint for d in deployments} <= set(in_yaml.values())
+
+
+def test_prefect_yaml__every_entrypoint_loads(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(REPO)
+    for spec in prefect_yaml_deployments():
+        flow = load_flow_from_entrypoint(spec["entrypoint"])
+        assert set(spec["parameters"]) <= set(inspect.signature(flow.fn).parameters), spec["name"]
