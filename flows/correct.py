@@ -61,7 +61,7 @@ def summary_task(outcomes: list[ScanOutcome], wall_s: float, out: str) -> str:
 
 
 @flow(name="correct-archive")
-def correct_archive_flow(scans: list[str], model: str, out: str, gate: str = "all", workers: int = 2,
+def correct_archive_flow(scans: list[str], model: str, out: str, gate: str = "geometry", workers: int = 2,
                          scheduler: str | None = None) -> dict[str, object]:
     """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``."""
     options = CorrectionOptions(gate=gate)

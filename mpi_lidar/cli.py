@@ -222,8 +222,9 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.argument("scans", nargs=-1, required=True)
 @click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output directory.")
-@click.option("--gate", type=click.Choice(["all", "consistency"]), default="all", show_default=True,
-              help="Which valid pixels get corrected.")
+@click.option("--gate", type=click.Choice(["geometry", "all", "consistency"]), default="geometry", show_default=True,
+              help="Which valid pixels get corrected: where the scan's geometry allows multipath (geometry; "
+                   "scans without geometry fall back to all), every valid pixel (all), or frequency disagreement.")
 @click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
               help="Worker processes of a local Dask cluster; 0 runs in this process.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
@@ -311,6 +312,33 @@ def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, tr
     write_report(report, report_dir, figures)
     click.echo(result.table().markdown())
     click.echo(f"\nreport written to {report_dir}")
+
+
+@cli.command()
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Report directory.")
+@click.option("--rows", type=click.IntRange(min=100), help="Train rows (default 100,000; the test set is half).")
+@click.option("--quick", is_flag=True, help="Tiny sizes (seconds), for a first look and for tests.")
+@click.option("--seed", type=click.IntRange(min=0), help="Seed of the simulated rows (default: the config's).")
+def bench(out_dir: Path, rows: int | None, quick: bool, seed: int | None) -> None:
+    """Run time against error: test MAE, training time and throughput of every estimator, Pareto fronts."""
+    import dataclasses
+    import os
+    import platform
+
+    from mpi_lidar.bench import BenchPlan, run_bench, tradeoff_table, write_bench
+    from mpi_lidar.config import Config
+
+    plan = BenchPlan.quick() if quick else BenchPlan()
+    if rows is not None:
+        plan = dataclasses.replace(plan, rows=rows, test_rows=max(10, rows // 2))
+    config = Config() if seed is None else Config().replace(dataset={"seed": seed})
+    with _progress() as progress:
+        task = progress.add_task("bench", total=None)
+        result = run_bench(plan, config, on_step=lambda name: progress.update(task, description=name))
+    machine = f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}. "
+    write_bench(result, out_dir, machine)
+    click.echo(tradeoff_table(result).markdown())
+    click.echo(f"\nreport written to {out_dir} ({result.wall_s:.0f} s)")
 
 
 def _progress() -> Progress:

@@ -70,7 +70,9 @@ class PriorConfig(_Frozen):
     ``reciprocal`` (default): surface albedos a, b ~ U(albedo), coupling kappa ~ U(coupling),
     rho_SAS = rho_SAB = rho_BAS = a and rho_ABA = kappa * b. ``independent``: the four BRDF values are
     independent U(rho). ``explicit``: each BRDF value has its own range (rho_sas, rho_sab, rho_aba,
-    rho_bas). All schemes draw d_AS ~ U(d_as_m) and d_AB ~ U(d_ab_m).
+    rho_bas). All schemes draw d_AS ~ U(d_as_m) and d_AB ~ U(d_ab_m). A share ``no_multipath_fraction``
+    of the rows (drawn independently per row) gets rho_ABA = 0: surfaces with no partner, as most of a
+    real scene is (the paper's prior has multipath in every row: 0).
     """
 
     scheme: Literal["reciprocal", "independent", "explicit"] = "reciprocal"
@@ -83,6 +85,7 @@ class PriorConfig(_Frozen):
     rho_sab: Interval = (0.0, 1.0)
     rho_aba: Interval = (0.0, 1.0)
     rho_bas: Interval = (0.0, 1.0)
+    no_multipath_fraction: Unit = 0.0
 
     @field_validator("d_as_m", "d_ab_m", "albedo", "coupling", "rho", "rho_sas", "rho_sab", "rho_aba", "rho_bas")
     @classmethod

@@ -4,7 +4,9 @@ Each pixel gets one flag saying what was done (:class:`Flag`). Invalid pixels (n
 above the noise floor, saturated, frequencies that disagree by more than a phase wrap could explain) keep
 NaN. Valid pixels whose depth lies outside the range the model was trained on keep their raw depth (trees
 do not extrapolate). Valid pixels the gate lets through are corrected by the model; the others keep the
-raw depth of the highest frequency, exactly as measured.
+raw depth of the highest frequency, exactly as measured. The default gate, ``geometry``, corrects only
+where the scan's own geometry lets another surface send light back (:mod:`mpi_lidar.geometry`); a scan
+without geometry falls back to pixel-wise correction of every valid pixel, and its report says so.
 
 Per scan the outputs go into ``<out>/<scan name>/`` (``corrected.zarr``, report files, point clouds),
 built in a temporary directory and renamed into place, so a scan's outputs are all there or not at all. A
@@ -32,6 +34,7 @@ from distributed import Client, as_completed
 from numpy.typing import NDArray
 from scipy import stats
 
+from mpi_lidar import geometry
 from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.model import CorrectionModel, load_model
@@ -53,6 +56,7 @@ class Flag(IntEnum):
     SATURATED = 4
     INCONSISTENT = 5
     OUT_OF_RANGE = 6
+    NO_MULTIPATH = 7
 
 
 INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
@@ -62,12 +66,16 @@ INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSIST
 class CorrectionOptions:
     """Thresholds of the validity mask and the gate; their hash is part of a corrected scan's identity."""
 
-    gate: str = "all"
+    gate: str = "geometry"
     min_amplitude_sigmas: float = 5.0
     saturation_amplitude_v2: float = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
     max_depth_spread_m: float = 0.3
     range_tolerance_m: float = 0.02
     consistency_p_value: float = 0.01
+    min_multipath_bias_m: float = 0.001
+    geometry_block_m: float = geometry.DEFAULT_BLOCK_M
+    partner_range_m: float = geometry.DEFAULT_MAX_RANGE_M
+    footprint_area_m2: float = geometry.DEFAULT_FOOTPRINT_AREA_M2
     tile_pixels: int = 262_144
 
     def sha256(self) -> str:
@@ -123,10 +131,17 @@ class Gate(ABC):
 
     Contract: ``needs_correction(raw, frequencies_hz, sensor)`` takes the raw measurements (n, 2F) of valid
     pixels and returns a bool (n,): True where the model should correct. It must be much cheaper than
-    inference, since its purpose is to skip work.
+    inference, since its purpose is to skip work. A gate that looks at the whole scan first overrides
+    ``scan_candidates``: a bool (H*W,) of the pixels that may need correction (the others get
+    NO_MULTIPATH), or None where it cannot tell; ``uses_geometry`` says whether it wants the geometry.
     """
 
     name: str
+    uses_geometry = False
+
+    def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
+        """Bool (H*W,) of pixels that may need correction, from the whole scan; None: every pixel may."""
+        return None
 
     @abstractmethod
     def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
@@ -170,8 +185,51 @@ class ConsistencyGate(Gate):
         return chi2 > stats.chi2.ppf(1 - self.p_value, df=f - 1)
 
 
+class GeometryGate(Gate):
+    """Corrects only pixels where the scan's geometry allows multipath (:func:`geometry.multipath_potential`).
+
+    A pixel is a candidate where the expected multipath bias of its facing surfaces (white partner, small
+    phase) reaches ``min_bias_m`` [m]; flat walls, convex objects and open sky have none. The potential is
+    computed from the raw highest-frequency depth of the valid pixels. Scans without geometry (no rays or
+    scan grid) get None: every valid pixel is corrected, pixel-wise.
+    """
+
+    name = "geometry"
+    uses_geometry = True
+
+    def __init__(self, min_bias_m: float, block_m: float, partner_range_m: float, footprint_area_m2: float):
+        self.min_bias_m = min_bias_m
+        self.block_m = block_m
+        self.partner_range_m = partner_range_m
+        self.footprint_area_m2 = footprint_area_m2
+        self.potential_: geometry.MultipathPotential | None = None
+
+    def potential(self, scan: Scan, valid_depth: NDArray) -> geometry.MultipathPotential | None:
+        rays = scan.rays()
+        if rays is None:
+            return None
+        return geometry.multipath_potential(valid_depth.reshape(scan.shape), rays, block_m=self.block_m,
+                                            max_range_m=self.partner_range_m,
+                                            footprint_area_m2=self.footprint_area_m2)
+
+    def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
+        self.potential_ = self.potential(scan, valid_depth)
+        if self.potential_ is None:
+            return None
+        return (self.potential_.bias_m >= self.min_bias_m).ravel()
+
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        return np.ones(raw.shape[0], dtype=bool)
+
+
+GATES = ("geometry", "all", "consistency")
+NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
+
+
 def make_gate(options: CorrectionOptions) -> Gate:
-    gates = {"all": lambda: CorrectAll(), "consistency": lambda: ConsistencyGate(options.consistency_p_value)}
+    gates = {"all": lambda: CorrectAll(), "consistency": lambda: ConsistencyGate(options.consistency_p_value),
+             "geometry": lambda: GeometryGate(options.min_multipath_bias_m, options.geometry_block_m,
+                                              options.partner_range_m, options.footprint_area_m2)}
     if options.gate not in gates:
         raise MpiLidarError(f"unknown gate {options.gate!r}; choose one of {', '.join(gates)}")
     return gates[options.gate]()
@@ -179,12 +237,19 @@ def make_gate(options: CorrectionOptions) -> Gate:
 
 @dataclass(frozen=True)
 class Correction:
-    """A corrected scan: depth (H, W) [m] (NaN where invalid), flags (H, W), and what it cost."""
+    """A corrected scan: depth (H, W) [m] (NaN where invalid), flags (H, W), and what it cost.
+
+    ``multipath_bias_m`` (H, W) is the geometry gate's expected multipath bias [m] (None for other gates
+    or without geometry); ``gate_s`` the time the gate took [s]; ``notes`` what the report must say.
+    """
 
     depth: NDArray[np.float32]
     flags: NDArray[np.uint8]
     inference_s: float
     total_s: float
+    gate_s: float = 0.0
+    multipath_bias_m: NDArray[np.float32] | None = None
+    notes: tuple[str, ...] = ()
 
     def counts(self) -> dict[str, int]:
         values, counts = np.unique(self.flags, return_counts=True)
@@ -208,8 +273,20 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     flags = validity_flags(raw, scan.frequencies_hz, options, sensor)
     flags[(flags == Flag.NOT_NEEDED) & ~in_model_range(raw[:, len(scan.frequencies_hz) - 1], model, options)] = (
         Flag.OUT_OF_RANGE)
+    gate_started = time.perf_counter()
+    gate = make_gate(options)
+    top = raw[:, len(scan.frequencies_hz) - 1]
+    usable = ~np.isin(flags, [int(f) for f in INVALID_FLAGS])
+    candidates = gate.scan_candidates(scan, np.where(usable, top, np.nan))
+    notes: tuple[str, ...] = ()
+    if candidates is not None:
+        flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
+    elif gate.uses_geometry:
+        notes = (NO_GEOMETRY_NOTE,)
     valid = np.flatnonzero(flags == Flag.NOT_NEEDED)
-    needs = valid[make_gate(options).needs_correction(raw[valid], scan.frequencies_hz, sensor)]
+    needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
+    gate_s = time.perf_counter() - gate_started
+    potential = getattr(gate, "potential_", None)
     depth = raw[:, len(scan.frequencies_hz) - 1].copy()
     depth[np.isin(flags, [int(f) for f in INVALID_FLAGS])] = np.nan
     inference_started = time.perf_counter()
@@ -220,7 +297,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     flags[needs] = Flag.CORRECTED
     h, w = scan.shape
     return Correction(depth.reshape(h, w).astype(np.float32), flags.reshape(h, w), inference_s,
-                      time.perf_counter() - started)
+                      time.perf_counter() - started, gate_s,
+                      None if potential is None else potential.bias_m.astype(np.float32), notes)
 
 
 # --- one scan, with its outputs ---------------------------------------------------------------------------

@@ -1,8 +1,10 @@
-"""Geometry from a scan: point clouds, surface normals, PLY export."""
+"""Geometry from a scan: point clouds, surface normals, PLY export, and where multipath can exist."""
 
 from __future__ import annotations
 
 import os
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -65,3 +67,176 @@ def read_ply_points(path: str | Path) -> NDArray[np.float32]:
     properties = [line.split()[-1] for line in header if line.startswith("property float")]
     records = np.frombuffer(data[end:], dtype=[(name, "<f4") for name in properties], count=count)
     return np.stack([records["x"], records["y"], records["z"]], axis=1)
+
+
+# --- multipath potential -----------------------------------------------------------------------------------
+
+# Effective receiver footprint A_fp [m^2] of the A -> B -> A coupling: pi (12 mm)^2 times the gain that
+# calibrates the scene simulator's Lambertian boards to the paper's Fig. 7 (see mpi_lidar.scenes).
+DEFAULT_FOOTPRINT_AREA_M2 = 90.0 * np.pi * 0.012**2
+DEFAULT_BLOCK_M = 0.03
+DEFAULT_MAX_RANGE_M = 0.5
+DEFAULT_MIN_COS = 0.1
+
+
+@dataclass(frozen=True)
+class MultipathPotential:
+    """Per pixel (H, W): what the scan's own geometry says about the multipath A -> B -> A at A.
+
+    ``coupling`` is the simulator's kappa with a white partner (b = 1): sum over facing patches B of
+    (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i), capped at 1 [1]. ``d_ab_m`` is the coupling-weighted
+    mean A-B distance [m] (NaN where the coupling is 0). ``bias_m`` = coupling * d_ab_m, the depth bias
+    of that multipath in the small-phase limit for white surfaces (Gamma_M / Gamma_D times the extra
+    range) [m]: an upper scale of the bias, zero where no surface faces A. ``block_pixels`` is the side
+    of the pixel blocks the planes were fitted to.
+    """
+
+    coupling: NDArray[np.float64]
+    d_ab_m: NDArray[np.float64]
+    bias_m: NDArray[np.float64]
+    block_pixels: int
+
+
+def block_size_pixels(depth: NDArray, rays: NDArray, block_m: float) -> int:
+    """Side of a square pixel block spanning about ``block_m`` [m] at the scan's median range (4 to 64)."""
+    r = np.asarray(rays, dtype=np.float64)
+    h, w = r.shape[:2]
+    cy, cx = h // 2, w // 2
+    steps = []
+    if w > 1:
+        steps.append(np.arccos(np.clip(r[cy, min(cx, w - 2)] @ r[cy, min(cx, w - 2) + 1], -1, 1)))
+    if h > 1:
+        steps.append(np.arccos(np.clip(r[min(cy, h - 2), cx] @ r[min(cy, h - 2) + 1, cx], -1, 1)))
+    finite = np.asarray(depth)[np.isfinite(depth) & (np.asarray(depth) > 0)]
+    if not steps or finite.size == 0 or max(steps) <= 0:
+        return 4
+    pitch_m = float(np.median(finite)) * max(steps)
+    return int(np.clip(round(block_m / pitch_m), 4, 64))
+
+
+def _blocks(values: NDArray, b: int) -> NDArray:
+    """(H, W, ...) -> (Hb, Wb, b*b, ...), padded with NaN to whole blocks."""
+    h, w = values.shape[:2]
+    hb, wb = -(-h // b), -(-w // b)
+    padded = np.full((hb * b, wb * b, *values.shape[2:]), np.nan)
+    padded[:h, :w] = values
+    shaped = padded.reshape(hb, b, wb, b, *values.shape[2:]).swapaxes(1, 2)
+    return shaped.reshape(hb, wb, b * b, *values.shape[2:])
+
+
+def fit_block_planes(points: NDArray, b: int, min_share: float = 0.3
+                     ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """Robust plane per b x b block of a point grid (H, W, 3) [m].
+
+    Least-squares plane (smallest principal axis), then refitted to the points within 3 robust sigmas
+    (and at least 3 mm) of it, so a block that straddles a depth edge keeps its main surface.
+    Returns centres (Hb, Wb, 3) [m], unit normals (Hb, Wb, 3) towards the scanner, the inlier mask
+    (Hb, Wb, b*b), a usable flag (Hb, Wb) (enough finite inliers: ``min_share`` of the block) and the
+    RMS distance of the inliers from their plane (Hb, Wb) [m], the depth noise the plane has to beat.
+    """
+    p = _blocks(np.asarray(points, dtype=np.float64), b)
+    keep = np.isfinite(p).all(-1)
+    centres = normals = None
+    for _ in range(2):
+        count = keep.sum(-1)
+        weight = keep[..., None]
+        safe = np.maximum(count, 1)[..., None]
+        centres = np.where(weight, p, 0.0).sum(-2) / safe
+        x = np.where(weight, p - centres[..., None, :], 0.0)
+        cov = np.einsum("hwni,hwnj->hwij", x, x) / safe[..., None]
+        cov = np.where(count[..., None, None] >= 3, cov, np.eye(3))
+        normals = np.linalg.eigh(cov)[1][..., 0]
+        residual = np.abs(np.einsum("hwni,hwi->hwn", np.where(weight, p - centres[..., None, :], 0.0), normals))
+        finite = np.isfinite(p).all(-1)
+        with warnings.catch_warnings():  # all-NaN blocks (sky) have no median
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mad = np.nanmedian(np.where(finite, residual, np.nan), axis=-1)
+        limit = np.maximum(3 * 1.4826 * np.nan_to_num(mad), 0.003)
+        keep = finite & (residual <= limit[..., None])
+    flip = np.einsum("hwi,hwi->hw", normals, centres) > 0
+    normals = np.where(flip[..., None], -normals, normals)
+    usable = keep.sum(-1) >= max(3, min_share * b * b)
+    rms = np.sqrt(np.where(keep, residual**2, 0.0).sum(-1) / np.maximum(keep.sum(-1), 1))
+    return centres, normals, keep, usable, rms
+
+
+def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLOCK_M,
+                        max_range_m: float = DEFAULT_MAX_RANGE_M,
+                        footprint_area_m2: float = DEFAULT_FOOTPRINT_AREA_M2,
+                        min_cos: float = DEFAULT_MIN_COS) -> MultipathPotential:
+    """Where multipath can exist in a scan, from its range map (H, W) [m] and unit rays (H, W, 3).
+
+    The scan is cut into square blocks of about ``block_m`` [m]; a robust plane per block (centre, normal,
+    area) stands in for its surface, so the raw depth's noise and its own smooth multipath bias do not
+    make fake partners. For each pair of blocks A, B closer than ``max_range_m`` [m] that face each other
+    (cos_A, cos_B > ``min_cos``), B couples to A with the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B
+    A_fp / (pi^2 r^4 cos_i) (mpi_lidar.scenes, module docstring; r clamped below by the block size, the
+    sum capped at 1). A plane, a convex surface or open sky has no facing pair: zero everywhere. Block
+    values are interpolated bilinearly to pixels. Occlusion between A and B is ignored.
+    """
+    from scipy.ndimage import map_coordinates
+    from scipy.spatial import cKDTree
+
+    d = np.asarray(depth, dtype=np.float64)
+    d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    r = np.asarray(rays, dtype=np.float64)
+    h, w = d.shape
+    b = block_size_pixels(d, r, block_m)
+    points = d[..., None] * r
+    centres, normals, keep, usable, rms = fit_block_planes(points, b)
+    hb, wb = usable.shape
+    # Pixel footprints on the fitted plane: range^2 times solid angle over the incidence cosine.
+    solid_angle = _pixel_solid_angle(r)
+    ray_blocks = _blocks(r, b)
+    cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(ray_blocks), normals))
+    pixel_area = _blocks(d**2 * solid_angle, b) / np.maximum(cos_i, 0.1)
+    area = np.where(keep, np.nan_to_num(pixel_area), 0.0).sum(-1)
+    centre_ray = centres / np.maximum(np.linalg.norm(centres, axis=-1, keepdims=True), 1e-12)
+    block_cos_i = np.maximum(-np.einsum("hwi,hwi->hw", normals, centre_ray), 1e-3)
+    index = np.flatnonzero(usable.ravel())
+    coupling_blocks = np.zeros(hb * wb)
+    weighted_r = np.zeros(hb * wb)
+    if index.size >= 2:
+        c, n = centres.reshape(-1, 3)[index], normals.reshape(-1, 3)[index]
+        a_blk, cos_blk, noise = area.ravel()[index], block_cos_i.ravel()[index], rms.ravel()[index]
+        pairs = cKDTree(c).query_pairs(max_range_m, output_type="ndarray")
+        if pairs.size:
+            i, j = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
+            offset = c[j] - c[i]
+            dist = np.linalg.norm(offset, axis=1)
+            direction = offset / np.maximum(dist, 1e-12)[:, None]
+            cos_a = np.einsum("ni,ni->n", direction, n[i])
+            cos_b = -np.einsum("ni,ni->n", direction, n[j])
+            # Each centre must stand clear of the other's plane by more than the fits' noise can explain.
+            margin = 3.0 * (noise[i] + noise[j])
+            facing = (cos_a > min_cos) & (cos_b > min_cos) & (cos_a * dist > margin) & (cos_b * dist > margin)
+            r_eff = np.maximum(dist, np.sqrt(np.maximum(a_blk[j], a_blk[i])))
+            kappa = np.where(facing, (cos_a * cos_b) ** 2 * a_blk[j] * footprint_area_m2
+                             / (np.pi**2 * r_eff**4 * cos_blk[i]), 0.0)
+            coupling_blocks[index] = np.bincount(i, kappa, minlength=index.size)
+            weighted_r[index] = np.bincount(i, kappa * dist, minlength=index.size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d_ab_blocks = np.where(coupling_blocks > 0, weighted_r / coupling_blocks, 0.0)
+    coupling_blocks = np.minimum(coupling_blocks, 1.0)
+    ys = (np.arange(h) + 0.5) / b - 0.5
+    xs = (np.arange(w) + 0.5) / b - 0.5
+    grid = np.meshgrid(ys, xs, indexing="ij")
+
+    def to_pixels(values: NDArray) -> NDArray:
+        return map_coordinates(values.reshape(hb, wb), grid, order=1, mode="nearest")
+
+    coupling = to_pixels(coupling_blocks)
+    bias = to_pixels(coupling_blocks * d_ab_blocks)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d_ab = np.where(coupling > 0, bias / np.where(coupling > 0, coupling, 1.0), np.nan)
+    missing = ~np.isfinite(d)
+    coupling[missing], bias[missing], d_ab[missing] = 0.0, 0.0, np.nan
+    return MultipathPotential(coupling, d_ab, bias, b)
+
+
+def _pixel_solid_angle(rays: NDArray) -> NDArray[np.float64]:
+    """Solid angle per pixel (H, W) [sr] of a ray grid, from the cross product of neighbouring ray steps."""
+    h, w = rays.shape[:2]
+    du = np.gradient(rays, axis=1) if w > 1 else np.zeros_like(rays)
+    dv = np.gradient(rays, axis=0) if h > 1 else np.zeros_like(rays)
+    return np.linalg.norm(np.cross(du, dv), axis=-1)

@@ -47,5 +47,13 @@ SCHEMES: dict[str, Callable[[PriorConfig, int, np.random.Generator], NDArray[np.
 
 
 def sample_theta(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
-    """Draw n scene parameter vectors, shape (n, 6), columns :data:`THETA_NAMES`. [m, m, 1, 1, 1, 1]"""
-    return SCHEMES[prior.scheme](prior, n, rng)
+    """Draw n scene parameter vectors, shape (n, 6), columns :data:`THETA_NAMES`. [m, m, 1, 1, 1, 1]
+
+    With ``prior.no_multipath_fraction`` > 0 each row independently loses its multipath (rho_ABA = 0)
+    with that probability, drawn after the scheme's columns (a fraction of 0 draws nothing more, so the
+    paper's prior gives the same rows as before).
+    """
+    theta = SCHEMES[prior.scheme](prior, n, rng)
+    if prior.no_multipath_fraction > 0:
+        theta[rng.random(n) < prior.no_multipath_fraction, THETA_NAMES.index("rho_aba")] = 0.0
+    return theta

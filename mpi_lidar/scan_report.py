@@ -26,7 +26,8 @@ from mpi_lidar.evaluate import error_metrics
 from mpi_lidar.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
 from mpi_lidar.scans import Scan
 
-FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84"]
+FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f5f6fa"]
+GATED_OUT = ("not_needed", "no_multipath")
 
 
 def _regions(scan: Scan, correction: Correction) -> dict[str, np.ndarray]:
@@ -124,7 +125,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
                        identity: dict[str, str], options: CorrectionOptions) -> list[str]:
     """Everything for one scan, written into a staging directory and swapped in at the end."""
     staging = staged_directory(target)
-    notes: list[str] = []
+    notes: list[str] = list(correction.notes)
     try:
         _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options)
         figures = {"maps.png": maps_figure(scan, correction)}
@@ -163,6 +164,8 @@ def _write_corrected_store(path: Path, scan: Scan, correction: Correction, ident
     group = zarr.open_group(store=str(path), mode="w-")
     group.create_array("corrected_depth", data=correction.depth, dimension_names=("y", "x"))
     group.create_array("flags", data=correction.flags, dimension_names=("y", "x"))
+    if correction.multipath_bias_m is not None:
+        group.create_array("multipath_bias_m", data=correction.multipath_bias_m, dimension_names=("y", "x"))
     group.attrs.update({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
                         "options": options.__dict__, "flag_codes": {f.name.lower(): int(f) for f in Flag},
                         "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz)})
@@ -176,26 +179,33 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                   tuple((name.replace("_", " "), f"{n:,}", f"{100 * n / total:.1f} %") for name, n in counts.items()))
     blocks: list = [f"Scan `{scan.name}`, {scan.shape[0]} x {scan.shape[1]} pixels at "
                     + ", ".join(f"{f / 1e6:g}" for f in scan.frequencies_hz) + " MHz. "
-                    f"Correction {correction.total_s:.2f} s (inference {correction.inference_s:.2f} s).", flags]
+                    f"Correction {correction.total_s:.2f} s (gate {correction.gate_s:.2f} s, inference "
+                    f"{correction.inference_s:.2f} s).", flags]
     if metrics:
         blocks.append(metrics_table(metrics))
     blocks += list(notes) + [Path(name) for name in figures]
     return Report(title=f"Correction of {scan.name}", blocks=blocks,
                   data={"scan": scan.name, "counts": counts, "metrics": metrics, "notes": notes,
-                        "seconds": {"total": correction.total_s, "inference": correction.inference_s}})
+                        "seconds": {"total": correction.total_s, "gate": correction.gate_s,
+                                    "inference": correction.inference_s}})
 
 
 def batch_report(outcomes: list[ScanOutcome], wall_s: float) -> Report:
-    """One table over the batch: status, skipped share, MAE before/after on the whole map and the mask."""
+    """One table over the batch: status, gated-out share, MAE before/after on the whole map and the mask.
+
+    Gated out: valid pixels left as measured because the gate found no need (no multipath potential, or
+    not needed by a pixel-wise gate), as a share of all pixels.
+    """
     rows = []
     for o in outcomes:
         total = max(sum(o.counts.values()), 1)
-        not_needed = f"{100 * o.counts.get('not_needed', 0) / total:.1f} %" if o.counts else ""
+        gated = sum(o.counts.get(name, 0) for name in GATED_OUT)
+        not_needed = f"{100 * gated / total:.1f} %" if o.counts else ""
         whole, masked = o.metrics.get("whole map", {}), o.metrics.get("masked region", {})
         rows.append((o.name, o.status, not_needed, _mm(whole, "raw_mae_m"), _mm(whole, "corrected_mae_m"),
                      _mm(masked, "raw_mae_m"), _mm(masked, "corrected_mae_m"), f"{o.seconds:.2f}",
                      o.reason or "; ".join(o.notes)))
-    table = Table(("scan", "status", "not needed", "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]",
+    table = Table(("scan", "status", "gated out", "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]",
                    "masked corrected MAE [mm]", "seconds", "notes"), tuple(rows))
     failed = sum(o.status == "failed" for o in outcomes)
     summary = (f"{len(outcomes)} scans in {wall_s:.1f} s: {sum(o.status == 'corrected' for o in outcomes)} corrected, "

@@ -254,10 +254,15 @@ def simple_region_mask(scene: Scene, which: NDArray) -> NDArray[np.bool_]:
 
 
 def light_transport(scene: Scene, config: Config, footprint_radius_m: float, patch_spacing_m: float,
-                    coupling_gain: float = 1.0) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+                    coupling_gain: float = 1.0, coupling_out: dict[str, NDArray] | None = None,
+                    ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
     """Per pixel and frequency: the complex correlation phasor (H*W, F) [V^2] and the DC sum of amplitudes.
 
-    Returns (phasor, dc) where dc is sum |Gamma_k| over paths [V^2].
+    Returns (phasor, dc) where dc is sum |Gamma_k| over paths [V^2]. A dict passed as ``coupling_out``
+    receives the true per-pixel multipath of the render: ``coupling`` (H*W,), the summed kappa of the
+    prior (ratio Gamma_M / Gamma_D over a b, after the cap at 1; the quantity
+    :func:`mpi_lidar.geometry.multipath_potential` estimates) [1], and ``d_ab_m`` (H*W,), the
+    ratio-weighted mean A-B distance [m] (NaN without multipath).
     """
     s = config.sensor
     freqs = np.asarray(config.frequencies_hz)
@@ -266,6 +271,8 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     phasor = np.zeros((rays.shape[0], freqs.size), dtype=np.complex128)
     dc = np.zeros((rays.shape[0], freqs.size))
     patches = [s_.patches(patch_spacing_m) for s_ in scene.surfaces]
+    true_kappa = np.zeros(rays.shape[0])
+    true_d_ab = np.full(rays.shape[0], np.nan)
     footprint_area = coupling_gain * np.pi * footprint_radius_m**2
     for index, surface in enumerate(scene.surfaces):
         pixels = np.flatnonzero(which == index)
@@ -280,6 +287,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
             multipath = np.zeros((block.size, freqs.size), dtype=np.complex128)
             multipath_dc = np.zeros(block.size)
             kappa = np.zeros(block.size)
+            ratio_r = np.zeros(block.size)
             for other, (centres, patch_normals, areas) in enumerate(patches):
                 if other == index:
                     continue  # planar and convex surfaces do not see themselves
@@ -289,11 +297,17 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
                 multipath += np.einsum("nm,nmf->nf", ratio, wave)  # eq 13, 15: one term per patch
                 multipath_dc += ratio.sum(1)
                 kappa += ratio.sum(1) / (surface.albedo * scene.surfaces[other].albedo)
+                ratio_r += (ratio * r).sum(1)
             # Energy: A cannot get back more than all its light through B (kappa <= 1, as in the prior).
             scale = 1.0 / np.maximum(kappa, 1.0)
+            true_kappa[block] = kappa * scale
+            with np.errstate(invalid="ignore", divide="ignore"):
+                true_d_ab[block] = np.where(multipath_dc > 0, ratio_r / multipath_dc, np.nan)
             direct = gamma_d[:, None] * np.exp(1j * direct_phase)
             phasor[block] = direct * (1 + scale[:, None] * multipath)
             dc[block] = gamma_d[:, None] * (1 + scale * multipath_dc)[:, None]
+    if coupling_out is not None:
+        coupling_out.update(coupling=true_kappa, d_ab_m=true_d_ab)
     return phasor, dc
 
 

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 import zarr
 
+from mpi_lidar.config import Config
 from mpi_lidar.correct import (
+    NO_GEOMETRY_NOTE,
     CorrectionOptions,
     Flag,
     correct_archive,
@@ -18,6 +20,7 @@ from mpi_lidar.correct import (
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.model import load_model
 from mpi_lidar.scans import Scan, write_scan
+from mpi_lidar.scenes import corner, flat_wall, render
 from tests.scan_factory import two_path_scan
 
 
@@ -40,7 +43,7 @@ def damaged(scan: Scan) -> Scan:
 
 
 def test_correct_scan__flags_say_what_was_done(small_model):
-    correction = correct_scan(damaged(two_path_scan("d")), load_model(small_model), CorrectionOptions())
+    correction = correct_scan(damaged(two_path_scan("d")), load_model(small_model), CorrectionOptions(gate="all"))
     assert [correction.flags[0, j] for j in range(4)] == [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED,
                                                          Flag.INCONSISTENT]
     assert np.isnan(correction.depth[0, :4]).all()
@@ -52,13 +55,13 @@ def test_correct_scan__flags_say_what_was_done(small_model):
 def test_correct_scan__corrected_pixels_are_the_model_prediction(small_model):
     scan = two_path_scan("p")
     model = load_model(small_model)
-    correction = correct_scan(scan, model, CorrectionOptions(tile_pixels=100))
+    correction = correct_scan(scan, model, CorrectionOptions(gate="all", tile_pixels=100))
     np.testing.assert_allclose(correction.depth.ravel(), model.predict_depth(scan.raw_pixels()), atol=1e-6)
 
 
 def test_correct_scan__multipath_region_improves(small_model):
     scan = two_path_scan("m", height=40, width=40)
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
+    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(gate="all"))
     left = np.s_[:, :20]  # the multipath half
     raw_error = np.abs(scan.depth[-1][left] - scan.reference_depth[left]).mean()
     corrected_error = np.abs(correction.depth[left] - scan.reference_depth[left]).mean()
@@ -155,3 +158,53 @@ def test_correct_cli__missing_model_is_one_line_exit_2(archive, tmp_path):
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and result.stderr.startswith("error:")
     assert not (tmp_path / "out").exists()
+
+
+# --- the geometry gate ------------------------------------------------------------------------------------
+
+
+def test_geometry_gate__flat_wall_is_left_exactly_as_measured(small_model):
+    scan = render(flat_wall(20.0, height=48, width=64), Config(), np.random.default_rng(1))
+    model = load_model(small_model)
+    correction = correct_scan(scan, model, CorrectionOptions())
+    valid = ~np.isin(correction.flags, [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT])
+    assert (correction.flags[valid] == Flag.NO_MULTIPATH).mean() > 0.99
+    gated = correction.flags == Flag.NO_MULTIPATH
+    np.testing.assert_array_equal(correction.depth[gated], scan.depth[-1][gated])
+    raw_mae = np.abs(scan.depth[-1] - scan.reference_depth)[valid].mean()
+    corrected_mae = np.abs(correction.depth - scan.reference_depth)[valid].mean()
+    assert corrected_mae <= raw_mae + 1e-9
+    pixelwise = correct_scan(scan, model, CorrectionOptions(gate="all"))
+    assert (pixelwise.flags[valid] == Flag.CORRECTED).all()
+    assert correction.multipath_bias_m is not None and float(correction.multipath_bias_m.max()) == 0.0
+    assert correction.notes == ()
+
+
+def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
+    scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
+    correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
+    row = correction.flags[20]
+    assert (row[40:56] == Flag.CORRECTED).all(), "the edge is at the centre column"
+    assert correction.counts()["corrected"] > 0.2 * row.size * 40
+    far = correction.flags == Flag.NO_MULTIPATH
+    np.testing.assert_array_equal(correction.depth[far], scan.depth[-1][far])
+    bias = correction.multipath_bias_m[20]
+    assert bias[48] > bias[60] > bias[80] >= 0
+
+
+def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model, tmp_path):
+    scan = replace(two_path_scan("nogeo"), azimuth_rad=None, elevation_rad=None)
+    correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
+    assert correction.notes == (NO_GEOMETRY_NOTE,)
+    assert (correction.flags == Flag.CORRECTED).all() and correction.multipath_bias_m is None
+    write_scan(scan, tmp_path / "nogeo.scan.zarr")
+    outcome = process_scan(tmp_path / "nogeo.scan.zarr", small_model, tmp_path / "out", CorrectionOptions())
+    assert outcome.status == "corrected" and NO_GEOMETRY_NOTE in outcome.notes
+    assert NO_GEOMETRY_NOTE in (tmp_path / "out" / "nogeo" / "report.md").read_text()
+    stored = zarr.open_group(str(tmp_path / "out" / "nogeo" / "corrected.zarr"), mode="r")
+    assert "multipath_bias_m" not in stored and stored.attrs["flag_codes"]["no_multipath"] == 7
+
+
+def test_flag__existing_codes_are_stable():
+    assert [int(f) for f in Flag] == list(range(8))
+    assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0
