@@ -1,0 +1,56 @@
+"""The whole pipeline through the command line against a real cluster and a shared PostgreSQL study."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+import zarr
+
+from mpi_lidar import tune
+from tests.integration.conftest import DaskCluster, database_url, run_cli
+
+pytestmark = pytest.mark.slow
+
+SIMULATE = ("--samples", "4000", "--chunk-rows", "1000", "--seed", "5")
+SCENES = ("flat_wall", "corner")
+
+
+def test_cli_pipeline__runs_unchanged_on_dask_processes_and_postgresql(
+    tmp_path: Path, dask_cluster: DaskCluster, pg_database: str
+) -> None:
+    cluster = ("--scheduler", dask_cluster.address)
+    storage = database_url(pg_database)
+    data = tmp_path / "dataset.zarr"
+
+    run_cli("simulate", "--out", str(data), *SIMULATE, *cluster)
+    assert zarr.open_group(str(data), mode="r")["chunk_done"][:].all()
+
+    tuned = run_cli("tune", "--data", str(data), "--storage", storage, "--study", "it", "--trials", "4",
+                    "--tune-rows", "800", *cluster)
+    assert "4 trials run" in tuned.stdout
+    study = optuna.load_study(study_name="it", storage=tune.normalise_storage_url(storage))
+    trials = study.get_trials(deepcopy=False)
+    assert sorted(t.number for t in trials) == [0, 1, 2, 3]
+    assert all(t.state in tune.FINISHED for t in trials)
+
+    model = tmp_path / "model"
+    run_cli("train", "--data", str(data), "--out", str(model), "--study", "it", "--storage", storage, *cluster)
+    card = json.loads((model / "card.json").read_text())
+    assert card["training"]["dask_workers"] == 2
+    assert card["params"]["max_depth"] == study.best_trial.params["max_depth"]
+
+    scans = tmp_path / "scans"
+    run_cli("render-scenes", "--out", str(scans), *[arg for name in SCENES for arg in ("--scene", name)])
+    out = tmp_path / "corrected"
+    run_cli("correct", str(scans), "--model", str(model), "--out", str(out), *cluster)
+    outputs = sorted(p for p in out.iterdir() if p.name != "summary")
+    assert len(outputs) == len(SCENES)
+    for output in outputs:
+        depth = zarr.open_group(str(output / "corrected.zarr"), mode="r")["corrected_depth"][:]
+        assert depth.shape == (96, 128) and np.isfinite(depth).mean() > 0.9
+        assert (output / "report.html").is_file() and (output / "corrected.ply").is_file()
+    assert "2 corrected, 0 already done, 0 failed" in (out / "summary" / "report.md").read_text()
