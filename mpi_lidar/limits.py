@@ -19,17 +19,18 @@ Importance sampling with the prior as proposal collapses at low noise (the likel
 ~1e-5 of their prior range). The proposal here is built per row:
 
 1. (d_AB, q) from a proposal over the weakly identified pair: the prior at the first stage, then a mixture
-   of the prior (defensive share ``DEFENSIVE``) and a Gaussian fitted to the previous stage's weighted
-   particles (covariance inflated by ``INFLATE``), for ``stages`` stages in all.
+   of the prior (defensive share ``DEFENSIVE``) and a kernel mixture: ``KERNELS`` Gaussians centred on
+   particles of the previous stage resampled by weight, with ``BANDWIDTH``^2 times their weighted covariance
+   (population Monte Carlo), for ``stages`` stages in all.
 2. Given (d_AB, q), d_AS and ln a are nearly pinned by the data: their centre is found by Newton steps on the
    measured phasors with the noiseless (unrounded) moment model, and they are drawn from Student-t
    distributions (``NU`` degrees of freedom) around it whose scales are ``WIDEN`` times the predicted
-   standard deviations (from the moment covariance at the measurement), with a floor for the rounding of
-   eq 16, which makes the exact likelihood slightly jagged.
+   standard deviations (from the moment covariance at the measurement).
 
 The weights p(theta) L(theta) / q(theta) are exact, so the estimates are consistent whatever the proposal;
 the proposal only sets their variance. Each row reports its Kish effective sample size
-(sum w)^2 / sum w^2 of the last stage, whose particles give the estimates.
+(sum w)^2 / sum w^2 over the particles of all stages, which together give the estimates (each stage's
+weights are exact, so they can be pooled).
 """
 
 from __future__ import annotations
@@ -46,15 +47,15 @@ from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.sampling import sample_theta
 
 DEFAULT_POOL = 2000
-DEFAULT_STAGES = 3
+DEFAULT_STAGES = 4
 DEFENSIVE = 0.2
-INFLATE = 2.0
+KERNELS = 64
+BANDWIDTH = 0.5
 NU = 5.0
-WIDEN = 2.0
-# Floor of the proposal scale of d_AS [m] and of ln a [1]: photon rounding (eq 16) moves the exact mean by
-# up to ~1e-3 rad at the weakest returns, beyond the predicted noise at noise scales << 1.
-DEPTH_FLOOR_M = 2e-5
-LOG_ALBEDO_FLOOR = 2e-5
+WIDEN = 1.5
+# Floor of the proposal scale of d_AS [m] and of ln a [1], against a predicted standard deviation of zero.
+DEPTH_FLOOR_M = 1e-6
+LOG_ALBEDO_FLOOR = 1e-6
 # Thetas per block of likelihood evaluations (memory: ~1 kB per theta).
 BLOCK_THETAS = 100_000
 
@@ -66,7 +67,7 @@ class PosteriorEstimates:
     median_m : posterior median (the MAE-optimal estimate). [m]
     mean_m : posterior mean (the RMSE-optimal estimate). [m]
     std_m : posterior standard deviation. [m]
-    ess : Kish effective sample size of the final stage. [samples]
+    ess : Kish effective sample size of all stages' particles. [samples]
     """
 
     median_m: NDArray[np.float64]
@@ -105,7 +106,7 @@ def _check(config: Config) -> None:
     if config.prior.scheme != "reciprocal":
         raise MpiLidarError(f"the Bayes limit supports the reciprocal prior only, not {config.prior.scheme!r}")
     if config.simulator.noise_scale <= 0:
-        raise MpiLidarError("the Bayes limit needs noise (simulator.noise_scale > 0): without it the posterior is a point")
+        raise MpiLidarError("the Bayes limit needs simulator.noise_scale > 0 (without noise the posterior is a point)")
     if config.prior.d_as_m[1] <= config.prior.d_as_m[0] or config.prior.albedo[1] <= config.prior.albedo[0]:
         raise MpiLidarError("the Bayes limit needs non-degenerate d_as_m and albedo ranges")
 
@@ -236,7 +237,7 @@ class _Posterior:
 
     def _estimate_block(self, raw: NDArray, rng: np.random.Generator, pool: int, stages: int):
         prior = self.prior
-        z, depth, amplitude = self.measured(raw)
+        z, _, amplitude = self.measured(raw)
         p_meas, q_meas = z.real, z.imag
         sigma = self.noise_std(raw)
         n = raw.shape[0]
@@ -244,8 +245,8 @@ class _Posterior:
         a0 = np.clip(amplitude[:, -1] * d0**2 / self.config.sensor.gamma_r_v2, 1e-4, 1.0)
         pi0 = prior.no_multipath_fraction if hasattr(prior, "no_multipath_fraction") else 0.0
         sizes = [max(64, pool // 4)] * (stages - 1) + [pool]
-        gauss = None  # (mean (n, 2), cov (n, 2, 2)) of (d_AB, q)
-        result = None
+        gauss = None  # kernel centres (n, K, 2) and covariance (n, 2, 2) of (d_AB, q)
+        samples, log_weights = [], []
         for m in sizes:
             d_ab, q, log_pq = self._propose_pair(n, m, gauss, rng)
             multi = np.ones((n, m), dtype=bool)
@@ -275,11 +276,15 @@ class _Posterior:
             theta[..., 0] = np.where(ok, d_as, d0[:, None])
             log_l = self.log_likelihood(theta, p_meas[:, None, :], q_meas[:, None, :])
             log_w = np.where(ok, log_w + log_l, -np.inf)
+            samples.append(d_as)
+            log_weights.append(log_w)
             w = np.exp(log_w - log_w.max(axis=1, keepdims=True))
             w /= w.sum(axis=1, keepdims=True)
-            result = (d_as, w)
-            gauss = _fit_pair(d_ab, q, np.where(multi, w, 0.0))
-        d_as, w = result
+            gauss = _fit_pair(d_ab, q, np.where(multi, w, 0.0), rng, prior)
+        # Every stage's weights p L / q are exact (q is normalised), so all particles count.
+        d_as, log_w = np.concatenate(samples, axis=1), np.concatenate(log_weights, axis=1)
+        w = np.exp(log_w - log_w.max(axis=1, keepdims=True))
+        w /= w.sum(axis=1, keepdims=True)
         ess = 1.0 / (w**2).sum(axis=1)
         mean = (w * d_as).sum(axis=1)
         std = np.sqrt(np.maximum((w * (d_as - mean[:, None]) ** 2).sum(axis=1), 0.0))
@@ -293,31 +298,47 @@ class _Posterior:
             q = _sample_coupling(prior, (n, m), rng)
             log_q = _log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
             return d_ab, q, np.where(np.isfinite(log_q), log_q, 0.0)
-        mean, cov = gauss
+        centres, cov = gauss
+        k = centres.shape[1]
         chol = np.linalg.cholesky(cov)
+        pick = rng.integers(0, k, (n, m))
         eps = rng.standard_normal((n, m, 2))
-        g = mean[:, None, :] + np.einsum("nij,nmj->nmi", chol, eps)
+        g = np.take_along_axis(centres, pick[..., None], axis=1) + np.einsum("nij,nmj->nmi", chol, eps)
         from_prior = rng.random((n, m)) < DEFENSIVE
         d_ab = np.where(from_prior, rng.uniform(*prior.d_ab_m, (n, m)), g[..., 0])
         q = np.where(from_prior, _sample_coupling(prior, (n, m), rng), g[..., 1])
         log_prior = _log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
-        x = np.stack([d_ab, q], -1) - mean[:, None, :]
-        sol = np.linalg.solve(cov[:, None], x[..., None])[..., 0]
-        log_g = -0.5 * (x * sol).sum(-1) - np.log(2 * np.pi) - 0.5 * np.log(np.linalg.det(cov))[:, None]
+        x = np.stack([d_ab, q], -1)[:, :, None, :] - centres[:, None, :, :]  # (n, m, K, 2)
+        inv = np.linalg.inv(cov)[:, None, None]
+        maha = np.einsum("nmki,nmkij,nmkj->nmk", x, np.broadcast_to(inv, (n, 1, 1, 2, 2)), x)
+        log_norm = -np.log(2 * np.pi) - 0.5 * np.log(np.linalg.det(cov))[:, None]
+        log_g = np.logaddexp.reduce(-0.5 * maha, axis=-1) - np.log(k) + log_norm
         log_q = np.logaddexp(np.log(DEFENSIVE) + log_prior, np.log1p(-DEFENSIVE) + log_g)
         return d_ab, q, log_q
 
 
-def _fit_pair(d_ab: NDArray, q: NDArray, w: NDArray):
-    """Weighted mean and inflated covariance of (d_AB, q) per row, for the next stage's Gaussian."""
-    total = np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
-    w = w / total
+def _fit_pair(d_ab: NDArray, q: NDArray, w: NDArray, rng: np.random.Generator, prior: PriorConfig):
+    """Kernel mixture for the next stage: KERNELS centres resampled by weight, a shared kernel covariance.
+
+    The kernel covariance is BANDWIDTH^2 times the weighted covariance of (d_AB, q) per row, so the mixture
+    follows curved posteriors that one Gaussian would cover badly. Where the weights sit on few particles
+    that covariance collapses; its floor is the squared spacing of m particles over the prior's range, the
+    resolution at which the stage looked.
+    """
+    n, m = w.shape
+    total = w.sum(axis=1, keepdims=True)
+    w = np.where(total > 0, w / np.where(total > 0, total, 1.0), 1.0 / m)
     x = np.stack([d_ab, q], -1)
     mean = (w[..., None] * x).sum(1)
     dx = x - mean[:, None, :]
     cov = np.einsum("nm,nmi,nmj->nij", w, dx, dx)
-    floor = np.diag([1e-8, 1e-8])
-    return mean, INFLATE * cov + floor
+    u = (rng.random((n, 1)) + np.arange(KERNELS)[None, :]) / KERNELS
+    cdf = np.cumsum(w, axis=1)
+    idx = np.minimum((cdf[:, None, :] < u[:, :, None]).sum(-1), m - 1)
+    centres = np.take_along_axis(x, idx[..., None], axis=1)
+    spacing = np.array([prior.d_ab_m[1] - prior.d_ab_m[0], prior.coupling[1] * prior.albedo[1]]) / np.sqrt(m)
+    floor = np.diag(np.maximum(spacing, 1e-6) ** 2)
+    return centres, BANDWIDTH**2 * cov + floor
 
 
 def weighted_median(x: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
