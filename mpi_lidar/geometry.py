@@ -77,6 +77,8 @@ DEFAULT_FOOTPRINT_AREA_M2 = 90.0 * np.pi * 0.012**2
 DEFAULT_BLOCK_M = 0.03
 DEFAULT_MAX_RANGE_M = 0.5
 DEFAULT_MIN_COS = 0.1
+# Range jump [m] within a block beyond which points are taken for another surface in the first plane fit.
+EDGE_JUMP_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -128,14 +130,20 @@ def fit_block_planes(points: NDArray, b: int, min_share: float = 0.3
                      ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
     """Robust plane per b x b block of a point grid (H, W, 3) [m].
 
-    Least-squares plane (smallest principal axis), then refitted to the points within 3 robust sigmas
-    (and at least 3 mm) of it, so a block that straddles a depth edge keeps its main surface.
+    Least-squares plane (smallest principal axis) of the points within ``EDGE_JUMP_M`` of the block's
+    median range, then refitted to the points within 3 robust sigmas (and at least 3 mm) of it, so a
+    block that straddles a depth edge keeps its main surface.
     Returns centres (Hb, Wb, 3) [m], unit normals (Hb, Wb, 3) towards the scanner, the inlier mask
     (Hb, Wb, b*b), a usable flag (Hb, Wb) (enough finite inliers: ``min_share`` of the block) and the
     RMS distance of the inliers from their plane (Hb, Wb) [m], the depth noise the plane has to beat.
     """
     p = _blocks(np.asarray(points, dtype=np.float64), b)
     keep = np.isfinite(p).all(-1)
+    # Start from the points near the block's median range: a far background cannot tilt the first fit.
+    distance = np.where(keep, np.linalg.norm(np.nan_to_num(p), axis=-1), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        keep &= np.abs(distance - np.nanmedian(distance, axis=-1, keepdims=True)) <= EDGE_JUMP_M
     centres = normals = None
     for _ in range(2):
         count = keep.sum(-1)
@@ -146,13 +154,15 @@ def fit_block_planes(points: NDArray, b: int, min_share: float = 0.3
         cov = np.einsum("hwni,hwnj->hwij", x, x) / safe[..., None]
         cov = np.where(count[..., None, None] >= 3, cov, np.eye(3))
         normals = np.linalg.eigh(cov)[1][..., 0]
-        residual = np.abs(np.einsum("hwni,hwi->hwn", np.where(weight, p - centres[..., None, :], 0.0), normals))
         finite = np.isfinite(p).all(-1)
+        residual = np.abs(np.einsum("hwni,hwi->hwn", np.where(finite[..., None], p - centres[..., None, :], 0.0),
+                                    normals))
         with warnings.catch_warnings():  # all-NaN blocks (sky) have no median
             warnings.simplefilter("ignore", RuntimeWarning)
-            mad = np.nanmedian(np.where(finite, residual, np.nan), axis=-1)
+            mad = np.nanmedian(np.where(keep, residual, np.nan), axis=-1)
         limit = np.maximum(3 * 1.4826 * np.nan_to_num(mad), 0.003)
         keep = finite & (residual <= limit[..., None])
+    residual = np.where(keep, residual, 0.0)
     flip = np.einsum("hwi,hwi->hw", normals, centres) > 0
     normals = np.where(flip[..., None], -normals, normals)
     usable = keep.sum(-1) >= max(3, min_share * b * b)

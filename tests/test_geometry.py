@@ -1,0 +1,119 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpi_lidar.config import Config, SensorConfig
+from mpi_lidar.correct import INVALID_FLAGS, CorrectionOptions, validity_flags
+from mpi_lidar.geometry import DEFAULT_FOOTPRINT_AREA_M2, fit_block_planes, multipath_potential, point_cloud
+from mpi_lidar.scans import grid_rays
+from mpi_lidar.scenes import (
+    Rectangle,
+    Scene,
+    corner,
+    cylinder_scene,
+    first_hits,
+    flat_wall,
+    light_transport,
+    render,
+    sphere_scene,
+)
+
+
+def valid_depth(scan) -> np.ndarray:
+    """The raw 31.25 MHz depth where correction's validity mask keeps the pixel (sky: no return), else NaN."""
+    flags = validity_flags(scan.raw_pixels(), scan.frequencies_hz, CorrectionOptions(), SensorConfig())
+    valid = ~np.isin(flags, [int(f) for f in INVALID_FLAGS]).reshape(scan.shape)
+    return np.where(valid, scan.depth[-1], np.nan)
+
+
+def exact_depth(scene: Scene) -> np.ndarray:
+    d, _ = first_hits(scene)
+    return np.where(np.isfinite(d), d, np.nan).reshape(scene.elevation_rad.size, scene.azimuth_rad.size)
+
+
+def rays_of(scene: Scene) -> np.ndarray:
+    return grid_rays(scene.azimuth_rad, scene.elevation_rad)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 30.0, 60.0])
+def test_multipath_potential__plane_has_none_exact_and_noisy(tilt):
+    scene = flat_wall(tilt, height=48, width=64)
+    exact = multipath_potential(exact_depth(scene), rays_of(scene))
+    assert exact.coupling.max() == 0.0 and exact.bias_m.max() == 0.0 and np.isnan(exact.d_ab_m).all()
+    for seed in range(3):
+        noisy = render(scene, Config(), np.random.default_rng(seed))
+        assert multipath_potential(valid_depth(noisy), noisy.rays()).bias_m.max() == 0.0
+
+
+@pytest.mark.parametrize("make", [sphere_scene, cylinder_scene])
+def test_multipath_potential__convex_objects_and_open_sky_have_none(make):
+    scene = make(height=48, width=64)
+    depth = exact_depth(scene)
+    assert np.isnan(depth).mean() > 0.2, "the object is surrounded by sky"
+    assert multipath_potential(depth, rays_of(scene)).coupling.max() == 0.0
+    noisy = render(scene, Config(), np.random.default_rng(4))
+    assert multipath_potential(valid_depth(noisy), noisy.rays()).coupling.max() == 0.0
+
+
+def test_multipath_potential__sky_only_scan_is_zero_without_warnings():
+    rays = grid_rays(np.linspace(-0.1, 0.1, 16), np.linspace(0.1, -0.1, 12))
+    with np.errstate(all="raise"):
+        potential = multipath_potential(np.full((12, 16), np.nan), rays)
+    assert potential.coupling.shape == (12, 16) and potential.coupling.max() == 0.0
+
+
+def big_corner(height: int = 96, width: int = 160) -> tuple[Scene, np.ndarray]:
+    """A 90-degree corner of two 3 m boards, edge 2 m ahead, facing the scanner; and each pixel's true
+    distance a from the edge line [m]. The scan sees +-0.8 m around the edge: the integral needs the
+    partner board's surroundings, and the scan only knows what it sees."""
+    edge = np.array([0.0, 0.0, 2.0])
+    left, right = np.array([-1.0, 0.0, -1.0]) / 2**0.5, np.array([1.0, 0.0, -1.0]) / 2**0.5
+    boards = tuple(Rectangle(tuple(edge + along * 1.5), tuple(along * 1.5), (0.0, 1.5, 0.0)) for along in (left, right))
+    scene = Scene("big_corner", boards, np.linspace(-0.4, 0.4, width), np.linspace(0.4, -0.4, height))
+    points = point_cloud(exact_depth(scene), rays_of(scene))
+    return scene, np.hypot(points[..., 0] - edge[0], points[..., 2] - edge[2])
+
+
+def test_multipath_potential__corner_matches_the_half_plane_closed_form():
+    """Coupling of a point at a from the edge of a perpendicular half-plane: A_fp / (24 pi a^2 cos_i)
+    (the integral of (cos_A cos_B)^2 / (pi^2 r^4) over the half-plane is 1 / (24 pi a^2)); the
+    coupling-weighted mean distance is 1.6 a."""
+    scene, a = big_corner()
+    rays = rays_of(scene)
+    potential = multipath_potential(exact_depth(scene), rays, max_range_m=1.5)
+    cos_i = np.abs(rays[..., 0] + rays[..., 2]) / 2**0.5  # both boards are 45 degrees off the view axis
+    expected = DEFAULT_FOOTPRINT_AREA_M2 / (24 * np.pi * a**2 * cos_i)
+    middle = slice(40, 56)
+    where = (a[middle] > 0.06) & (a[middle] < 0.2)
+    assert where.sum() > 100
+    ratio = potential.coupling[middle][where] / expected[middle][where]
+    assert 0.75 < np.median(ratio) < 1.25
+    assert np.quantile(ratio, 0.9) < 1.6 and np.quantile(ratio, 0.1) > 0.5
+    d_ab_ratio = potential.d_ab_m[middle][where] / (1.6 * a[middle][where])
+    assert 0.7 < np.median(d_ab_ratio) < 1.2
+
+
+def test_multipath_potential__corner_grows_towards_the_edge_and_agrees_with_the_renderer():
+    scene = corner(90.0, 2.0, 0.8, height=32, width=128)
+    truth: dict[str, np.ndarray] = {}
+    light_transport(scene, Config(), 0.012, 0.02, 90.0, coupling_out=truth)
+    scan = render(scene, Config(), np.random.default_rng(5))
+    potential = multipath_potential(valid_depth(scan), scan.rays())
+    row = potential.coupling[16]
+    right = row[64:]
+    assert (right > 0).all()
+    assert right[4] > right[20] > right[40] > right[60] > 0
+    true = truth["coupling"].reshape(32, 128)
+    where = (true > 0.01) & (true < 0.9)
+    ratio = potential.coupling[where] / true[where]
+    assert 0.6 < np.median(ratio) < 1.3, "the render's coupling, estimated from its own noisy depth"
+
+
+def test_fit_block_planes__ignores_a_depth_edge_inside_the_block():
+    rays = grid_rays(np.linspace(-0.05, 0.05, 8), np.linspace(0.05, -0.05, 8))
+    depth = np.full((8, 8), 2.0) / rays[..., 2]  # the plane z = 2
+    depth[:, :2] = 3.0  # a quarter of the block sees a wall 1 m further back
+    centres, normals, keep, usable, rms = fit_block_planes(point_cloud(depth, rays), 8)
+    np.testing.assert_allclose(normals[0, 0], [0.0, 0.0, -1.0], atol=1e-9)
+    assert usable[0, 0] and keep[0, 0].sum() == 48 and rms[0, 0] < 1e-9
