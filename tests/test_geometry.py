@@ -117,3 +117,4 @@ def test_fit_block_planes__ignores_a_depth_edge_inside_the_block():
     centres, normals, keep, usable, rms = fit_block_planes(point_cloud(depth, rays), 8)
     np.testing.assert_allclose(normals[0, 0], [0.0, 0.0, -1.0], atol=1e-9)
     assert usable[0, 0] and keep[0, 0].sum() == 48 and rms[0, 0] < 1e-9
+    assert centres[0, 0, 2] == pytest.approx(2.0, abs=1e-12)
