@@ -12,6 +12,7 @@ from scipy import stats
 
 from mpi_lidar import dataset
 from mpi_lidar.config import Config, PriorConfig
+from mpi_lidar.physics.demod import depth_and_amplitude
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.sampling import SCHEMES, THETA_NAMES, sample_theta
 
@@ -70,6 +71,27 @@ def test_sample_theta__reciprocal_honours_its_ranges():
     assert_uniform(column(theta, "d_ab_m"), 0.2, 0.25)
     rho_aba = column(theta, "rho_aba")
     assert rho_aba.min() >= 0.2 * 0.5 and rho_aba.max() <= 0.3 * 0.6
+
+
+@pytest.mark.parametrize("scheme", sorted(SCHEMES))
+def test_sample_theta__no_multipath_fraction_zeroes_that_share_of_rows(scheme):
+    fraction = 0.3
+    theta = sample_theta(PriorConfig(scheme=scheme, no_multipath_fraction=fraction), N, np.random.default_rng(7))
+    zero = column(theta, "rho_aba") == 0.0
+    assert abs(zero.mean() - fraction) < 4 * np.sqrt(fraction * (1 - fraction) / N)  # binomial, 4 sigma
+    plain = sample_theta(PriorConfig(scheme=scheme), N, np.random.default_rng(7))
+    np.testing.assert_array_equal(theta[~zero], plain[~zero])  # the other rows are the scheme's own draws
+    np.testing.assert_array_equal(np.delete(theta, THETA_NAMES.index("rho_aba"), axis=1),
+                                  np.delete(plain, THETA_NAMES.index("rho_aba"), axis=1))
+    assert (column(plain, "rho_aba") > 0).mean() > 0.99
+
+
+def test_sample_theta__no_multipath_rows_have_no_multipath_bias():
+    config = Config().replace(prior={"no_multipath_fraction": 1.0}, simulator={"noise_scale": 0.0})
+    theta = sample_theta(config.prior, 200, np.random.default_rng(3))
+    taps = MomentSensor(config).taps(theta, np.random.default_rng(4))
+    depth, _ = depth_and_amplitude(taps, config.frequencies_hz, config.sensor.speed_of_light_m_per_s)
+    np.testing.assert_allclose(depth, np.broadcast_to(theta[:, :1], depth.shape), atol=1e-3)
 
 
 def test_sample_theta__independent_columns_are_uniform_and_uncorrelated():
