@@ -215,6 +215,9 @@ def _check_layout(path: Path, group: zarr.Group, attrs: dict[str, object]) -> No
                                  f"expected {np.dtype(dtype)}{shape}; the store is damaged: regenerate it")
     except KeyError as exc:
         raise StoreError(f"dataset {path} lacks {exc}; the store is truncated: regenerate it") from None
+    except (TypeError, ValueError) as exc:
+        raise StoreError(f"dataset {path} has malformed attributes ({type(exc).__name__}: {exc}); "
+                         "the store is damaged: regenerate it") from None
 
 
 def store_config(group: zarr.Group) -> Config:
@@ -335,6 +338,15 @@ class DatasetInfo:
 
 def dataset_info(path: str | Path) -> DatasetInfo:
     group = open_store(path)
+    try:
+        return _info(path, group)
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:  # codecs raise RuntimeError on bad chunks
+        reason = str(exc).splitlines()[0] if str(exc) else ""
+        raise StoreError(f"dataset {path} has damaged metadata or chunk marks ({type(exc).__name__}: {reason}); "
+                         "regenerate it") from None
+
+
+def _info(path: str | Path, group: zarr.Group) -> DatasetInfo:
     done = completed_chunks(group)
     attrs = group.attrs
     return DatasetInfo(
@@ -404,13 +416,13 @@ def read_subsample(
         rows = np.sort(np.random.default_rng(seed).choice(rows, size=max_rows, replace=False))
     if rows.size == 0:
         raise StoreError(f"dataset {path} has no {split} rows")
-    return Subsample(
-        info=info,
-        rows=rows,
-        features=group["features"].get_orthogonal_selection((rows, slice(None))),
-        target=group["target"].get_orthogonal_selection(rows),
-        theta=group["theta"].get_orthogonal_selection((rows, slice(None))),
-    )
+    try:
+        arrays = {name: group[name].get_orthogonal_selection((rows, slice(None)) if group[name].ndim == 2 else rows)
+                  for name in ("features", "target", "theta")}
+    except (RuntimeError, ValueError) as exc:  # a truncated or corrupted chunk fails in its codec
+        raise StoreError(f"dataset {path} has a damaged chunk ({type(exc).__name__}: "
+                         f"{str(exc).splitlines()[0] if str(exc) else ''}); regenerate it") from None
+    return Subsample(info=info, rows=rows, **arrays)
 
 
 # --- summary --------------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from mpi_lidar.physics import demod
 
 SCAN_SCHEMA = "mpi-lidar/scan@1"
 SCAN_SUFFIX = ".scan.zarr"
+MAX_ARRAY_VALUES = 2**28  # 1 GiB of float32 per array: 4 taps x 4 frequencies x 4096 x 4096
 
 
 class ScanError(MpiLidarError):
@@ -185,6 +186,7 @@ def read_scan(path: str | Path, c: float = 3.0e8) -> Scan:
     if attrs.get("schema") != SCAN_SCHEMA:
         raise ScanError(f"{path} is not an mpi-lidar scan (schema {attrs.get('schema')!r}, expected {SCAN_SCHEMA!r})")
     try:
+        _check_declared_sizes(path, group, members)
         frequencies = tuple(float(f) for f in attrs["frequencies_hz"])
         optional = {name: group[name][...] for name in OPTIONAL_ARRAYS if name in members}
         name = str(attrs.get("name") or path.name.removesuffix(SCAN_SUFFIX))
@@ -199,9 +201,19 @@ def read_scan(path: str | Path, c: float = 3.0e8) -> Scan:
             raise ScanError(f"{path} has neither depth+amplitude nor taps; it is truncated or not a scan")
     except ScanError:
         raise
-    except (KeyError, ValueError, TypeError, OSError) as exc:
-        raise ScanError(f"{path} is damaged or truncated ({type(exc).__name__}: {exc})") from None
+    except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:  # codecs raise RuntimeError
+        reason = str(exc).splitlines()[0] if str(exc) else ""
+        raise ScanError(f"{path} is damaged or truncated ({type(exc).__name__}: {reason})") from None
     return validate(scan, str(path))
+
+
+def _check_declared_sizes(path: Path, group: zarr.Group, members: set[str]) -> None:
+    """Refuse arrays whose declared shape is beyond any scan before reading them (a damaged or hostile store)."""
+    for name in members:
+        shape = group[name].shape
+        if int(np.prod(shape, dtype=np.float64)) > MAX_ARRAY_VALUES:
+            raise ScanError(f"{path}: array {name!r} declares shape {shape}, more than the {MAX_ARRAY_VALUES:,} "
+                            "values a scan array may hold; the store is damaged")
 
 
 def import_arrays(

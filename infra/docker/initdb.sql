@@ -1,0 +1,2 @@
+-- A second database beside Prefect's: the Optuna studies.
+CREATE DATABASE studies OWNER lidar;
