@@ -2,6 +2,7 @@
 
 Run: .venv/bin/python -m benchmarks.scenes --model DIR [--model DIR ...] [--gate geometry --gate all]
      [--min-bias-mm 1.0 ...] [--seed 0]
+ or: .venv/bin/python -m benchmarks.scenes --estimation-error  (geometric coupling against the renderer's)
 Renders every scene of :func:`scene_set` once (Table I noise, seeded by the scene's position), corrects it
 with each model, gate and geometry-gate threshold, and prints one markdown row per combination: MAE of
 the 31.25 MHz depth before/after on the whole map, on the reference mask and, for corners, within 20 cm
@@ -21,8 +22,9 @@ import numpy as np
 
 from mpi_lidar.config import Config
 from mpi_lidar.correct import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.geometry import multipath_potential
 from mpi_lidar.model import load_model
-from mpi_lidar.scans import Scan
+from mpi_lidar.scans import Scan, grid_rays
 from mpi_lidar.scenes import (
     DEFAULT_COUPLING_GAIN,
     DEFAULT_FOOTPRINT_RADIUS_M,
@@ -30,11 +32,13 @@ from mpi_lidar.scenes import (
     corner,
     cornered_board,
     cylinder_scene,
+    first_hits,
     flat_wall,
     light_transport,
     multi_object,
     render,
     scan_from_phasors,
+    sense,
     sphere_scene,
     wooden_corner,
 )
@@ -84,13 +88,47 @@ def mae_mm(values: np.ndarray, reference: np.ndarray, where: np.ndarray) -> floa
     return float(1e3 * np.abs(values[where] - reference[where]).mean()) if where.any() else float("nan")
 
 
+def estimation_error(config: Config, seed: int) -> None:
+    """How well the scan's geometry estimates the renderer's true coupling and d_AB, from the noisy raw depth."""
+    print("| scene | estimate / true coupling, median (IQR) | d_AB error [cm], median (sd) | pixels |")
+    print("|---|---|---|---|")
+    for index, (label, factory, _) in enumerate(scene_set()):
+        scene = factory()
+        truth: dict[str, np.ndarray] = {}
+        spacing = float(scene.notes.get("patch_spacing_m", 0.02))
+        phasor, dc = light_transport(scene, config, DEFAULT_FOOTPRINT_RADIUS_M, spacing, DEFAULT_COUPLING_GAIN,
+                                     coupling_out=truth)
+        depth, _ = sense(phasor, dc, config, np.random.default_rng([seed, index]))
+        h, w = scene.elevation_rad.size, scene.azimuth_rad.size
+        d_as, _ = first_hits(scene)
+        depth_top = np.where(np.isfinite(d_as), depth[-1], np.nan).reshape(h, w)  # sky: no return
+        potential = multipath_potential(depth_top, grid_rays(scene.azimuth_rad, scene.elevation_rad))
+        true = truth["coupling"].reshape(h, w)
+        where = (true > 0.005) & (true < 0.9)
+        if not where.any():
+            print(f"| {label} | no true coupling above 0.005; estimate max {potential.coupling.max():.3g} | | 0 |")
+            continue
+        ratio = potential.coupling[where] / true[where]
+        error = 100 * (potential.d_ab_m[where] - truth["d_ab_m"].reshape(h, w)[where])
+        q1, q2, q3 = np.quantile(ratio, [0.25, 0.5, 0.75])
+        print(f"| {label} | {q2:.2f} ({q1:.2f}-{q3:.2f}) | {np.nanmedian(error):.1f} ({np.nanstd(error):.1f}) | "
+              f"{int(where.sum())} |", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", action="append", required=True)
+    parser.add_argument("--model", action="append")
+    parser.add_argument("--estimation-error", action="store_true",
+                        help="Only compare the geometric coupling estimate with the renderer's truth.")
     parser.add_argument("--gate", action="append", choices=["geometry", "all", "consistency"])
     parser.add_argument("--min-bias-mm", action="append", type=float)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    if args.estimation_error:
+        estimation_error(Config(), args.seed)
+        return
+    if not args.model:
+        parser.error("give at least one --model (or --estimation-error)")
     gates = args.gate or ["geometry", "all"]
     thresholds = args.min_bias_mm or [1e3 * CorrectionOptions().min_multipath_bias_m]
     config = Config()

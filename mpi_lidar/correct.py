@@ -72,7 +72,7 @@ class CorrectionOptions:
     max_depth_spread_m: float = 0.3
     range_tolerance_m: float = 0.02
     consistency_p_value: float = 0.01
-    min_multipath_bias_m: float = 0.001
+    min_multipath_bias_m: float = 0.004
     geometry_block_m: float = geometry.DEFAULT_BLOCK_M
     partner_range_m: float = geometry.DEFAULT_MAX_RANGE_M
     footprint_area_m2: float = geometry.DEFAULT_FOOTPRINT_AREA_M2
