@@ -35,9 +35,9 @@ def free_port() -> int:
 
 def subprocess_env(**extra: str) -> dict[str, str]:
     """The environment of every process the tests start: the repository importable, quiet Dask logs."""
-    env = {**os.environ, "PYTHONPATH": str(REPO), "DASK_LOGGING__DISTRIBUTED": "error", **extra}
+    env = {**os.environ, "PYTHONPATH": str(REPO), "DASK_LOGGING__DISTRIBUTED": "error"}
     env.pop("PREFECT_API_URL", None)
-    return env
+    return {**env, **extra}
 
 
 def stop_group(process: subprocess.Popen, sig: int = signal.SIGKILL) -> None:
