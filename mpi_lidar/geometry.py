@@ -179,10 +179,12 @@ def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAU
     The scan is cut into square blocks of about ``block_m`` [m]; a robust plane per block (centre, normal,
     area) stands in for its surface, so the raw depth's noise and its own smooth multipath bias do not
     make fake partners. For each pair of blocks A, B closer than ``max_range_m`` [m] that face each other
-    (cos_A, cos_B > ``min_cos``), B couples to A with the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B
-    A_fp / (pi^2 r^4 cos_i) (mpi_lidar.scenes, module docstring; r clamped below by the block size, the
-    sum capped at 1). A plane, a convex surface or open sky has no facing pair: zero everywhere. Block
-    values are interpolated bilinearly to pixels. Occlusion between A and B is ignored.
+    (cos_A, cos_B > ``min_cos``, and each centre further from the other's plane than three times the
+    two fits' residual RMS, so noisy planes of one surface never face each other), B couples to A with
+    the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i) (mpi_lidar.scenes,
+    module docstring; r clamped below by the block size, the sum capped at 1). A plane, a convex surface
+    or open sky has no facing pair: zero everywhere. Block values are interpolated bilinearly to pixels.
+    Occlusion between A and B is ignored, and surfaces outside the scan's field of view are not known.
     """
     from scipy.ndimage import map_coordinates
     from scipy.spatial import cKDTree
