@@ -67,7 +67,9 @@ class PosteriorEstimates:
     median_m : posterior median (the MAE-optimal estimate). [m]
     mean_m : posterior mean (the RMSE-optimal estimate). [m]
     std_m : posterior standard deviation. [m]
-    ess : Kish effective sample size of all stages' particles. [samples]
+    ess : Kish effective sample size of all stages' particles. [samples] 0 marks a row where no particle
+        had positive weight (a measurement the prior can hardly produce, e.g. rho_ABA = 1 exactly); its
+        estimates are then the single-path weighted depth and its std 0.
     """
 
     median_m: NDArray[np.float64]
@@ -278,17 +280,19 @@ class _Posterior:
             log_w = np.where(ok, log_w + log_l, -np.inf)
             samples.append(d_as)
             log_weights.append(log_w)
-            w = np.exp(log_w - log_w.max(axis=1, keepdims=True))
-            w /= w.sum(axis=1, keepdims=True)
+            w = _normalised(log_w)
             gauss = _fit_pair(d_ab, q, np.where(multi, w, 0.0), rng, prior)
         # Every stage's weights p L / q are exact (q is normalised), so all particles count.
         d_as, log_w = np.concatenate(samples, axis=1), np.concatenate(log_weights, axis=1)
-        w = np.exp(log_w - log_w.max(axis=1, keepdims=True))
-        w /= w.sum(axis=1, keepdims=True)
+        w = _normalised(log_w)
         ess = 1.0 / (w**2).sum(axis=1)
         mean = (w * d_as).sum(axis=1)
         std = np.sqrt(np.maximum((w * (d_as - mean[:, None]) ** 2).sum(axis=1), 0.0))
-        return weighted_median(d_as, w), mean, std, ess
+        median = weighted_median(d_as, w)
+        # No particle with positive weight: the measurement lies where the prior puts (almost) no mass.
+        lost = ~np.isfinite(log_w).any(axis=1)
+        return (np.where(lost, d0, median), np.where(lost, d0, mean), np.where(lost, 0.0, std),
+                np.where(lost, 0.0, ess))
 
     def _propose_pair(self, n: int, m: int, gauss, rng: np.random.Generator):
         """(d_AB, q) of shape (n, m) and the log proposal density at them."""
@@ -339,6 +343,15 @@ def _fit_pair(d_ab: NDArray, q: NDArray, w: NDArray, rng: np.random.Generator, p
     spacing = np.array([prior.d_ab_m[1] - prior.d_ab_m[0], prior.coupling[1] * prior.albedo[1]]) / np.sqrt(m)
     floor = np.diag(np.maximum(spacing, 1e-6) ** 2)
     return centres, BANDWIDTH**2 * cov + floor
+
+
+def _normalised(log_w: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Weights exp(log_w) normalised per row; uniform on rows where every log weight is -inf."""
+    top = log_w.max(axis=1, keepdims=True)
+    finite = np.isfinite(top)
+    w = np.exp(log_w - np.where(finite, top, 0.0))
+    w = np.where(finite, w, 1.0)
+    return w / w.sum(axis=1, keepdims=True)
 
 
 def weighted_median(x: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:

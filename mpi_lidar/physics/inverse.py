@@ -35,7 +35,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import weighted_depth
 
 SPEED_OF_LIGHT_M_PER_S = 3.0e8
 DEFAULT_MAX_OFFSET_M = 0.15
@@ -113,11 +112,40 @@ def _valid_rows(raw: NDArray[np.float64], f: int) -> NDArray[np.bool_]:
     return np.isfinite(raw).all(axis=1) & (raw[:, f:] > 0).all(axis=1)
 
 
-def _fallback(raw: NDArray[np.float64], freqs: NDArray[np.float64], valid: NDArray[np.bool_]):
-    """Single-path estimate: inverse-variance weighted depth and mean amplitude (0 on invalid rows)."""
+def unwrapped_weighted_depth(raw: ArrayLike, frequencies_hz: ArrayLike,
+                             c: float = SPEED_OF_LIGHT_M_PER_S) -> NDArray[np.float64]:
+    """Single-path depth of equally spaced frequencies, unambiguous to c / (2 df) (24 m here). [m]
+
+    The phase step between neighbouring frequencies, arg sum_k z_{k+1} conj(z_k), gives a coarse depth
+    that no single frequency's wrap affects; each frequency's depth is unwrapped next to it (d_k + n_k c / 2 f_k)
+    and the unwrapped depths are averaged with inverse-variance weights (f_k A_k)^2, as the weighted depth of
+    :func:`mpi_lidar.features.weighted_depth` does (which, without unwrapping, is wrong once d_AS passes the
+    highest frequency's range, 4.8 m).
+
+    Parameters
+    ----------
+    raw : Measurements (n, 2F). [m, V^2]
+    frequencies_hz : Equally spaced modulation frequencies (F,). [Hz]
+    c : Speed of light. [m/s]
+    """
+    freqs = np.asarray(frequencies_hz, dtype=np.float64)
+    step = frequency_step(freqs)
+    raw = np.asarray(raw, dtype=np.float64)
+    z = measured_phasors(raw, freqs, c)
+    f = freqs.size
+    coarse = _path_from_pole((z[:, 1:] * z[:, :-1].conj()).sum(axis=1), step, c)
+    ranges = c / (2 * freqs)
+    depth = _unwrap_near(raw[:, :f], ranges[None, :], coarse[:, None])
+    weights = (freqs[None, :] * raw[:, f:]) ** 2
+    total = weights.sum(axis=1)
+    return np.where(total > 0, (weights * depth).sum(axis=1) / np.where(total > 0, total, 1.0), coarse)
+
+
+def _fallback(raw: NDArray[np.float64], freqs: NDArray[np.float64], valid: NDArray[np.bool_], c: float):
+    """Single-path estimate: unwrapped inverse-variance weighted depth and mean amplitude (0 on invalid rows)."""
     f = freqs.size
     safe = np.where(valid[:, None], raw, 1.0)
-    depth = np.where(valid, weighted_depth(safe, tuple(freqs)), 0.0)
+    depth = np.where(valid, unwrapped_weighted_depth(safe, freqs, c), 0.0)
     amplitude = np.where(valid, safe[:, f:].mean(axis=1), 0.0)
     return depth, amplitude
 
@@ -132,7 +160,7 @@ def _path_from_pole(pole: NDArray[np.complex128], step_hz: float, c: float) -> N
     return np.mod(-np.angle(pole), 2 * np.pi) * c / (4 * np.pi * step_hz)
 
 
-def _unwrap_near(phase_path_m: NDArray[np.float64], period_m: float, near_m: NDArray[np.float64]):
+def _unwrap_near(phase_path_m: NDArray[np.float64], period_m: float | NDArray[np.float64], near_m: NDArray[np.float64]):
     """The path congruent to ``phase_path_m`` modulo ``period_m`` that is closest to ``near_m``. [m]"""
     return phase_path_m + np.round((near_m - phase_path_m) / period_m) * period_m
 
@@ -175,7 +203,7 @@ def prony_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, *, max_offset_m: f
     z = measured_phasors(raw, freqs, c)
     n = raw.shape[0]
     valid = _valid_rows(raw, f)
-    fallback_depth, fallback_amplitude = _fallback(raw, freqs, valid)
+    fallback_depth, fallback_amplitude = _fallback(raw, freqs, valid, c)
     z = np.where(valid[:, None], z, 1.0)
 
     # Linear prediction: [z_{k+1}, z_k] @ (a1, a0) = -z_{k+2}, k = 0..F-3, by SVD least squares.
@@ -310,7 +338,7 @@ def least_squares_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, start: Two
     z = measured_phasors(raw, freqs, c)
     n = raw.shape[0]
     valid = _valid_rows(raw, f)
-    fallback_depth, fallback_amplitude = _fallback(raw, freqs, valid)
+    fallback_depth, fallback_amplitude = _fallback(raw, freqs, valid, c)
     if start is None:
         start = prony_two_path(raw, freqs, max_offset_m=max_offset_m, max_ratio=max_ratio, c=c)
     w = 4 * np.pi * freqs[None, :] / c

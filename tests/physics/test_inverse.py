@@ -176,6 +176,7 @@ def test_least_squares_two_path__respects_bounds_and_stays_finite_under_noise():
     assert np.abs(fit.direct_depth_m - theta[:, 0]).max() < 0.1
 
 
+@pytest.mark.slow
 def test_least_squares_two_path__cost_no_worse_than_scipy_trust_region():
     _, raw = _noisy_raw(6, 0.1, seed=6)
     fit = least_squares_two_path(raw, FREQS)
