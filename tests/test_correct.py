@@ -189,7 +189,7 @@ def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
     far = correction.flags == Flag.NO_MULTIPATH
     np.testing.assert_array_equal(correction.depth[far], scan.depth[-1][far])
     bias = correction.multipath_bias_m[20]
-    assert bias[48] > bias[60] > bias[80] >= 0
+    assert bias[42:55].max() > bias[64] > bias[80] > bias[92] >= 0, "largest next to the edge, falling away"
 
 
 def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model, tmp_path):
