@@ -50,7 +50,7 @@ def train_flow(data: str, out: str, study: str | None = None, storage: str | Non
                feature_set: str | None = None, target: str | None = None, workers: int = 2,
                scheduler: str | None = None) -> dict[str, object]:
     """Train on the whole train split with the study's best parameters (or the defaults)."""
-    params, settings = (best_params_task(storage or tune.default_storage(data), study) if study else (None, {}))
+    params, settings = (best_params_task(tune.storage_url(storage, data), study) if study else (None, {}))
     spec = FeatureSpec(dataset.dataset_info(data).frequencies_hz,
                        feature_set or settings.get("feature_set") or DEFAULT_FEATURE_SET,
                        target or settings.get("target_mode") or DEFAULT_TARGET_MODE)

@@ -43,7 +43,7 @@ def tune_flow(data: str, storage: str | None = None, study: str = "xgboost", tri
               tune_rows: int = tune.DEFAULT_TUNE_ROWS, feature_set: str | None = None, target: str | None = None,
               workers: int = 2, scheduler: str | None = None, report_dir: str | None = None) -> dict[str, object]:
     """Run the study to ``trials`` finished trials and publish it (report in ``<data dir>/tuning`` by default)."""
-    storage = storage or tune.default_storage(data)
+    storage = tune.storage_url(storage, data)
     spec = FeatureSpec(dataset.dataset_info(data).frequencies_hz, feature_set or DEFAULT_FEATURE_SET,
                        target or DEFAULT_TARGET_MODE)
     settings = tune.TuneSettings(data, spec, tune_rows=tune_rows)

@@ -91,7 +91,8 @@ def feature_spec(data: Path, feature_set: str | None, target_mode: str | None) -
 
 @cli.command()
 @click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
-@click.option("--storage", help="Optuna storage URL (default: sqlite file optuna.db beside the dataset).")
+@click.option("--storage", help="Optuna storage URL (default: $MPI_LIDAR_STORAGE_URL, else sqlite file optuna.db "
+                                "beside the dataset).")
 @click.option("--study", "study_name", default="xgboost", show_default=True, help="Study name in the storage.")
 @click.option("--trials", type=click.IntRange(min=1), default=30, show_default=True,
               help="Finished trials the study should hold; a re-run resumes or extends it.")
@@ -105,7 +106,7 @@ def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_row
     from mpi_lidar import tune as tuning
     from mpi_lidar.cluster import dask_client
 
-    storage = storage or tuning.default_storage(data)
+    storage = tuning.storage_url(storage, data)
     settings = tuning.TuneSettings(str(data), feature_spec(data, feature_set, target_mode), tune_rows=tune_rows)
     study = tuning.open_study(storage, study_name, settings)
     todo = max(0, trials - tuning.count(study, *tuning.FINISHED))
@@ -123,7 +124,8 @@ def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_row
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Model directory to create.")
 @click.option("--params", "params_file", type=click.Path(path_type=Path), help="JSON or TOML file of parameters.")
 @click.option("--study", "study_name", help="Take the best parameters of this Optuna study.")
-@click.option("--storage", help="Optuna storage URL of --study (default: sqlite file beside the dataset).")
+@click.option("--storage", help="Optuna storage URL of --study (default: $MPI_LIDAR_STORAGE_URL, else sqlite file "
+                                "beside the dataset).")
 @model_options
 @cluster_options
 def train(data: Path, out: Path, params_file: Path | None, study_name: str | None, storage: str | None,
@@ -137,7 +139,7 @@ def train(data: Path, out: Path, params_file: Path | None, study_name: str | Non
         raise MpiLidarError("give either --params or --study, not both")
     params = load_params(params_file) if params_file else None
     if study_name:
-        study = tuning.load_existing_study(storage or tuning.default_storage(data), study_name)
+        study = tuning.load_existing_study(tuning.storage_url(storage, data), study_name)
         settings = study.user_attrs.get("settings", {})
         feature_set = feature_set or settings.get("feature_set")
         target_mode = target_mode or settings.get("target_mode")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
 import warnings
 from collections.abc import Callable
@@ -23,7 +24,7 @@ import numpy as np
 import optuna
 import sqlalchemy.exc
 import xgboost as xgb
-from distributed import Client, as_completed
+from distributed import Client, Future, as_completed
 from optuna.trial import TrialState
 from optuna_integration import XGBoostPruningCallback
 from sqlalchemy.engine import make_url
@@ -36,7 +37,9 @@ from mpi_lidar.train import BASE_PARAMS, check_dataset_matches
 DEFAULT_TRIALS = 30
 DEFAULT_TUNE_ROWS = 100_000
 HEARTBEAT_S = 10
+MAX_REPLACED_TASKS = 10
 FINISHED = (TrialState.COMPLETE, TrialState.PRUNED)
+STORAGE_URL_VARIABLE = "MPI_LIDAR_STORAGE_URL"
 
 # (low, high, log) per parameter; max_depth is an integer.
 SEARCH_SPACE: dict[str, tuple[float, float, bool]] = {
@@ -192,13 +195,33 @@ def tune(
     client: Client, storage_url: str, study_name: str, settings: TuneSettings, trials: int = DEFAULT_TRIALS,
     on_trial: Callable[[int], None] | None = None,
 ) -> TuneReport:
-    """Run trials on the cluster until the study holds ``trials`` finished ones."""
+    """Run trials on the cluster until the study holds ``trials`` finished ones.
+
+    A trial task that raises (its storage connection was cut, e.g. by a database restart or failover) is
+    replaced by a new one while the study holds fewer finished trials than asked for, up to
+    ``MAX_REPLACED_TASKS`` times; the interrupted trial itself is failed by the storage heartbeat.
+    """
     started = time.perf_counter()
     study = open_study(storage_url, study_name, settings)
     todo = max(0, trials - count(study, *FINISHED))
-    futures = [client.submit(run_one_trial, storage_url, study_name, settings, pure=False) for _ in range(todo)]
-    for future in as_completed(futures):
-        number = future.result()
+
+    def submit() -> Future:
+        return client.submit(run_one_trial, storage_url, study_name, settings, pure=False)
+
+    running = as_completed([submit() for _ in range(todo)])
+    replaced = 0
+    for future in running:
+        try:
+            number = future.result()
+        except Exception as exc:  # the trial's own errors are caught in run_one_trial: this is infrastructure
+            replaced += 1
+            if replaced > MAX_REPLACED_TASKS:
+                reason = _strip_password((str(exc).splitlines() or [""])[0], storage_url)
+                raise MpiLidarError(f"{replaced} trial tasks of study {study_name!r} failed; the last with "
+                                    f"{type(exc).__name__}: {reason}") from None
+            if count(study, *FINISHED) + running.count() < trials:
+                running.add(submit())
+            continue
         if on_trial is not None:
             on_trial(number)
     return tune_report(study, todo, time.perf_counter() - started)
@@ -227,6 +250,15 @@ def best_params(study: optuna.Study) -> dict[str, object]:
     if not count(study, TrialState.COMPLETE):
         raise MpiLidarError(f"study {study.study_name!r} has no complete trial yet; run 'mpi-lidar tune' first")
     return dict(study.best_trial.params)
+
+
+def storage_url(url: str | None, data_path: str | Path) -> str:
+    """The study storage: ``url``, else ``$MPI_LIDAR_STORAGE_URL``, else the SQLite file beside the dataset.
+
+    The environment variable keeps a password out of command lines, flow parameters and shell history;
+    PostgreSQL also takes the password from ``PGPASSWORD`` or ``~/.pgpass`` when the URL has none.
+    """
+    return url or os.environ.get(STORAGE_URL_VARIABLE) or default_storage(data_path)
 
 
 def default_storage(data_path: str | Path) -> str:
