@@ -73,8 +73,9 @@ def fit_xgboost(x: NDArray, y: NDArray, params: dict[str, object], rounds: int,
 
     Returns the booster (trimmed to its best iteration when early-stopped) and the fit wall time [s].
     """
-    full = {"objective": "reg:squarederror", "tree_method": "hist", "eval_metric": "mae", "nthread": nthread,
-            "seed": 0, **params}
+    from mpi_lidar.train import BASE_PARAMS
+
+    full = {**BASE_PARAMS, "nthread": nthread, "seed": 0, **params}
     started = time.perf_counter()
     if early_stopping:
         hold = np.arange(y.size) % 10 == 0
@@ -337,8 +338,8 @@ class OutOfRange:
 class BenchPlan:
     """Sizes of one benchmark run. ``rows`` train rows, ``test_rows`` test rows, all simulated."""
 
-    rows: int = 100_000
-    test_rows: int = 50_000
+    rows: int = 50_000
+    test_rows: int = 25_000
     xgb_sizes: tuple[tuple[int, int], ...] = XGB_SIZES
     learner_rows: int | None = None
     solver_rows: int = 20_000

@@ -318,7 +318,7 @@ def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, tr
 
 @cli.command()
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Report directory.")
-@click.option("--rows", type=click.IntRange(min=100), help="Train rows (default 100,000; the test set is half).")
+@click.option("--rows", type=click.IntRange(min=100), help="Train rows (default 50,000; the test set is half).")
 @click.option("--quick", is_flag=True, help="Tiny sizes (seconds), for a first look and for tests.")
 @click.option("--seed", type=click.IntRange(min=0), help="Seed of the simulated rows (default: the config's).")
 def bench(out_dir: Path, rows: int | None, quick: bool, seed: int | None) -> None:
