@@ -222,7 +222,6 @@ class GeometryGate(Gate):
         return np.ones(raw.shape[0], dtype=bool)
 
 
-GATES = ("geometry", "all", "consistency")
 NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
 
 
