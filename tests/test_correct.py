@@ -208,3 +208,13 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model
 def test_flag__existing_codes_are_stable():
     assert [int(f) for f in Flag] == list(range(8))
     assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0
+
+
+def test_batch_report__gated_out_counts_both_skip_flags():
+    from mpi_lidar.correct import ScanOutcome
+    from mpi_lidar.scan_report import batch_report
+
+    outcome = ScanOutcome("s.scan.zarr", "s", "corrected",
+                          counts={"corrected": 4, "not_needed": 1, "no_multipath": 3, "not_finite": 2})
+    report = batch_report([outcome], 1.0).markdown()
+    assert "gated out" in report and "| 40.0 % |" in report
