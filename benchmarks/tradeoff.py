@@ -3,7 +3,8 @@
     .venv/bin/python -m benchmarks.tradeoff features [--train-rows N] [--test-rows N] [--noise 1,0.3,...]
 
 Train and test rows are independent draws from the default prior (separate seed streams); XGBoost uses the
-project's DEFAULT_PARAMS with early stopping on every tenth train row. Prints one markdown table.
+project's BASE_PARAMS and DEFAULT_PARAMS (``--objective reg:squarederror`` for the former objective) with
+early stopping on every tenth train row. Prints one markdown table.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from mpi_lidar.train import DEFAULT_PARAMS
 
 
 def features(train_rows: int, test_rows: int, noise_scales: list[float], sets: list[str], modes: list[str],
-             nthread: int) -> None:
+             nthread: int, objective: str | None = None, early_stopping: int = 50) -> None:
     config = Config()
     print("| noise scale | feature set | target | trees | fit [s] | test MAE [mm] |")
     print("|---|---|---|---|---|---|")
@@ -33,7 +34,8 @@ def features(train_rows: int, test_rows: int, noise_scales: list[float], sets: l
             for mode in modes:
                 spec = FeatureSpec(config.frequencies_hz, feature_set, mode)
                 booster, fit_s = fit_xgboost(spec.transform(train.raw), spec.target(train.raw, train.target),
-                                             dict(DEFAULT_PARAMS), 3000, early_stopping=50, nthread=nthread)
+                                             {**DEFAULT_PARAMS, **({"objective": objective} if objective else {})},
+                                             4000, early_stopping=early_stopping, nthread=nthread)
                 pred = booster.inplace_predict(spec.transform(test.raw)).astype(np.float64)
                 err = mae(spec.depth(test.raw, pred), test.target)
                 print(f"| {noise:g} | {feature_set} | {mode} | {booster.num_boosted_rounds()} | {fit_s:.1f} "
@@ -50,10 +52,12 @@ def main() -> None:
     p.add_argument("--sets", default=",".join(FEATURE_SETS))
     p.add_argument("--modes", default=",".join(TARGET_MODES))
     p.add_argument("--nthread", type=int, default=1)
+    p.add_argument("--objective", help="XGBoost objective (default: train.BASE_PARAMS', reg:absoluteerror)")
+    p.add_argument("--early-stopping", type=int, default=50)
     args = parser.parse_args()
     started = time.perf_counter()
     features(args.train_rows, args.test_rows, [float(v) for v in args.noise.split(",")], args.sets.split(","),
-             args.modes.split(","), args.nthread)
+             args.modes.split(","), args.nthread, args.objective, args.early_stopping)
     print(f"\n{time.perf_counter() - started:.0f} s in all")
 
 
