@@ -136,6 +136,9 @@ def load_model(model_dir: str | Path) -> CorrectionModel:
         booster.load_model(str(model_path))
     except xgb.core.XGBoostError as exc:
         raise MpiLidarError(f"{model_path} is not a readable XGBoost model: {str(exc).splitlines()[0]}") from None
+    except UnicodeDecodeError:  # XGBoost echoes the file's first bytes; a pickle's are not UTF-8
+        raise MpiLidarError(f"{model_path} is not a readable XGBoost model (not UBJSON; a pickle is never "
+                            "loaded)") from None
     model = CorrectionModel(booster=booster, card=card)
     if booster.num_features() != len(card["feature_names"]) or card["feature_names"] != model.spec.names:
         raise MpiLidarError(f"{card_path} lists features {card['feature_names']} that do not match its model "
