@@ -15,7 +15,16 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationError,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from mpi_lidar.errors import ConfigError
 
@@ -86,6 +95,15 @@ class PriorConfig(_Frozen):
     rho_aba: Interval = (0.0, 1.0)
     rho_bas: Interval = (0.0, 1.0)
     no_multipath_fraction: Unit = 0.0
+
+    @model_serializer(mode="wrap")
+    def _omit_paper_default(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
+        # At 0 (the paper's prior) the field is left out, so configs, dataset stores and model cards made
+        # before it existed keep their hash.
+        data = handler(self)
+        if self.no_multipath_fraction == 0.0:
+            data.pop("no_multipath_fraction", None)
+        return data
 
     @field_validator("d_as_m", "d_ab_m", "albedo", "coupling", "rho", "rho_sas", "rho_sab", "rho_aba", "rho_bas")
     @classmethod

@@ -204,3 +204,13 @@ def test_summarize__noise_only_mae_matches_folded_normal_expectation(default_sto
     expected = folded.mean(0)
     standard_error = np.sqrt((sigma**2 + bias**2 - folded**2).sum(0)) / theta.shape[0]
     np.testing.assert_array_less(np.abs(np.array(summary.noise_only_mae_m) - expected), 5 * standard_error)
+
+
+def test_prior_config__no_multipath_fraction_keeps_old_hashes_and_round_trips():
+    from mpi_lidar.config import config_from_json, config_json
+
+    assert "no_multipath_fraction" not in config_json(Config()), "the paper's prior hashes as before"
+    mixed = Config().replace(prior={"no_multipath_fraction": 0.5})
+    assert '"no_multipath_fraction":0.5' in config_json(mixed)
+    assert config_from_json(config_json(mixed)) == mixed
+    assert config_from_json(config_json(Config())).prior.no_multipath_fraction == 0.0
