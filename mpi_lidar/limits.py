@@ -245,7 +245,7 @@ class _Posterior:
         n = raw.shape[0]
         d0 = weighted_depth(raw, tuple(self.freqs))
         a0 = np.clip(amplitude[:, -1] * d0**2 / self.config.sensor.gamma_r_v2, 1e-4, 1.0)
-        pi0 = prior.no_multipath_fraction if hasattr(prior, "no_multipath_fraction") else 0.0
+        pi0 = prior.no_multipath_fraction
         sizes = [max(64, pool // 4)] * (stages - 1) + [pool]
         gauss = None  # kernel centres (n, K, 2) and covariance (n, 2, 2) of (d_AB, q)
         samples, log_weights = [], []

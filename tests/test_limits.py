@@ -68,10 +68,13 @@ def _quadratures(raw: np.ndarray, config: Config):
 
 
 @pytest.mark.slow
-def test_posterior_estimates__agree_with_brute_force_prior_sampling():
+@pytest.mark.parametrize("no_multipath_fraction", [0.0, 0.5])
+def test_posterior_estimates__agree_with_brute_force_prior_sampling(no_multipath_fraction):
     # A narrow prior in d_AS and albedo, so that sampling the prior itself reaches a usable sample size;
-    # d_AB and rho_ABA keep their full ranges (the product density of rho_ABA is checked on the way).
-    config = Config().replace(prior={"d_as_m": (1.9, 1.95), "albedo": (0.5, 0.55)})
+    # d_AB and rho_ABA keep their full ranges (the product density of rho_ABA is checked on the way), and
+    # a share of rows without multipath puts a point mass at rho_ABA = 0.
+    config = Config().replace(prior={"d_as_m": (1.9, 1.95), "albedo": (0.5, 0.55),
+                                     "no_multipath_fraction": no_multipath_fraction})
     rng = np.random.default_rng(3)
     theta = sample_theta(config.prior, 4, rng)
     depth, amplitude = MomentSensor(config).measure(theta, rng)
