@@ -1,0 +1,71 @@
+"""Load: four trial processes on one PostgreSQL study, and 200 scans in one batch, every one accounted for.
+
+Throughput figures come from ``python -m benchmarks.cluster`` (docs/operations.md), not from these tests.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import replace
+from pathlib import Path
+
+import optuna
+import pytest
+from distributed import Client, LocalCluster
+
+from mpi_lidar import tune
+from mpi_lidar.config import Config
+from mpi_lidar.correct import CorrectionOptions, correct_archive
+from mpi_lidar.features import FeatureSpec
+from mpi_lidar.scans import write_scan
+from tests.integration.conftest import DaskCluster, database_url
+from tests.scan_factory import two_path_scan
+
+pytestmark = pytest.mark.slow
+
+SCANS = 200
+
+
+def max_overlap(intervals: list[tuple[float, float]]) -> int:
+    """The largest number of intervals open at one moment."""
+    events = sorted([(start, 1) for start, _ in intervals] + [(end, -1) for _, end in intervals])
+    open_now = best = 0
+    for _, step in events:
+        open_now += step
+        best = max(best, open_now)
+    return best
+
+
+def test_tune__four_trial_processes_on_one_postgresql_study(small_dataset: Path, pg_database: str) -> None:
+    url = database_url(pg_database)
+    settings = tune.TuneSettings(str(small_dataset), FeatureSpec(Config().frequencies_hz), tune_rows=1_000,
+                                 num_boost_round=40, early_stopping_rounds=40)
+    with (LocalCluster(n_workers=4, threads_per_worker=1, processes=True, dashboard_address=":0",
+                       silence_logs=logging.ERROR) as cluster, Client(cluster) as client):
+        report = tune.tune(client, url, "load", settings, trials=12)
+    study = optuna.load_study(study_name="load", storage=tune.normalise_storage_url(url))
+    trials = study.get_trials(deepcopy=False)
+    assert report.trials_run == 12 and report.complete + report.pruned == 12 and report.failed == 0
+    assert sorted(t.number for t in trials) == list(range(12)) and all(t.state in tune.FINISHED for t in trials)
+    assert len({tuple(sorted(t.params.items())) for t in trials}) == 12
+    spans = [(t.datetime_start.timestamp(), t.datetime_complete.timestamp()) for t in trials]
+    assert max_overlap(spans) >= 3, "the trials should run side by side"
+
+
+def test_correct_archive__200_scans_in_one_batch_all_accounted_for(
+    tmp_path: Path, dask_cluster: DaskCluster, cluster_model: Path
+) -> None:
+    archive = tmp_path / "archive"
+    for index in range(SCANS):
+        scan = two_path_scan(f"s{index:03d}", 8, 8, seed=index)
+        scan = replace(scan, azimuth_rad=None, elevation_rad=None, reference_depth=None, reference_mask=None)
+        write_scan(scan, archive / f"s{index:03d}.scan.zarr")
+    out = tmp_path / "out"
+    with Client(dask_cluster.address) as client:
+        outcomes = correct_archive([str(archive)], cluster_model, out, CorrectionOptions(gate="all"), client)
+    assert sorted(o.name for o in outcomes) == [f"s{i:03d}" for i in range(SCANS)]
+    assert all(o.status == "corrected" and o.counts["corrected"] == 64 for o in outcomes)
+    written = sorted(p.name for p in out.iterdir())
+    assert written == [f"s{i:03d}" for i in range(SCANS)]
+    assert all(json.loads((out / name / "metrics.json").read_text()) for name in written)
