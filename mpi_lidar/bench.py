@@ -112,7 +112,11 @@ Predictor = Callable[[NDArray], NDArray]
 
 @dataclass(frozen=True)
 class Method:
-    """A named estimator: ``fit(train)`` returns a predictor from raw rows (n, 2F) to depth (n,) [m]."""
+    """A named estimator: ``fit(train)`` returns a predictor from raw rows (n, 2F) to depth (n,) [m].
+
+    ``gate_of`` names the method whose fitted model this one puts behind the consistency gate: the
+    benchmark reuses that fit (and its training time) instead of calling ``fit`` again.
+    """
 
     name: str
     family: str
@@ -303,7 +307,7 @@ def range_guarded_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray, d
     positive tolerance lets rows from beyond the range be corrected wrongly: at +2 cm the MAE of a d_AS
     2.4-3.0 m set rises about 1.5% above the raw depth's, at 0 it stays equal (docs/tradeoff.md).
     """
-    from mpi_lidar.correct import CorrectionOptions, in_model_range
+    from mpi_lidar.correct import in_model_range
     from mpi_lidar.model import CorrectionModel
 
     options = CorrectionOptions(range_tolerance_m=tolerance_m)
