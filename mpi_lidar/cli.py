@@ -12,6 +12,7 @@ from mpi_lidar.config import PRESETS, resolve_config
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.features import (
     DEFAULT_FEATURE_SET,
+    DEFAULT_GEOMETRIC,
     DEFAULT_TARGET_MODE,
     FEATURE_SETS,
     TARGET_MODES,
@@ -76,17 +77,22 @@ def cluster_options(command):
 
 
 def model_options(command):
+    command = click.option("--geometric/--no-geometric", default=None,
+                           help="Add the scan geometry's coupling and d_AB estimates as inputs (default: no, or "
+                                "the study's); such a model corrects only scans with geometry.")(command)
     command = click.option("--target", "target_mode", type=click.Choice(TARGET_MODES),
                            help=f"Target mode (default {DEFAULT_TARGET_MODE}, or the study's).")(command)
     return click.option("--feature-set", type=click.Choice(FEATURE_SETS),
                         help=f"Model inputs (default {DEFAULT_FEATURE_SET}, or the study's).")(command)
 
 
-def feature_spec(data: Path, feature_set: str | None, target_mode: str | None) -> FeatureSpec:
+def feature_spec(data: Path, feature_set: str | None, target_mode: str | None,
+                 geometric: bool | None = None) -> FeatureSpec:
     from mpi_lidar import dataset
 
     info = dataset.dataset_info(data)
-    return FeatureSpec(info.frequencies_hz, feature_set or DEFAULT_FEATURE_SET, target_mode or DEFAULT_TARGET_MODE)
+    return FeatureSpec(info.frequencies_hz, feature_set or DEFAULT_FEATURE_SET, target_mode or DEFAULT_TARGET_MODE,
+                       DEFAULT_GEOMETRIC if geometric is None else geometric)
 
 
 @cli.command()
@@ -101,13 +107,14 @@ def feature_spec(data: Path, feature_set: str | None, target_mode: str | None) -
 @model_options
 @cluster_options
 def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_rows: int, feature_set: str | None,
-         target_mode: str | None, workers: int, scheduler: str | None) -> None:
+         target_mode: str | None, geometric: bool | None, workers: int, scheduler: str | None) -> None:
     """Tune XGBoost with Optuna TPE, trials running in parallel on Dask workers."""
     from mpi_lidar import tune as tuning
     from mpi_lidar.cluster import dask_client
 
     storage = tuning.storage_url(storage, data)
-    settings = tuning.TuneSettings(str(data), feature_spec(data, feature_set, target_mode), tune_rows=tune_rows)
+    settings = tuning.TuneSettings(str(data), feature_spec(data, feature_set, target_mode, geometric),
+                                   tune_rows=tune_rows)
     study = tuning.open_study(storage, study_name, settings)
     todo = max(0, trials - tuning.count(study, *tuning.FINISHED))
     with _progress() as progress, dask_client(scheduler, workers) as client:
@@ -129,7 +136,8 @@ def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_row
 @model_options
 @cluster_options
 def train(data: Path, out: Path, params_file: Path | None, study_name: str | None, storage: str | None,
-          feature_set: str | None, target_mode: str | None, workers: int, scheduler: str | None) -> None:
+          feature_set: str | None, target_mode: str | None, geometric: bool | None, workers: int,
+          scheduler: str | None) -> None:
     """Train the final XGBoost model through xgboost.dask on the whole train split."""
     from mpi_lidar import tune as tuning
     from mpi_lidar.cluster import dask_client
@@ -143,8 +151,9 @@ def train(data: Path, out: Path, params_file: Path | None, study_name: str | Non
         settings = study.user_attrs.get("settings", {})
         feature_set = feature_set or settings.get("feature_set")
         target_mode = target_mode or settings.get("target_mode")
+        geometric = settings.get("geometric", False) if geometric is None else geometric
         params = tuning.best_params(study)
-    spec = feature_spec(data, feature_set, target_mode)
+    spec = feature_spec(data, feature_set, target_mode, geometric)
     with dask_client(scheduler, workers) as client:
         out_dir, result = train_and_save(client, data, out, spec, params)
     click.echo(f"model written to {out_dir}: {result.best_iteration + 1} trees, validation MAE "

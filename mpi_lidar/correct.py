@@ -6,7 +6,9 @@ NaN. Valid pixels whose depth lies outside the range the model was trained on ke
 do not extrapolate). Valid pixels the gate lets through are corrected by the model; the others keep the
 raw depth of the highest frequency, exactly as measured. The default gate, ``geometry``, corrects only
 where the scan's own geometry lets another surface send light back (:mod:`mpi_lidar.geometry`); a scan
-without geometry falls back to pixel-wise correction of every valid pixel, and its report says so.
+without geometry falls back to pixel-wise correction of every valid pixel, and its report says so. A model
+trained with geometric inputs gets the geometry's coupling and d_AB for each pixel it corrects (computed
+even under another gate); on a scan without geometry it corrects nothing, and the report says so.
 
 Per scan the outputs go into ``<out>/<scan name>/`` (``corrected.zarr``, report files, point clouds),
 built in a temporary directory and renamed into place, so a scan's outputs are all there or not at all. A
@@ -37,6 +39,7 @@ from scipy import stats
 from mpi_lidar import geometry
 from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.features import geometry_inputs
 from mpi_lidar.model import CorrectionModel, load_model
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.physics.sensor import received_voltage_amplitude
@@ -223,6 +226,8 @@ class GeometryGate(Gate):
 
 
 NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
+NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (coupling, d_AB), so every valid "
+                           "pixel keeps its raw depth")
 
 
 def make_gate(options: CorrectionOptions) -> Gate:
@@ -278,20 +283,26 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     usable = ~np.isin(flags, [int(f) for f in INVALID_FLAGS])
     candidates = gate.scan_candidates(scan, np.where(usable, top, np.nan))
     notes: tuple[str, ...] = ()
+    potential = getattr(gate, "potential_", None)
+    if model.geometric and potential is None:
+        potential = GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
+                                 options.footprint_area_m2).potential(scan, np.where(usable, top, np.nan))
     if candidates is not None:
         flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
-    elif gate.uses_geometry:
+    elif gate.uses_geometry and not model.geometric:
         notes = (NO_GEOMETRY_NOTE,)
     valid = np.flatnonzero(flags == Flag.NOT_NEEDED)
     needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
+    if model.geometric and potential is None:
+        needs, notes = needs[:0], (NO_GEOMETRY_INPUTS_NOTE,)
+    geometric_inputs = None if potential is None else geometry_inputs(potential.coupling, potential.d_ab_m)
     gate_s = time.perf_counter() - gate_started
-    potential = getattr(gate, "potential_", None)
     depth = raw[:, len(scan.frequencies_hz) - 1].copy()
     depth[np.isin(flags, [int(f) for f in INVALID_FLAGS])] = np.nan
     inference_started = time.perf_counter()
     for start in range(0, needs.size, options.tile_pixels):
         tile = needs[start:start + options.tile_pixels]
-        depth[tile] = model.predict_depth(raw[tile])
+        depth[tile] = model.predict_depth(raw[tile], None if geometric_inputs is None else geometric_inputs[tile])
     inference_s = time.perf_counter() - inference_started
     flags[needs] = Flag.CORRECTED
     h, w = scan.shape

@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 from mpi_lidar import dataset
 from mpi_lidar.features import frequency_labels, weighted_depth
 from mpi_lidar.model import CorrectionModel
+from mpi_lidar.train import training_geometry
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,7 @@ def evaluate_model(model: CorrectionModel, data_path: str | Path, split: str = "
     info = sub.info
     model.check_compatible(info.frequencies_hz, info.feature_names, f"dataset {data_path}")
     estimates = raw_estimates(sub.features, info.frequencies_hz)
-    corrected = model.predict_depth(sub.features)
+    corrected = model.predict_depth(sub.features, training_geometry(model.spec, sub))
     estimates["corrected (XGBoost)"] = corrected
     raw_label = f"raw depth {frequency_labels(info.frequencies_hz)[-1]}"
     return Evaluation(

@@ -13,6 +13,11 @@ Feature sets:
 Target modes:
 - ``absolute``: the true depth d_AS (the paper's target).
 - ``residual``: the true depth minus the measured highest-frequency depth; the prediction is a correction.
+
+Geometric inputs (``FeatureSpec.geometric``): two more columns after the feature set's, the coupling kappa and
+the A-B distance d_AB that the scan's geometry estimates for the pixel (:func:`mpi_lidar.geometry.multipath_potential`).
+Training rows have no scan, so :func:`synthetic_geometry` builds the estimate the geometry would give from the
+row's scene parameters and the estimation error measured on rendered scenes (docs/scenes.md).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import dask.array as da
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.config import PriorConfig
 from mpi_lidar.errors import MpiLidarError
 
 FeatureSet = Literal["raw", "engineered"]
@@ -33,9 +39,86 @@ FEATURE_SETS: tuple[str, ...] = ("raw", "engineered")
 # paper's raw inputs and absolute target (200,000 train rows; docs/tradeoff.md).
 DEFAULT_FEATURE_SET: FeatureSet = "engineered"
 DEFAULT_TARGET_MODE: TargetMode = "residual"
+# Geometric inputs off by default until the scene set shows they win (docs/scenes.md).
+DEFAULT_GEOMETRIC = False
 TARGET_MODES: tuple[str, ...] = ("absolute", "residual")
 # Amplitudes below this are treated as no return when forming ratios and logs. [V^2]
 AMPLITUDE_FLOOR_V2 = 1e-12
+GEOMETRIC_NAMES = ("geometric_coupling", "geometric_d_ab_m")
+# Error of the geometric estimates against the renderer's truth on the corners of docs/scenes.md, section 1
+# (eight scenes): estimate / true coupling has a median of 0.92 over the scenes and a log-spread of 0.35 within
+# a scene (IQR 0.47 / 1.349) plus 0.13 between scenes; the d_AB estimate is 2.2 cm short with an sd of 1.3 cm
+# within a scene and 0.4 cm between scenes.
+GEOMETRY_ERROR_MODEL: dict[str, float] = {
+    "coupling_log_median": float(np.log(0.92)), "coupling_log_sd": 0.37,
+    "d_ab_offset_m": -0.022, "d_ab_sd_m": 0.0135,
+}
+# Stream of the dataset's seed tree reserved for the synthetic geometry (chunks use (i,), summaries (2**31,)).
+GEOMETRY_STREAM = 2**31 + 1
+
+
+def row_uniforms(seed: int, rows: NDArray) -> NDArray[np.float64]:
+    """Four uniforms in (0, 1) per row index (n, 4), a function of (seed, row) only. [1]
+
+    A Philox counter stream keyed by the dataset seed: row r uses the counter r, so any subset or chunking of
+    the rows (train on Dask blocks, a tuning subsample, the test split) gets the same values for a row.
+    """
+    rows = np.asarray(rows, dtype=np.int64).ravel()
+    if rows.size == 0:
+        return np.zeros((0, 4))
+    first, last = int(rows.min()), int(rows.max())
+    if first < 0:
+        raise MpiLidarError(f"row indices must be >= 0, got {first}")
+    key = np.random.SeedSequence(seed, spawn_key=(GEOMETRY_STREAM,)).generate_state(2, np.uint64)
+    bit_generator = np.random.Philox(key=key)
+    bit_generator.advance(first)
+    raw = bit_generator.random_raw(4 * (last - first + 1)).reshape(-1, 4)[rows - first]
+    return ((raw >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0**-53
+
+
+def synthetic_geometry(theta: NDArray, theta_names: tuple[str, ...] | list[str], prior: PriorConfig, seed: int,
+                       rows: NDArray, error_model: dict[str, float] | None = None) -> NDArray[np.float64]:
+    """The geometric estimates (coupling [1], d_AB [m]) a scan would give for training rows (n, 2).
+
+    The truth comes from theta. Under the reciprocal prior rho_ABA = kappa b, and the geometry sees kappa
+    only (a white partner), so kappa is drawn from its conditional law given rho_ABA: with kappa and b
+    uniform, b | rho_ABA has density proportional to 1/b on [max(b_lo, rho/kappa_hi), min(b_hi, rho/kappa_lo)].
+    Other schemes take kappa = rho_ABA. Then, as measured on rendered corners (docs/scenes.md):
+    coupling estimate = min(kappa exp(mu + s z1), 1), d_AB estimate = max(d_AB + offset + sd z2, 0), with
+    z1, z2 standard normal. Rows with rho_ABA = 0 (no partner) get (0, 0), as the geometry gives no
+    partner there. Randomness from :func:`row_uniforms` (seed, row).
+    """
+    model = {**GEOMETRY_ERROR_MODEL, **(error_model or {})}
+    theta = np.asarray(theta, dtype=np.float64)
+    names = list(theta_names)
+    rho, d_ab = theta[:, names.index("rho_aba")], theta[:, names.index("d_ab_m")]
+    u = row_uniforms(seed, rows)
+    if u.shape[0] != theta.shape[0]:
+        raise MpiLidarError(f"{theta.shape[0]} theta rows but {u.shape[0]} row indices")
+    if prior.scheme == "reciprocal":
+        (b_lo, b_hi), (k_lo, k_hi) = prior.albedo, prior.coupling
+        with np.errstate(divide="ignore", invalid="ignore"):
+            low = np.maximum(b_lo, rho / k_hi) if k_hi > 0 else np.full_like(rho, b_lo)
+            high = np.minimum(b_hi, rho / k_lo) if k_lo > 0 else np.full_like(rho, b_hi)
+        low = np.clip(low, 1e-12, None)
+        high = np.maximum(high, low)
+        albedo_b = low * (high / low) ** u[:, 2]
+        kappa = np.where(rho > 0, rho / albedo_b, 0.0)
+    else:
+        kappa = rho
+    radius = np.sqrt(-2.0 * np.log(u[:, 0]))
+    z1, z2 = radius * np.cos(2 * np.pi * u[:, 1]), radius * np.sin(2 * np.pi * u[:, 1])
+    coupling = np.minimum(kappa * np.exp(model["coupling_log_median"] + model["coupling_log_sd"] * z1), 1.0)
+    distance = np.maximum(d_ab + model["d_ab_offset_m"] + model["d_ab_sd_m"] * z2, 0.0)
+    partner = rho > 0
+    return np.column_stack([np.where(partner, coupling, 0.0), np.where(partner, distance, 0.0)])
+
+
+def geometry_inputs(coupling: NDArray, d_ab_m: NDArray) -> NDArray[np.float64]:
+    """Geometric model inputs (n, 2) from a scan's potential: coupling [1] and d_AB [m], 0 where no partner."""
+    coupling = np.nan_to_num(np.asarray(coupling, dtype=np.float64).ravel(), nan=0.0)
+    d_ab = np.nan_to_num(np.asarray(d_ab_m, dtype=np.float64).ravel(), nan=0.0)
+    return np.column_stack([coupling, np.where(coupling > 0, d_ab, 0.0)])
 
 
 def frequency_labels(frequencies_hz: tuple[float, ...]) -> list[str]:
@@ -70,6 +153,7 @@ class FeatureSpec:
     frequencies_hz: tuple[float, ...]
     feature_set: FeatureSet = "raw"
     target_mode: TargetMode = "absolute"
+    geometric: bool = False
 
     def __post_init__(self) -> None:
         if self.feature_set not in FEATURE_SETS:
@@ -94,6 +178,8 @@ class FeatureSpec:
             names += [f"depth_{x}_minus_{top}" for x in labels[:-1]]
             names += [f"amplitude_{x}_over_{top}" for x in labels[:-1]]
             names += ["weighted_depth", f"log_amplitude_{top}"]
+        if self.geometric:
+            names += list(GEOMETRIC_NAMES)
         return names
 
     @property
@@ -101,12 +187,31 @@ class FeatureSpec:
         """The measured depth column the residual target is relative to."""
         return self.raw_names[self.n_freq - 1] if self.target_mode == "residual" else None
 
-    def transform(self, raw: NDArray | da.Array) -> NDArray[np.float32] | da.Array:
-        """Model inputs from raw measurements (n, 2F), numpy or dask (block by block)."""
+    def transform(self, raw: NDArray | da.Array, geometry: NDArray | da.Array | None = None,
+                  ) -> NDArray[np.float32] | da.Array:
+        """Model inputs from raw measurements (n, 2F), numpy or dask (block by block).
+
+        ``geometry`` (n, 2): the geometric coupling [1] and d_AB [m] per row; required when ``geometric``,
+        ignored otherwise.
+        """
+        if self.geometric and geometry is None:
+            raise MpiLidarError("this model was trained with geometric features (coupling, d_AB) and needs them "
+                                "for every pixel: give a scan with geometry (azimuth/elevation or ray directions)")
         if isinstance(raw, da.Array):
             raw = raw.rechunk({1: -1})
-            return raw.map_blocks(self._transform_block, dtype=np.float32, chunks=(raw.chunks[0], (len(self.names),)))
-        return self._transform_block(raw)
+            base = len(self.names) - (len(GEOMETRIC_NAMES) if self.geometric else 0)
+            features = raw.map_blocks(self._transform_block, dtype=np.float32, chunks=(raw.chunks[0], (base,)))
+            if not self.geometric:
+                return features
+            extra = da.asarray(geometry).astype(np.float32).rechunk((raw.chunks[0], -1))
+            return da.concatenate([features, extra], axis=1).rechunk({1: -1})
+        features = self._transform_block(raw)
+        if not self.geometric:
+            return features
+        geometry = np.asarray(geometry, dtype=np.float32)
+        if geometry.shape != (features.shape[0], len(GEOMETRIC_NAMES)):
+            raise MpiLidarError(f"expected geometric inputs of shape ({features.shape[0]}, 2), got {geometry.shape}")
+        return np.concatenate([features, geometry], axis=1)
 
     def _transform_block(self, raw: NDArray) -> NDArray[np.float32]:
         raw = np.asarray(raw)
@@ -138,3 +243,15 @@ class FeatureSpec:
     def depth(self, raw: NDArray | da.Array, prediction: NDArray | da.Array) -> NDArray | da.Array:
         """Corrected depth from a prediction. [m]"""
         return self.reference_depth(raw) + prediction
+
+
+def synthetic_geometry_dask(theta: da.Array, theta_names: tuple[str, ...] | list[str], prior: PriorConfig,
+                            seed: int) -> da.Array:
+    """:func:`synthetic_geometry` for all rows of a lazy theta (n, k), block by block, rows numbered from 0."""
+    theta = theta.rechunk({1: -1})
+    rows = da.arange(theta.shape[0], chunks=theta.chunks[0], dtype=np.int64)[:, None]
+
+    def block(t: NDArray, r: NDArray) -> NDArray[np.float64]:
+        return synthetic_geometry(t, theta_names, prior, seed, r[:, 0])
+
+    return da.map_blocks(block, theta, rows, dtype=np.float64, chunks=(theta.chunks[0], (len(GEOMETRIC_NAMES),)))

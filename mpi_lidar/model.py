@@ -59,7 +59,8 @@ class CorrectionModel:
     @property
     def spec(self) -> FeatureSpec:
         c = self.card
-        return FeatureSpec(tuple(c["frequencies_hz"]), c["feature_set"], c["target_mode"])
+        return FeatureSpec(tuple(c["frequencies_hz"]), c["feature_set"], c["target_mode"],
+                           bool(c.get("geometric", False)))
 
     def check_compatible(self, frequencies_hz: tuple[float, ...], raw_names: list[str] | tuple[str, ...],
                          source: str) -> None:
@@ -74,18 +75,27 @@ class CorrectionModel:
             raise MpiLidarError(f"{source} has columns {list(raw_names)} but the model expects "
                                 f"{self.card['raw_feature_names']}; the data and model do not match")
 
-    def predict_depth(self, raw: NDArray) -> NDArray[np.float64]:
-        """Corrected depth [m] for raw measurements (n, 2F) in this process (XGBoost inplace_predict)."""
+    @property
+    def geometric(self) -> bool:
+        """Whether the model needs the geometric inputs (coupling, d_AB) of every pixel."""
+        return self.spec.geometric
+
+    def predict_depth(self, raw: NDArray, geometry: NDArray | None = None) -> NDArray[np.float64]:
+        """Corrected depth [m] for raw measurements (n, 2F) in this process (XGBoost inplace_predict).
+
+        ``geometry`` (n, 2): geometric coupling [1] and d_AB [m] per row, required by a geometric model
+        (:attr:`geometric`) and ignored by the others.
+        """
         spec = self.spec
-        prediction = self.booster.inplace_predict(spec.transform(raw))
+        prediction = self.booster.inplace_predict(spec.transform(raw, geometry))
         return np.asarray(spec.depth(raw, prediction.astype(np.float64)))
 
-    def predict_depth_dask(self, client: object, raw: da.Array) -> da.Array:
+    def predict_depth_dask(self, client: object, raw: da.Array, geometry: da.Array | None = None) -> da.Array:
         """Corrected depth [m] for a dask array of raw measurements, predicted on the cluster's workers."""
         import xgboost.dask as dxgb
 
         spec = self.spec
-        prediction = dxgb.inplace_predict(client, self.booster, spec.transform(raw))
+        prediction = dxgb.inplace_predict(client, self.booster, spec.transform(raw, geometry))
         return spec.depth(raw, prediction.astype(np.float64))
 
 

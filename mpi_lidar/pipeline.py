@@ -21,7 +21,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.correct import CorrectionOptions, ScanOutcome, correct_archive
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.evaluate import Evaluation, evaluate_model
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.model import CARD_FILE, load_model
 from mpi_lidar.report import evaluation_report, write_report
 from mpi_lidar.scan_report import write_batch_report
@@ -50,7 +50,7 @@ def run_pipeline(
     generation = dataset.generate(data, config, client)
     echo(f"dataset {data}: {generation.chunks_written} chunks written, {generation.chunks_skipped} already there")
 
-    spec = FeatureSpec(config.frequencies_hz, DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE)
+    spec = FeatureSpec(config.frequencies_hz, DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, DEFAULT_GEOMETRIC)
     storage = tune.default_storage(data)
     settings = tune.TuneSettings(str(data), spec, tune_rows=min(tune_rows, config.dataset.samples))
     tuning = tune.tune(client, storage, "xgboost", settings, trials)

@@ -15,10 +15,11 @@ import numpy as np
 import xgboost as xgb
 import xgboost.dask as dxgb
 from distributed import Client
+from numpy.typing import NDArray
 
 from mpi_lidar import dataset
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import FeatureSpec
+from mpi_lidar.features import GEOMETRY_ERROR_MODEL, FeatureSpec, synthetic_geometry, synthetic_geometry_dask
 from mpi_lidar.model import save_model
 
 VALIDATION_EVERY = 10
@@ -63,7 +64,7 @@ def train_dask(
     lazy = dataset.read_lazy(data_path)
     check_dataset_matches(spec, lazy.info)
     fit, validation = train_split_masks(lazy.split)
-    x = spec.transform(lazy.features)
+    x = spec.transform(lazy.features, training_geometry_lazy(spec, lazy))
     y = spec.target(lazy.features, lazy.target)
     x_fit, y_fit = _rows(x, fit), _rows(y, fit)
     x_val, y_val = _rows(x, validation), _rows(y, validation)
@@ -81,6 +82,22 @@ def train_dask(
     history = output["history"]["validation"]["mae"]
     best = booster.best_iteration if booster.best_iteration is not None else len(history) - 1
     return TrainResult(booster, int(best), float(history[best]), fit_rows, val_rows, time.perf_counter() - started)
+
+
+def training_geometry_lazy(spec: FeatureSpec, lazy: dataset.LazyDataset) -> da.Array | None:
+    """Synthetic geometric inputs for every stored row (lazy), or None for a model without them."""
+    if not spec.geometric:
+        return None
+    info = lazy.info
+    return synthetic_geometry_dask(lazy.theta, info.theta_names, info.config.prior, info.config.dataset.seed)
+
+
+def training_geometry(spec: FeatureSpec, sub: dataset.Subsample) -> NDArray | None:
+    """Synthetic geometric inputs for the rows of a subsample (same values as for the same rows in training)."""
+    if not spec.geometric:
+        return None
+    info = sub.info
+    return synthetic_geometry(sub.theta, info.theta_names, info.config.prior, info.config.dataset.seed, sub.rows)
 
 
 def _rows(array: da.Array, mask: da.Array) -> da.Array:
@@ -103,6 +120,8 @@ def model_card(spec: FeatureSpec, info: dataset.DatasetInfo, params: dict[str, o
         "raw_feature_names": spec.raw_names,
         "feature_set": spec.feature_set,
         "feature_names": spec.names,
+        "geometric": spec.geometric,
+        **({"geometry_error_model": dict(GEOMETRY_ERROR_MODEL)} if spec.geometric else {}),
         "target_mode": spec.target_mode,
         "residual_reference": spec.residual_reference,
         "dataset": {"path": info.path, "config_sha256": info.config_sha256, "samples": info.samples,

@@ -32,7 +32,7 @@ from sqlalchemy.engine import make_url
 from mpi_lidar import dataset
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.features import FeatureSpec
-from mpi_lidar.train import BASE_PARAMS, check_dataset_matches
+from mpi_lidar.train import BASE_PARAMS, check_dataset_matches, training_geometry
 
 DEFAULT_TRIALS = 30
 DEFAULT_TUNE_ROWS = 100_000
@@ -69,6 +69,8 @@ class TuneSettings:
             "feature_set": self.spec.feature_set, "target_mode": self.spec.target_mode,
             "tune_rows": self.tune_rows, "num_boost_round": self.num_boost_round,
         }
+        if self.spec.geometric:  # absent when False, so the signatures of existing studies do not change
+            payload["geometric"] = True
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
@@ -122,6 +124,7 @@ def open_study(storage_url: str, study_name: str, settings: TuneSettings) -> opt
         study.set_user_attr("signature", signature)
         study.set_user_attr("settings", {"search_space": SEARCH_SPACE, "feature_set": settings.spec.feature_set,
                                          "target_mode": settings.spec.target_mode, "tune_rows": settings.tune_rows,
+                                         "geometric": settings.spec.geometric,
                                          "dataset_config_sha256": info.config_sha256})
     elif found != signature:
         raise MpiLidarError(f"study {study_name!r} in {masked(storage_url)} was made for another search space, "
@@ -143,7 +146,7 @@ def suggest_params(trial: optuna.Trial) -> dict[str, object]:
 def _tuning_data(data_path: str, spec: FeatureSpec, rows: int, seed: int) -> tuple[xgb.DMatrix, xgb.DMatrix]:
     """A seeded subsample of the train split, four fifths to fit and one fifth to validate (per process)."""
     sub = dataset.read_subsample(data_path, split="train", max_rows=rows, seed=seed)
-    x, y = spec.transform(sub.features), spec.target(sub.features, sub.target)
+    x, y = spec.transform(sub.features, training_geometry(spec, sub)), spec.target(sub.features, sub.target)
     holdout = np.arange(x.shape[0]) % 5 == 0
     # One thread, like the trial itself: a worker is one core, and parallelism comes from parallel trials.
     fit = xgb.QuantileDMatrix(x[~holdout], y[~holdout], nthread=1)

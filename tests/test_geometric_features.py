@@ -1,0 +1,164 @@
+from __future__ import annotations
+
+from dataclasses import replace
+
+import dask.array as da
+import numpy as np
+import pytest
+
+from mpi_lidar import dataset
+from mpi_lidar.config import Config, PriorConfig
+from mpi_lidar.correct import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, GeometryGate, correct_scan
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.evaluate import evaluate_model
+from mpi_lidar.features import (
+    GEOMETRIC_NAMES,
+    GEOMETRY_ERROR_MODEL,
+    FeatureSpec,
+    geometry_inputs,
+    row_uniforms,
+    synthetic_geometry,
+    synthetic_geometry_dask,
+)
+from mpi_lidar.model import load_model
+from mpi_lidar.sampling import THETA_NAMES, sample_theta
+from mpi_lidar.scenes import corner, render
+from mpi_lidar.train import train_and_save, training_geometry, training_geometry_lazy
+from tests.scan_factory import two_path_scan
+
+FREQS = Config().frequencies_hz
+FAST = {"max_depth": 6, "learning_rate": 0.3, "subsample": 1.0, "colsample_bytree": 1.0, "min_child_weight": 1.0,
+        "reg_lambda": 1.0, "gamma": 0.0}
+NO_ERROR = {"coupling_log_median": 0.0, "coupling_log_sd": 0.0, "d_ab_offset_m": 0.0, "d_ab_sd_m": 0.0}
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory, cluster_client, small_dataset):
+    """The same engineered residual model with and without geometric inputs, through xgboost.dask."""
+    root = tmp_path_factory.mktemp("geometric")
+    out = {}
+    for geometric in (False, True):
+        spec = FeatureSpec(FREQS, "engineered", "residual", geometric)
+        out[geometric], _ = train_and_save(cluster_client, small_dataset, root / f"geometric_{geometric}", spec,
+                                           FAST, num_boost_round=200, early_stopping_rounds=10)
+    return out
+
+
+def test_synthetic_geometry__error_statistics_match_the_error_model():
+    prior = PriorConfig(scheme="explicit", rho_aba=(0.0, 0.3))  # kappa = rho_ABA, below the cap of 1
+    theta = sample_theta(prior, 100_000, np.random.default_rng(3))
+    theta[:10_000, THETA_NAMES.index("rho_aba")] = 0.0
+    estimate = synthetic_geometry(theta, THETA_NAMES, prior, seed=5, rows=np.arange(theta.shape[0]))
+    np.testing.assert_array_equal(estimate[:10_000], 0.0)
+    kappa, d_ab = theta[10_000:, 4], theta[10_000:, 1]
+    log_ratio = np.log(estimate[10_000:, 0] / kappa)
+    assert np.median(log_ratio) == pytest.approx(GEOMETRY_ERROR_MODEL["coupling_log_median"], abs=0.01)
+    assert np.std(log_ratio) == pytest.approx(GEOMETRY_ERROR_MODEL["coupling_log_sd"], rel=0.02)
+    far = d_ab > 0.08  # well clear of the clip at 0
+    error = estimate[10_000:, 1][far] - d_ab[far]
+    assert error.mean() == pytest.approx(GEOMETRY_ERROR_MODEL["d_ab_offset_m"], abs=3e-4)
+    assert error.std() == pytest.approx(GEOMETRY_ERROR_MODEL["d_ab_sd_m"], rel=0.02)
+    assert (estimate[:, 1] >= 0).all() and (estimate[:, 0] <= 1).all()
+
+
+def test_synthetic_geometry__kappa_given_rho_has_the_prior_joint_law():
+    prior = PriorConfig()
+    rng = np.random.default_rng(8)
+    n = 100_000
+    kappa, albedo_b = rng.uniform(*prior.coupling, n), rng.uniform(*prior.albedo, n)
+    theta = sample_theta(prior, n, rng)
+    theta[:, 4] = kappa * albedo_b
+    drawn = synthetic_geometry(theta, THETA_NAMES, prior, seed=2, rows=np.arange(n), error_model=NO_ERROR)[:, 0]
+    quantiles = np.linspace(0.05, 0.95, 19)
+    np.testing.assert_allclose(np.quantile(drawn, quantiles), np.quantile(kappa, quantiles), atol=0.01)
+    assert np.corrcoef(drawn, theta[:, 4])[0, 1] == pytest.approx(np.corrcoef(kappa, theta[:, 4])[0, 1], abs=0.01)
+    implied_b = theta[:, 4] / drawn
+    assert implied_b.min() >= prior.albedo[0] - 1e-12 and implied_b.max() <= prior.albedo[1] + 1e-12
+
+
+def test_row_uniforms__a_row_gets_the_same_values_in_any_subset_or_chunking():
+    full = row_uniforms(7, np.arange(5_000))
+    rows = np.sort(np.random.default_rng(0).choice(5_000, 300, replace=False))
+    np.testing.assert_array_equal(row_uniforms(7, rows), full[rows])
+    assert not np.array_equal(row_uniforms(8, rows), full[rows])
+    theta = sample_theta(PriorConfig(), 5_000, np.random.default_rng(1))
+    lazy = synthetic_geometry_dask(da.from_array(theta, chunks=(777, 3)), THETA_NAMES, PriorConfig(), 7).compute()
+    np.testing.assert_array_equal(lazy, synthetic_geometry(theta, THETA_NAMES, PriorConfig(), 7, np.arange(5_000)))
+    assert full.min() > 0 and full.max() < 1
+    assert np.abs(full.mean(0) - 0.5).max() < 0.01
+
+
+def test_training_geometry__train_tune_and_evaluate_rows_agree(small_dataset):
+    spec = FeatureSpec(FREQS, "engineered", "residual", geometric=True)
+    lazy = training_geometry_lazy(spec, dataset.read_lazy(small_dataset)).compute()
+    sub = dataset.read_subsample(small_dataset, split="test")
+    np.testing.assert_array_equal(training_geometry(spec, sub), lazy[sub.rows])
+    tuning = dataset.read_subsample(small_dataset, split="train", max_rows=500, seed=3)
+    np.testing.assert_array_equal(training_geometry(spec, tuning), lazy[tuning.rows])
+    assert training_geometry(FeatureSpec(FREQS, "engineered", "residual"), sub) is None
+
+
+def test_feature_spec__geometric_inputs_are_required_and_appended():
+    spec = FeatureSpec(FREQS, "engineered", "residual", geometric=True)
+    raw = two_path_scan("g").raw_pixels()
+    assert spec.names[-2:] == list(GEOMETRIC_NAMES)
+    with pytest.raises(MpiLidarError, match="trained with geometric features"):
+        spec.transform(raw)
+    geometry = np.column_stack([np.full(raw.shape[0], 0.3), np.full(raw.shape[0], 0.05)])
+    x = spec.transform(raw, geometry)
+    assert x.shape == (raw.shape[0], len(spec.names))
+    np.testing.assert_allclose(x[:, -2:], geometry, rtol=1e-6)
+    lazy = spec.transform(da.from_array(raw, chunks=(100, 8)), da.from_array(geometry, chunks=(64, 2))).compute()
+    np.testing.assert_array_equal(lazy, x)
+
+
+def test_geometry_inputs__no_partner_gives_zeros():
+    out = geometry_inputs(np.array([0.0, 0.2, np.nan]), np.array([np.nan, 0.04, np.nan]))
+    np.testing.assert_array_equal(out, [[0.0, 0.0], [0.2, 0.04], [0.0, 0.0]])
+
+
+def test_train_and_save__card_records_the_geometric_option(models):
+    card = load_model(models[True]).card
+    assert card["geometric"] is True and card["feature_names"][-2:] == list(GEOMETRIC_NAMES)
+    assert card["geometry_error_model"] == GEOMETRY_ERROR_MODEL
+    assert load_model(models[False]).card["geometric"] is False
+
+
+def test_predict_depth__geometric_model_refuses_rows_without_inputs(models):
+    model = load_model(models[True])
+    with pytest.raises(MpiLidarError, match="needs them for every pixel"):
+        model.predict_depth(two_path_scan("r").raw_pixels())
+
+
+def test_evaluate_model__geometric_inputs_beat_pixel_wise_on_varying_coupling(models, small_dataset):
+    geometric = evaluate_model(load_model(models[True]), small_dataset).metrics["corrected (XGBoost)"].mae_m
+    pixel_wise = evaluate_model(load_model(models[False]), small_dataset).metrics["corrected (XGBoost)"].mae_m
+    assert geometric < 0.85 * pixel_wise
+
+
+def test_correct_scan__geometric_model_gets_the_gate_potential(models):
+    scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
+    model = load_model(models[True])
+    options = CorrectionOptions()
+    correction = correct_scan(scan, model, options)
+    corrected = correction.flags.ravel() == Flag.CORRECTED
+    assert corrected.sum() > 100
+    raw = scan.raw_pixels()
+    gate = GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
+                        options.footprint_area_m2)
+    usable = np.isfinite(raw).all(1)
+    potential = gate.potential(scan, np.where(usable, raw[:, len(FREQS) - 1], np.nan))
+    inputs = geometry_inputs(potential.coupling, potential.d_ab_m)[corrected]
+    assert (inputs[:, 0] > 0).all()
+    np.testing.assert_allclose(correction.depth.ravel()[corrected], model.predict_depth(raw[corrected], inputs),
+                               atol=1e-6)
+    with_gate_all = correct_scan(scan, model, CorrectionOptions(gate="all"))
+    assert (with_gate_all.flags == Flag.CORRECTED).sum() > corrected.sum()
+
+
+def test_correct_scan__geometric_model_keeps_raw_depth_without_scan_geometry(models):
+    scan = replace(two_path_scan("n"), azimuth_rad=None, elevation_rad=None, ray_directions=None)
+    correction = correct_scan(scan, load_model(models[True]), CorrectionOptions())
+    assert correction.notes == (NO_GEOMETRY_INPUTS_NOTE,)
+    assert correction.counts()["corrected"] == 0
+    np.testing.assert_array_equal(correction.depth.ravel(), scan.raw_pixels()[:, len(FREQS) - 1].astype(np.float32))
