@@ -94,6 +94,7 @@ def test_read_scan__malformed_store_fails_with_one_clear_line(tmp_path: Path, go
     assert "\n" not in message and str(store) in message and len(message) < 400, message
 
 
+@pytest.mark.slow
 def test_correct_archive__malformed_scans_fail_alone_and_the_rest_are_corrected(
     tmp_path: Path, good_scan: Path, cluster_model: Path
 ) -> None:
