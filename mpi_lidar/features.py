@@ -39,8 +39,9 @@ FEATURE_SETS: tuple[str, ...] = ("raw", "engineered")
 # paper's raw inputs and absolute target (200,000 train rows; docs/tradeoff.md).
 DEFAULT_FEATURE_SET: FeatureSet = "engineered"
 DEFAULT_TARGET_MODE: TargetMode = "residual"
-# Geometric inputs off by default until the scene set shows they win (docs/scenes.md).
-DEFAULT_GEOMETRIC = False
+# Geometric inputs: better than the same prior's pixel-wise model on every rendered corner of the scene set
+# (docs/scenes.md, section 4); such a model leaves scans without geometry uncorrected.
+DEFAULT_GEOMETRIC = True
 TARGET_MODES: tuple[str, ...] = ("absolute", "residual")
 # Amplitudes below this are treated as no return when forming ratios and logs. [V^2]
 AMPLITUDE_FLOOR_V2 = 1e-12

@@ -57,7 +57,7 @@ def run_pipeline(
     echo(f"study 'xgboost': {tuning.trials_run} trials run, best validation MAE {1e3 * tuning.best_value_m:.3f} mm")
 
     params = tune.best_params(tune.load_existing_study(storage, "xgboost"))
-    reused = _matching_model(model_dir, data, params)
+    reused = _matching_model(model_dir, data, params, spec)
     if not reused:
         train_and_save(client, data, model_dir, spec, params)
     echo(f"model {model_dir}: {'reused' if reused else 'trained'}")
@@ -83,13 +83,15 @@ def demo_scans(scene_dir: Path, config: Config) -> list[Path]:
     return [scene_dir / f"{name}{SCAN_SUFFIX}" for name in DEMO_SCENES]
 
 
-def _matching_model(model_dir: Path, data: Path, params: dict[str, object]) -> bool:
-    """True if model_dir holds a model of this dataset and these parameters; refuse anything else there."""
+def _matching_model(model_dir: Path, data: Path, params: dict[str, object], spec: FeatureSpec) -> bool:
+    """True if model_dir holds a model of this dataset, parameters and inputs; refuse anything else there."""
     if not model_dir.exists():
         return False
     card_path = model_dir / CARD_FILE
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}
     same_data = card.get("dataset", {}).get("config_sha256") == dataset.dataset_info(data).config_sha256
-    if same_data and card.get("params") == {**BASE_PARAMS, **params}:
+    same_inputs = card.get("feature_names") == spec.names
+    if same_data and same_inputs and card.get("params") == {**BASE_PARAMS, **params}:
         return True
-    raise MpiLidarError(f"{model_dir} holds another model (other data or parameters); move it away to retrain")
+    raise MpiLidarError(f"{model_dir} holds another model (other data, parameters or inputs); move it away to "
+                        "retrain")

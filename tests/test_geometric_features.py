@@ -40,7 +40,7 @@ def models(tmp_path_factory, cluster_client, small_dataset):
     for geometric in (False, True):
         spec = FeatureSpec(FREQS, "engineered", "residual", geometric)
         out[geometric], _ = train_and_save(cluster_client, small_dataset, root / f"geometric_{geometric}", spec,
-                                           FAST, num_boost_round=200, early_stopping_rounds=10)
+                                           FAST, num_boost_round=100, early_stopping_rounds=10)
     return out
 
 
@@ -117,6 +117,7 @@ def test_geometry_inputs__no_partner_gives_zeros():
     np.testing.assert_array_equal(out, [[0.0, 0.0], [0.2, 0.04], [0.0, 0.0]])
 
 
+@pytest.mark.slow
 def test_train_and_save__card_records_the_geometric_option(models):
     card = load_model(models[True]).card
     assert card["geometric"] is True and card["feature_names"][-2:] == list(GEOMETRIC_NAMES)
@@ -124,18 +125,21 @@ def test_train_and_save__card_records_the_geometric_option(models):
     assert load_model(models[False]).card["geometric"] is False
 
 
+@pytest.mark.slow
 def test_predict_depth__geometric_model_refuses_rows_without_inputs(models):
     model = load_model(models[True])
     with pytest.raises(MpiLidarError, match="needs them for every pixel"):
         model.predict_depth(two_path_scan("r").raw_pixels())
 
 
+@pytest.mark.slow
 def test_evaluate_model__geometric_inputs_beat_pixel_wise_on_varying_coupling(models, small_dataset):
     geometric = evaluate_model(load_model(models[True]), small_dataset).metrics["corrected (XGBoost)"].mae_m
     pixel_wise = evaluate_model(load_model(models[False]), small_dataset).metrics["corrected (XGBoost)"].mae_m
     assert geometric < 0.85 * pixel_wise
 
 
+@pytest.mark.slow
 def test_correct_scan__geometric_model_gets_the_gate_potential(models):
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
     model = load_model(models[True])
@@ -156,6 +160,19 @@ def test_correct_scan__geometric_model_gets_the_gate_potential(models):
     assert (with_gate_all.flags == Flag.CORRECTED).sum() > corrected.sum()
 
 
+@pytest.mark.slow
+def test_correct_scan__geometric_model_beats_pixel_wise_on_a_rendered_corner(models):
+    scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(4))
+    errors = {}
+    for geometric, path in models.items():
+        correction = correct_scan(scan, load_model(path), CorrectionOptions())
+        corrected = correction.flags == Flag.CORRECTED
+        errors[geometric] = np.abs(correction.depth - scan.reference_depth)[corrected].mean()
+    raw = np.abs(scan.depth[-1] - scan.reference_depth)[corrected].mean()
+    assert errors[True] < 0.85 * errors[False] < raw
+
+
+@pytest.mark.slow
 def test_correct_scan__geometric_model_keeps_raw_depth_without_scan_geometry(models):
     scan = replace(two_path_scan("n"), azimuth_rad=None, elevation_rad=None, ray_directions=None)
     correction = correct_scan(scan, load_model(models[True]), CorrectionOptions())
