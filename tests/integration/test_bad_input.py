@@ -115,7 +115,7 @@ def test_correct_archive__malformed_scans_fail_alone_and_the_rest_are_corrected(
     assert len(by_status["failed"]) == len(SCAN_DAMAGE)
     escaped = tmp_path / "etc"
     assert not escaped.exists() and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
-        "good0", "good1", "good2", "summary"]
+        "good0", "good1", "good2"]
 
 
 DATASET_DAMAGE: dict[str, Callable[[Path], None]] = {
