@@ -70,24 +70,11 @@ class DaskCluster:
         self.workers.append(process)
         return process
 
-    def worker_count(self) -> int:
-        from distributed import Client
-
-        with Client(self.address, timeout=START_TIMEOUT_S) as client:
-            return len(client.scheduler_info(n_workers=-1)["workers"])
-
     def wait_for_workers(self, n: int) -> None:
         from distributed import Client
 
         with Client(self.address, timeout=START_TIMEOUT_S) as client:
             client.wait_for_workers(n, timeout=START_TIMEOUT_S)
-
-    def worker_pids(self) -> list[int]:
-        """Process ids of the worker processes (the nanny's children), as the scheduler reports them."""
-        from distributed import Client
-
-        with Client(self.address, timeout=START_TIMEOUT_S) as client:
-            return sorted(client.run(os.getpid).values())
 
     def stop(self) -> None:
         for process in [*self.workers, self.scheduler]:
@@ -184,7 +171,7 @@ def terminate_connections(database: str) -> int:
     return len(rows)
 
 
-def run_cli(*args: str, env: dict[str, str] | None = None, timeout: float = 300,
+def run_cli(*args: str, env: dict[str, str] | None = None, timeout: float = 600,
             check: bool = True) -> subprocess.CompletedProcess[str]:
     """Run ``mpi-lidar`` as users do, in a process of its own."""
     result = subprocess.run([str(BIN / "mpi-lidar"), *args], capture_output=True, text=True, timeout=timeout,

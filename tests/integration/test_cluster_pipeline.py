@@ -11,19 +11,28 @@ import pytest
 import zarr
 
 from mpi_lidar import tune
-from tests.integration.conftest import DaskCluster, database_url, run_cli
+from tests.integration.conftest import DaskCluster, database_url, run_cli, subprocess_env
 
 pytestmark = pytest.mark.slow
 
 SIMULATE = ("--samples", "4000", "--chunk-rows", "1000", "--seed", "5")
 SCENES = ("flat_wall", "corner")
+PASSWORD = "Tr1cky-s3cret-pw"
+
+
+def files_containing(root: Path, needle: str) -> list[Path]:
+    return [p for p in root.rglob("*") if p.is_file() and needle.encode() in p.read_bytes()]
 
 
 def test_cli_pipeline__runs_unchanged_on_dask_processes_and_postgresql(
     tmp_path: Path, dask_cluster: DaskCluster, pg_database: str
 ) -> None:
+    """The local server trusts 127.0.0.1, so a password in the URL is accepted, and must never show.
+
+    Tuning gets the URL with ``--storage``, training from ``MPI_LIDAR_STORAGE_URL``.
+    """
     cluster = ("--scheduler", dask_cluster.address)
-    storage = database_url(pg_database)
+    storage = database_url(pg_database, PASSWORD)
     data = tmp_path / "dataset.zarr"
 
     run_cli("simulate", "--out", str(data), *SIMULATE, *cluster)
@@ -31,14 +40,15 @@ def test_cli_pipeline__runs_unchanged_on_dask_processes_and_postgresql(
 
     tuned = run_cli("tune", "--data", str(data), "--storage", storage, "--study", "it", "--trials", "4",
                     "--tune-rows", "800", *cluster)
-    assert "4 trials run" in tuned.stdout
+    assert "4 trials run" in tuned.stdout and f"postgres:***@127.0.0.1:5432/{pg_database}" in tuned.stdout
     study = optuna.load_study(study_name="it", storage=tune.normalise_storage_url(storage))
     trials = study.get_trials(deepcopy=False)
     assert sorted(t.number for t in trials) == [0, 1, 2, 3]
     assert all(t.state in tune.FINISHED for t in trials)
 
     model = tmp_path / "model"
-    run_cli("train", "--data", str(data), "--out", str(model), "--study", "it", "--storage", storage, *cluster)
+    trained = run_cli("train", "--data", str(data), "--out", str(model), "--study", "it", *cluster,
+                      env=subprocess_env(MPI_LIDAR_STORAGE_URL=storage))
     card = json.loads((model / "card.json").read_text())
     assert card["training"]["dask_workers"] == 2
     assert card["params"]["max_depth"] == study.best_trial.params["max_depth"]
@@ -54,3 +64,6 @@ def test_cli_pipeline__runs_unchanged_on_dask_processes_and_postgresql(
         assert depth.shape == (96, 128) and np.isfinite(depth).mean() > 0.9
         assert (output / "report.html").is_file() and (output / "corrected.ply").is_file()
     assert "2 corrected, 0 already done, 0 failed" in (out / "summary" / "report.md").read_text()
+    assert not (tmp_path / "optuna.db").exists()
+    assert all(PASSWORD not in r.stdout + r.stderr for r in (tuned, trained))
+    assert files_containing(tmp_path, PASSWORD) == []

@@ -1,4 +1,7 @@
-"""Credentials come from the environment and never show; models load only from XGBoost's format with their card."""
+"""Credentials never show; models load only from XGBoost's format with their card.
+
+The password test of a whole tuning and training run is in test_cluster_pipeline.py.
+"""
 
 from __future__ import annotations
 
@@ -12,37 +15,12 @@ import pytest
 from mpi_lidar import model as model_io
 from mpi_lidar import tune
 from mpi_lidar.errors import MpiLidarError
-from tests.integration.conftest import DaskCluster, database_url, free_port, run_cli, subprocess_env
+from tests.integration.conftest import free_port, run_cli, subprocess_env
 
 PASSWORD = "Tr1cky-s3cret-pw"
 
 
-def files_containing(root: Path, needle: str) -> list[Path]:
-    return [p for p in root.rglob("*") if p.is_file() and needle.encode() in p.read_bytes()]
-
-
 @pytest.mark.slow
-def test_cli_tune_and_train__password_from_environment_never_shows(
-    tmp_path: Path, dask_cluster: DaskCluster, small_dataset: Path, pg_database: str
-) -> None:
-    """The local server trusts 127.0.0.1, so the password in the URL is accepted and must stay hidden."""
-    data = tmp_path / "data" / "dataset.zarr"
-    shutil.copytree(small_dataset, data)
-    env = subprocess_env(MPI_LIDAR_STORAGE_URL=database_url(pg_database, PASSWORD))
-    cluster = ("--scheduler", dask_cluster.address)
-    tuned = run_cli("tune", "--data", str(data), "--study", "s", "--trials", "2", "--tune-rows", "500", *cluster,
-                    env=env)
-    trained = run_cli("train", "--data", str(data), "--out", str(tmp_path / "model"), "--study", "s", *cluster,
-                      env=env)
-    assert f"postgres:***@127.0.0.1:5432/{pg_database}" in tuned.stdout, "the study must be in PostgreSQL"
-    assert not (tmp_path / "data" / "optuna.db").exists()
-    for result in (tuned, trained):
-        assert PASSWORD not in result.stdout + result.stderr
-    assert files_containing(tmp_path, PASSWORD) == []
-    card = json.loads((tmp_path / "model" / "card.json").read_text())
-    assert card["schema"] == model_io.MODEL_SCHEMA
-
-
 def test_cli_tune__unreachable_storage_error_line_masks_password(tmp_path: Path, small_dataset: Path) -> None:
     url = f"postgresql://analyst:{PASSWORD}@127.0.0.1:{free_port()}/studies"
     result = run_cli("tune", "--data", str(small_dataset), "--trials", "1", "--workers", "1",
@@ -74,6 +52,7 @@ def model_copy(tmp_path: Path, cluster_model: Path) -> Path:
     return Path(shutil.copytree(cluster_model, tmp_path / "model"))
 
 
+@pytest.mark.slow
 def test_load_model__pickle_named_model_ubj_is_refused(model_copy: Path) -> None:
     booster = model_io.load_model(model_copy).booster
     (model_copy / model_io.MODEL_FILE).write_bytes(pickle.dumps(booster))
@@ -86,6 +65,7 @@ def test_load_model__pickle_named_model_ubj_is_refused(model_copy: Path) -> None
         model_io.load_model(model_copy)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("change", ["schema", "features", "frequencies"])
 def test_load_model__tampered_card_is_refused(model_copy: Path, change: str) -> None:
     card = json.loads((model_copy / model_io.CARD_FILE).read_text())
