@@ -1,13 +1,16 @@
 """Correction on the scene set: does it help where multipath exists and do no harm where it cannot?
 
 Run: .venv/bin/python -m benchmarks.scenes --model DIR [--model DIR ...] [--gate geometry --gate all]
-     [--min-bias-mm 1.0 ...] [--seed 0]
+     [--min-bias-mm 1.0 ...] [--seed 0] [--matched-footprint]
  or: .venv/bin/python -m benchmarks.scenes --estimation-error  (geometric coupling against the renderer's)
 Renders every scene of :func:`scene_set` once (Table I noise, seeded by the scene's position), corrects it
 with each model, gate and geometry-gate threshold, and prints one markdown row per combination: MAE of
 the 31.25 MHz depth before/after on the whole map, on the reference mask and, for corners, within 20 cm
 of the corner edge, plus the share of valid pixels inside the model's d_AS range that the gate left as
-measured ("gated out"; pixels outside that range always keep their raw depth).
+measured ("gated out"; pixels outside that range always keep their raw depth). With ``--matched-footprint``
+the external imports are corrected with ``footprint_area_m2`` = 90 pi r^2 for their own footprint radius r
+(the calibrated gain of the default) instead of the default footprint. Models trained with geometric inputs
+get the gate's coupling and d_AB for the pixels they correct.
 """
 
 from __future__ import annotations
@@ -63,6 +66,10 @@ def scene_set() -> list[tuple[str, Callable[[], Scene], tuple[float, float] | No
                ("wooden corner (Fig. 10)", wooden_corner, _edge(2.3)),
                ("multi-object (Fig. 8)", multi_object, None)]
     return scenes
+
+
+# footprint_area_m2 of a sensor with footprint radius r: this gain times pi r^2 (geometry.DEFAULT_FOOTPRINT_AREA_M2).
+MATCHED_FOOTPRINT_GAIN = 90.0
 
 
 def external_corner(footprint_radius_m: float, config: Config, rng: np.random.Generator) -> Scan:
@@ -123,6 +130,8 @@ def main() -> None:
     parser.add_argument("--gate", action="append", choices=["geometry", "all", "consistency"])
     parser.add_argument("--min-bias-mm", action="append", type=float)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--matched-footprint", action="store_true",
+                        help="Correct the external imports with the footprint area of their own footprint.")
     args = parser.parse_args()
     if args.estimation_error:
         estimation_error(Config(), args.seed)
@@ -139,17 +148,20 @@ def main() -> None:
     print("| scene | model | gate | min bias [mm] | gated out | raw MAE [mm] | corrected MAE [mm] | masked raw "
           "[mm] | masked corrected [mm] | edge raw [mm] | edge corrected [mm] | gate ms |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    items: list[tuple[str, Scan, tuple[float, float] | None]] = []
+    items: list[tuple[str, Scan, tuple[float, float] | None, float | None]] = []
     for index, (label, factory, edge) in enumerate(scene_set()):
-        items.append((label, render(factory(), config, np.random.default_rng([args.seed, index])), edge))
+        items.append((label, render(factory(), config, np.random.default_rng([args.seed, index])), edge, None))
     for k, radius in enumerate((0.004, DEFAULT_FOOTPRINT_RADIUS_M * 2)):
         scan = external_corner(radius, config, np.random.default_rng([args.seed, 100 + k]))
-        items.append((f"external corner 90 deg, footprint {radius * 1e3:g} mm", scan, _edge(2.0)))
-    for label, scan, edge in items:
+        area = MATCHED_FOOTPRINT_GAIN * np.pi * radius**2 if args.matched_footprint else None
+        items.append((f"external corner 90 deg, footprint {radius * 1e3:g} mm", scan, _edge(2.0), area))
+    for label, scan, edge, footprint_area_m2 in items:
         for path, model in models.items():
             for gate in gates:
                 for threshold in (thresholds if gate == "geometry" else [float("nan")]):
                     options = CorrectionOptions(gate=gate)
+                    if footprint_area_m2 is not None:
+                        options = replace(options, footprint_area_m2=footprint_area_m2)
                     if gate == "geometry":
                         options = replace(options, min_multipath_bias_m=threshold / 1e3)
                     correction = correct_scan(scan, model, options)
