@@ -200,9 +200,10 @@ def tune(
 ) -> TuneReport:
     """Run trials on the cluster until the study holds ``trials`` finished ones.
 
-    A trial task that raises (its storage connection was cut, e.g. by a database restart or failover) is
-    replaced by a new one while the study holds fewer finished trials than asked for, up to
-    ``MAX_REPLACED_TASKS`` times; the interrupted trial itself is failed by the storage heartbeat.
+    When the tasks are done and the study still holds fewer finished trials than asked for (a trial task
+    raised because its storage connection was cut by a database restart or failover, or a trial failed),
+    new trial tasks make up the difference, up to ``MAX_REPLACED_TASKS`` in all; an interrupted trial is
+    failed by the storage heartbeat. ``trials_run`` of the report counts the trial tasks that returned.
     """
     started = time.perf_counter()
     study = open_study(storage_url, study_name, settings)
@@ -212,22 +213,29 @@ def tune(
         return client.submit(run_one_trial, storage_url, study_name, settings, pure=False)
 
     running = as_completed([submit() for _ in range(todo)])
-    replaced = 0
-    for future in running:
-        try:
-            number = future.result()
-        except Exception as exc:  # the trial's own errors are caught in run_one_trial: this is infrastructure
-            replaced += 1
-            if replaced > MAX_REPLACED_TASKS:
-                reason = _strip_password((str(exc).splitlines() or [""])[0], storage_url)
-                raise MpiLidarError(f"{replaced} trial tasks of study {study_name!r} failed; the last with "
-                                    f"{type(exc).__name__}: {reason}") from None
-            if count(study, *FINISHED) + running.count() < trials:
-                running.add(submit())
-            continue
-        if on_trial is not None:
-            on_trial(number)
-    return tune_report(study, todo, time.perf_counter() - started)
+    ran = replaced = 0
+    error: Exception | None = None
+    while True:
+        for future in running:
+            try:
+                number = future.result()
+            except Exception as exc:  # the trial's own errors are caught in run_one_trial: this is infrastructure
+                error = exc
+                continue
+            ran += 1
+            if on_trial is not None:
+                on_trial(number)
+        missing = trials - count(study, *FINISHED)
+        if missing <= 0 or replaced >= MAX_REPLACED_TASKS:
+            break
+        missing = min(missing, MAX_REPLACED_TASKS - replaced)
+        replaced += missing
+        running = as_completed([submit() for _ in range(missing)])
+    if error is not None and count(study, *FINISHED) < trials:
+        reason = _strip_password((str(error).splitlines() or [""])[0], storage_url)
+        raise MpiLidarError(f"study {study_name!r} stopped short of {trials} finished trials after {replaced} "
+                            f"replaced trial tasks; the last failed with {type(error).__name__}: {reason}")
+    return tune_report(study, ran, time.perf_counter() - started)
 
 
 def tune_report(study: optuna.Study, trials_run: int, wall_s: float) -> TuneReport:
