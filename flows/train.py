@@ -11,7 +11,7 @@ from prefect.cache_policies import NO_CACHE
 
 from mpi_lidar import dataset, tune
 from mpi_lidar.cluster import dask_client
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.model import CARD_FILE
 from mpi_lidar.train import train_and_save
 
@@ -37,7 +37,7 @@ def train_task(data: str, out: str, spec: FeatureSpec, params: dict[str, object]
 def publish_card_task(model_dir: str) -> str:
     card = json.loads((Path(model_dir) / CARD_FILE).read_text())
     lines = ["| card field | value |", "|---|---|"]
-    for key in ("feature_set", "target_mode", "num_boost_round", "metrics", "training", "params"):
+    for key in ("feature_set", "target_mode", "geometric", "num_boost_round", "metrics", "training", "params"):
         lines.append(f"| {key} | `{json.dumps(card[key], sort_keys=True)}` |")
     lines.append(f"| dataset | `{card['dataset']['config_sha256'][:12]}` ({card['dataset']['samples']:,} rows) |")
     markdown = "\n".join(lines)
@@ -45,15 +45,23 @@ def publish_card_task(model_dir: str) -> str:
     return markdown
 
 
+def _geometric(requested: bool | None, settings: dict[str, object], study: str | None) -> bool:
+    """Explicit choice first, then the study's inputs (a study without the key was pixel-wise), then the default."""
+    if requested is not None:
+        return requested
+    return bool(settings.get("geometric", False)) if study else DEFAULT_GEOMETRIC
+
+
 @flow(name="train")
 def train_flow(data: str, out: str, study: str | None = None, storage: str | None = None,
-               feature_set: str | None = None, target: str | None = None, workers: int = 2,
-               scheduler: str | None = None) -> dict[str, object]:
+               feature_set: str | None = None, target: str | None = None, geometric: bool | None = None,
+               workers: int = 2, scheduler: str | None = None) -> dict[str, object]:
     """Train on the whole train split with the study's best parameters (or the defaults)."""
     params, settings = (best_params_task(tune.storage_url(storage, data), study) if study else (None, {}))
     spec = FeatureSpec(dataset.dataset_info(data).frequencies_hz,
                        feature_set or settings.get("feature_set") or DEFAULT_FEATURE_SET,
-                       target or settings.get("target_mode") or DEFAULT_TARGET_MODE)
+                       target or settings.get("target_mode") or DEFAULT_TARGET_MODE,
+                       _geometric(geometric, settings, study))
     model_dir = train_task(data, out, spec, params, workers, scheduler)
     publish_card_task(model_dir)
     return {"model_dir": model_dir}

@@ -14,7 +14,7 @@ from prefect.cache_policies import NO_CACHE
 
 from mpi_lidar import dataset, tune
 from mpi_lidar.cluster import dask_client
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.report import write_report
 from mpi_lidar.tuning_report import tuning_report
 
@@ -41,11 +41,12 @@ def publish_study_task(storage: str, study: str, report_dir: str) -> str:
 @flow(name="tune")
 def tune_flow(data: str, storage: str | None = None, study: str = "xgboost", trials: int = tune.DEFAULT_TRIALS,
               tune_rows: int = tune.DEFAULT_TUNE_ROWS, feature_set: str | None = None, target: str | None = None,
-              workers: int = 2, scheduler: str | None = None, report_dir: str | None = None) -> dict[str, object]:
+              geometric: bool = DEFAULT_GEOMETRIC, workers: int = 2, scheduler: str | None = None,
+              report_dir: str | None = None) -> dict[str, object]:
     """Run the study to ``trials`` finished trials and publish it (report in ``<data dir>/tuning`` by default)."""
     storage = tune.storage_url(storage, data)
     spec = FeatureSpec(dataset.dataset_info(data).frequencies_hz, feature_set or DEFAULT_FEATURE_SET,
-                       target or DEFAULT_TARGET_MODE)
+                       target or DEFAULT_TARGET_MODE, geometric)
     settings = tune.TuneSettings(data, spec, tune_rows=tune_rows)
     result = run_trials_task(storage, study, settings, trials, workers, scheduler)
     report_dir = report_dir or str(Path(data).parent / "tuning")

@@ -73,7 +73,8 @@ class CorrectionOptions:
     min_amplitude_sigmas: float = 5.0
     saturation_amplitude_v2: float = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
     max_depth_spread_m: float = 0.3
-    range_tolerance_m: float = 0.02
+    # Zero: near the edge of its prior the model pulls depths inwards, so beyond it raw depth is safer.
+    range_tolerance_m: float = 0.0
     consistency_p_value: float = 0.01
     min_multipath_bias_m: float = 0.004
     geometry_block_m: float = geometry.DEFAULT_BLOCK_M

@@ -171,6 +171,15 @@ def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> plt
     return fig
 
 
+def _geometric_note(model_card: dict[str, object]) -> list[str]:
+    """Says that a geometric model's split figures rest on synthetic geometry estimates, not on scans."""
+    if not model_card.get("geometric", False):
+        return []
+    return ["The model takes geometric inputs (coupling, d_AB). Dataset rows have no scan, so their inputs are "
+            "synthetic estimates drawn from each row's true parameters with the error measured on rendered "
+            "scenes (docs/scenes.md): the corrected figures hold where real scans match that error."]
+
+
 def evaluation_report(evaluation: Evaluation, model_card: dict[str, object]) -> tuple[Report, dict[str, plt.Figure]]:
     """Report of a model on a dataset split: the metrics table and the error histogram before/after."""
     table = Table(
@@ -186,7 +195,9 @@ def evaluation_report(evaluation: Evaluation, model_card: dict[str, object]) -> 
         title=f"Evaluation on the {evaluation.split} split",
         blocks=[f"Dataset `{evaluation.data_path}`; model trained on dataset "
                 f"{model_card['dataset']['config_sha256'][:12]} with the {model_card['feature_set']} feature set "
-                f"and the {model_card['target_mode']} target.", table, Path("error_hist.png")],
-        data={**evaluation.as_dict(), "model": {k: model_card[k] for k in ("feature_set", "target_mode", "params")}},
+                f"and the {model_card['target_mode']} target.", *_geometric_note(model_card), table,
+                Path("error_hist.png")],
+        data={**evaluation.as_dict(), "model": {k: model_card.get(k, False) for k in (
+            "feature_set", "target_mode", "geometric", "params")}},
     )
     return report, {"error_hist.png": figure}
