@@ -237,11 +237,17 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--gate", type=click.Choice(["geometry", "all", "consistency"]), default="geometry", show_default=True,
               help="Which valid pixels get corrected: where the scan's geometry allows multipath (geometry; "
                    "scans without geometry fall back to all), every valid pixel (all), or frequency disagreement.")
+@click.option("--min-bias-mm", type=click.FloatRange(min=0), default=None,
+              help="Geometry gate: correct pixels whose expected multipath bias reaches this. [mm] "
+                   "(default 4; 1 suits geometric models on weak multipath, see docs/scenes.md)")
+@click.option("--footprint-area-m2", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Effective receiver footprint of your sensor, which scales the geometric coupling. [m^2] "
+                   "(default: the Fig. 7 calibration, 90 pi (12 mm)^2)")
 @click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
               help="Worker processes of a local Dask cluster; 0 runs in this process.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
-def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, workers: int,
-            scheduler: str | None) -> None:
+def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
+            footprint_area_m2: float | None, workers: int, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary."""
     import time
 
@@ -249,7 +255,9 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, w
     from mpi_lidar.correct import CorrectionOptions, correct_archive
     from mpi_lidar.scan_report import write_batch_report
 
-    options = CorrectionOptions(gate=gate)
+    geometry_overrides = {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
+                          "footprint_area_m2": footprint_area_m2}
+    options = CorrectionOptions(gate=gate, **{k: v for k, v in geometry_overrides.items() if v is not None})
     started = time.perf_counter()
     with _progress() as progress:
         task = progress.add_task("scans", total=None)

@@ -218,3 +218,22 @@ def test_batch_report__gated_out_counts_both_skip_flags():
                           counts={"corrected": 4, "not_needed": 1, "no_multipath": 3, "not_finite": 2})
     report = batch_report([outcome], 1.0).markdown()
     assert "gated out" in report and "| 40.0 % |" in report
+
+
+def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, tmp_path):
+    scan = render(corner(90.0, 2.0, 0.8, height=24, width=48), Config(), np.random.default_rng(3))
+    write_scan(scan, tmp_path / "corner.scan.zarr")
+
+    def flags_with(*options: str) -> np.ndarray:
+        out = tmp_path / f"out{len(list(tmp_path.iterdir()))}"
+        command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(tmp_path / "corner.scan.zarr"),
+                   "--model", str(small_model), "--out", str(out), "--workers", "0", *options]
+        assert subprocess.run(command, capture_output=True, text=True).returncode == 0
+        return zarr.open_group(str(out / scan.name / "corrected.zarr"), mode="r")["flags"][:]
+
+    default = flags_with()
+    every = flags_with("--min-bias-mm", "0")
+    blind = flags_with("--footprint-area-m2", "1e-12")
+    assert 0 < (default == Flag.CORRECTED).sum() < (every == Flag.CORRECTED).sum()
+    assert not (every == Flag.NO_MULTIPATH).any(), "a zero threshold lets every valid pixel through"
+    assert not (blind == Flag.CORRECTED).any(), "a vanishing footprint leaves no multipath potential"
