@@ -47,6 +47,7 @@ from mpi_lidar.scans import SCAN_SUFFIX, Scan, read_scan
 
 CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+STAGING_NAME = re.compile(r"^\.[A-Za-z0-9][A-Za-z0-9._-]{0,127}\.(writing|old)-[0-9a-f]{8}$")
 
 
 class Flag(IntEnum):
@@ -392,6 +393,18 @@ def staged_directory(target: Path) -> Path:
     return staging
 
 
+def remove_interrupted_staging(out_dir: Path) -> list[Path]:
+    """Delete the staging and retired directories a killed batch left in ``out_dir``; they are never outputs.
+
+    Called before a batch starts its scans, so only a batch running at the same time into the same
+    directory could lose work to it, and that is not supported.
+    """
+    leftovers = [p for p in out_dir.glob(".*") if p.is_dir() and STAGING_NAME.match(p.name)]
+    for path in leftovers:
+        shutil.rmtree(path, ignore_errors=True)
+    return leftovers
+
+
 def swap_into_place(staging: Path, target: Path) -> None:
     """Replace ``target`` with the finished ``staging`` directory; the old outputs go only once the new are in."""
     retired = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
@@ -434,6 +447,7 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     except OSError as exc:
         raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
     sources = expand_archive(inputs)
+    remove_interrupted_staging(out_dir)
     outcomes: list[ScanOutcome] = []
     if client is None:
         for source in sources:

@@ -100,6 +100,18 @@ def test_correct_archive__rerun_skips_finished_scans_and_redoes_missing(archive,
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "no staging directories left"
 
 
+def test_correct_archive__leftovers_of_a_killed_batch_are_removed_and_nothing_else(archive, small_model, tmp_path):
+    leftovers = [tmp_path / ".a.writing-0123abcd", tmp_path / ".b.old-89abcdef"]
+    for path in leftovers:
+        (path / "corrected.zarr").mkdir(parents=True)
+    kept = [tmp_path / ".user-notes", tmp_path / ".a.writing-not-hex"]
+    for path in kept:
+        path.mkdir()
+    correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path, CorrectionOptions(gate="all"))
+    assert not any(path.exists() for path in leftovers)
+    assert all(path.is_dir() for path in kept)
+
+
 def test_correct_archive__dask_and_in_process_agree(archive, small_model, tmp_path, cluster_client):
     outcomes = correct_archive([str(archive / "*.scan.zarr")], small_model, tmp_path / "dask", CorrectionOptions(),
                                client=cluster_client)
