@@ -177,6 +177,14 @@ def _svd_lstsq(a: NDArray[np.complex128], b: NDArray[np.complex128]):
     return x, sv
 
 
+def _rows(raw: ArrayLike, frequencies_hz: ArrayLike, c: float) -> tuple[NDArray, ...]:
+    """Float64 rows, their phasors, validity and single-path fallback (depth, amplitude): both solvers start here."""
+    freqs = np.asarray(frequencies_hz, dtype=np.float64)
+    raw = np.asarray(raw, dtype=np.float64)
+    valid = _valid_rows(raw, freqs.size)
+    return freqs, raw, measured_phasors(raw, freqs, c), valid, *_fallback(raw, freqs, valid, c)
+
+
 def prony_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, *, max_offset_m: float = DEFAULT_MAX_OFFSET_M,
                    max_ratio: float = DEFAULT_MAX_RATIO, c: float = SPEED_OF_LIGHT_M_PER_S) -> TwoPathFit:
     """Closed-form two-path fit (Prony / matrix pencil with two poles), vectorised over rows.
@@ -196,14 +204,9 @@ def prony_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, *, max_offset_m: f
     max_ratio : Largest accepted Gamma_M / Gamma_D. [1]
     c : Speed of light. [m/s]
     """
-    freqs = np.asarray(frequencies_hz, dtype=np.float64)
+    freqs, raw, z, valid, fallback_depth, fallback_amplitude = _rows(raw, frequencies_hz, c)
     step = frequency_step(freqs)
-    raw = np.asarray(raw, dtype=np.float64)
-    f = freqs.size
-    z = measured_phasors(raw, freqs, c)
-    n = raw.shape[0]
-    valid = _valid_rows(raw, f)
-    fallback_depth, fallback_amplitude = _fallback(raw, freqs, valid, c)
+    f, n = freqs.size, raw.shape[0]
     z = np.where(valid[:, None], z, 1.0)
 
     # Linear prediction: [z_{k+1}, z_k] @ (a1, a0) = -z_{k+2}, k = 0..F-3, by SVD least squares.
@@ -332,13 +335,8 @@ def least_squares_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, start: Two
     iterations : Iteration limit per start.
     c : Speed of light. [m/s]
     """
-    freqs = np.asarray(frequencies_hz, dtype=np.float64)
-    raw = np.asarray(raw, dtype=np.float64)
-    f = freqs.size
-    z = measured_phasors(raw, freqs, c)
+    freqs, raw, z, valid, fallback_depth, fallback_amplitude = _rows(raw, frequencies_hz, c)
     n = raw.shape[0]
-    valid = _valid_rows(raw, f)
-    fallback_depth, fallback_amplitude = _fallback(raw, freqs, valid, c)
     if start is None:
         start = prony_two_path(raw, freqs, max_offset_m=max_offset_m, max_ratio=max_ratio, c=c)
     w = 4 * np.pi * freqs[None, :] / c
