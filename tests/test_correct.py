@@ -7,7 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import zarr
+from click.testing import CliRunner
 
+from mpi_lidar.cli import cli
 from mpi_lidar.config import Config
 from mpi_lidar.correct import (
     NO_GEOMETRY_NOTE,
@@ -238,9 +240,9 @@ def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, t
 
     def flags_with(*options: str) -> np.ndarray:
         out = tmp_path / f"out{len(list(tmp_path.iterdir()))}"
-        command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(tmp_path / "corner.scan.zarr"),
-                   "--model", str(small_model), "--out", str(out), "--workers", "0", *options]
-        assert subprocess.run(command, capture_output=True, text=True).returncode == 0
+        arguments = ["correct", str(tmp_path / "corner.scan.zarr"), "--model", str(small_model), "--out", str(out),
+                     "--workers", "0", *options]
+        assert CliRunner().invoke(cli, arguments).exit_code == 0
         return zarr.open_group(str(out / scan.name / "corrected.zarr"), mode="r")["flags"][:]
 
     default = flags_with()

@@ -95,29 +95,3 @@ def test_normalise_storage_url__postgres_urls_use_psycopg3():
     assert tune.normalise_storage_url("postgres://u@h/db") == "postgresql+psycopg://u@h/db"
     assert tune.normalise_storage_url("sqlite:///x.db") == "sqlite:///x.db"
 
-
-def test_tune__worker_killed_mid_study_loses_at_most_its_running_trial(tmp_path, small_dataset):
-    import os
-    import signal
-    import threading
-
-    from distributed import Client, LocalCluster
-
-    url = f"sqlite:///{tmp_path / 'optuna.db'}"
-    settings = settings_for(small_dataset, num_boost_round=200, early_stopping_rounds=200)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
-        with Client(cluster) as client:
-            victim = next(iter(client.run(os.getpid).values()))
-            killed = threading.Event()
-
-            def kill_once(_number: int) -> None:
-                if not killed.is_set():
-                    killed.set()
-                    os.kill(victim, signal.SIGKILL)
-
-            report = tune.tune(client, url, "killed", settings, trials=6, on_trial=kill_once)
-    study = optuna.load_study(study_name="killed", storage=url)
-    states = [t.state for t in study.get_trials(deepcopy=False)]
-    assert killed.is_set()
-    assert sum(s in tune.FINISHED for s in states) >= 6 and report.complete + report.pruned >= 6
-    assert sum(s in (TrialState.RUNNING, TrialState.FAIL) for s in states) <= 1
