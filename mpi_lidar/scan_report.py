@@ -26,7 +26,7 @@ from mpi_lidar.evaluate import error_metrics
 from mpi_lidar.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
 from mpi_lidar.scans import Scan
 
-FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f5f6fa"]
+FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d"]
 GATED_OUT = ("not_needed", "no_multipath")
 
 
