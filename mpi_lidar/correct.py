@@ -232,10 +232,14 @@ NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (
                            "pixel keeps its raw depth")
 
 
+def geometry_gate(options: CorrectionOptions) -> GeometryGate:
+    return GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
+                        options.footprint_area_m2)
+
+
 def make_gate(options: CorrectionOptions) -> Gate:
     gates = {"all": lambda: CorrectAll(), "consistency": lambda: ConsistencyGate(options.consistency_p_value),
-             "geometry": lambda: GeometryGate(options.min_multipath_bias_m, options.geometry_block_m,
-                                              options.partner_range_m, options.footprint_area_m2)}
+             "geometry": lambda: geometry_gate(options)}
     if options.gate not in gates:
         raise MpiLidarError(f"unknown gate {options.gate!r}; choose one of {', '.join(gates)}")
     return gates[options.gate]()
@@ -283,12 +287,12 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     gate = make_gate(options)
     top = raw[:, len(scan.frequencies_hz) - 1]
     usable = ~np.isin(flags, [int(f) for f in INVALID_FLAGS])
-    candidates = gate.scan_candidates(scan, np.where(usable, top, np.nan))
+    usable_depth = np.where(usable, top, np.nan)
+    candidates = gate.scan_candidates(scan, usable_depth)
     notes: tuple[str, ...] = ()
     potential = getattr(gate, "potential_", None)
     if model.geometric and potential is None:
-        potential = GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
-                                 options.footprint_area_m2).potential(scan, np.where(usable, top, np.nan))
+        potential = geometry_gate(options).potential(scan, usable_depth)
     if candidates is not None:
         flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
     elif gate.uses_geometry and not model.geometric:
@@ -299,8 +303,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         needs, notes = needs[:0], (NO_GEOMETRY_INPUTS_NOTE,)
     geometric_inputs = None if potential is None else geometry_inputs(potential.coupling, potential.d_ab_m)
     gate_s = time.perf_counter() - gate_started
-    depth = raw[:, len(scan.frequencies_hz) - 1].copy()
-    depth[np.isin(flags, [int(f) for f in INVALID_FLAGS])] = np.nan
+    depth = usable_depth.copy()
     inference_started = time.perf_counter()
     for start in range(0, needs.size, options.tile_pixels):
         tile = needs[start:start + options.tile_pixels]
