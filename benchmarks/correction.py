@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correct import CorrectionOptions, Flag, correct_scan, make_gate, validity_flags
-from mpi_lidar.model import load_model
-from mpi_lidar.scans import Scan, read_scan, write_scan
-from mpi_lidar.scenes import SCENES, render
+from mpi_lidar.correction.correct import CorrectionOptions, Flag, correct_scan, make_gate, validity_flags
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.scans.scan import Scan, read_scan, write_scan
+from mpi_lidar.simulation.scenes import SCENES, render
 
 
 def gate_cpu_seconds(scan: Scan, gate: str) -> float:

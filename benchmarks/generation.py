@@ -15,9 +15,9 @@ import tempfile
 from datetime import date
 from pathlib import Path
 
-from mpi_lidar import dataset
-from mpi_lidar.cluster import dask_client
 from mpi_lidar.config import PAPER_SAMPLES, preset
+from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.cluster import dask_client
 
 
 def peak_rss_mib() -> float:

@@ -18,10 +18,10 @@ import time
 import numpy as np
 
 from mpi_lidar.config import Config
-from mpi_lidar.limits import bayes_limit, posterior_estimates
+from mpi_lidar.learning.limits import bayes_limit, posterior_estimates
 from mpi_lidar.physics.inverse import FIT_OK, least_squares_two_path, prony_two_path, unwrapped_weighted_depth
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.simulation.sampling import sample_theta
 
 
 def run(scale: float, n_test: int, pool: int, seed: int, round_photons: bool) -> dict[str, float]:

@@ -24,11 +24,11 @@ from datetime import date
 import numpy as np
 
 from mpi_lidar.config import Config
-from mpi_lidar.correct import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
-from mpi_lidar.geometry import multipath_potential
-from mpi_lidar.model import load_model
-from mpi_lidar.scans import Scan, grid_rays
-from mpi_lidar.scenes import (
+from mpi_lidar.correction.correct import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.scans.geometry import multipath_potential
+from mpi_lidar.scans.scan import Scan, grid_rays
+from mpi_lidar.simulation.scenes import (
     DEFAULT_COUPLING_GAIN,
     DEFAULT_FOOTPRINT_RADIUS_M,
     Scene,

@@ -16,7 +16,7 @@ import numpy as np
 from mpi_lidar.config import Config
 from mpi_lidar.physics import MomentSensor, make_sensor
 from mpi_lidar.physics.demod import unambiguous_range
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.simulation.sampling import sample_theta
 
 
 def samples_per_second(fidelity: str, rows: int, repeats: int = 3) -> float:

@@ -7,7 +7,7 @@ Train and test rows are independent draws from the default prior (separate seed 
 project's BASE_PARAMS and DEFAULT_PARAMS (``--objective reg:squarederror`` for the former objective) with
 early stopping on every tenth train row. Prints one markdown table.
 ``limit`` compares the default model (engineered features, residual target, BASE_PARAMS and
-DEFAULT_PARAMS, early-stopped) with the posterior median of :mod:`mpi_lidar.limits` on the same test rows:
+DEFAULT_PARAMS, early-stopped) with the posterior median of :mod:`mpi_lidar.learning.limits` on the same test rows:
 the paired difference of absolute errors has a much smaller standard error than either MAE.
 """
 
@@ -18,10 +18,10 @@ import time
 
 import numpy as np
 
-from mpi_lidar.bench import TEST_STREAM, TRAIN_STREAM, fit_xgboost, mae, simulate
 from mpi_lidar.config import Config
-from mpi_lidar.features import FEATURE_SETS, TARGET_MODES, FeatureSpec
-from mpi_lidar.train import DEFAULT_PARAMS
+from mpi_lidar.learning.features import FEATURE_SETS, TARGET_MODES, FeatureSpec
+from mpi_lidar.learning.train import DEFAULT_PARAMS
+from mpi_lidar.workflows.bench import TEST_STREAM, TRAIN_STREAM, fit_xgboost, mae, simulate
 
 
 def features(train_rows: int, test_rows: int, noise_scales: list[float], sets: list[str], modes: list[str],
@@ -47,9 +47,9 @@ def features(train_rows: int, test_rows: int, noise_scales: list[float], sets: l
 
 
 def limit(train_rows: int, test_rows: int, noise_scales: list[float], seed: int = 5) -> None:
-    from mpi_lidar.bench import booster_depth, reference_xgboost
-    from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE
-    from mpi_lidar.limits import posterior_estimates
+    from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE
+    from mpi_lidar.learning.limits import posterior_estimates
+    from mpi_lidar.workflows.bench import booster_depth, reference_xgboost
 
     config = Config()
     spec = FeatureSpec(config.frequencies_hz, DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE)

@@ -17,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from mpi_lidar import dataset, tune
-from mpi_lidar.cluster import dask_client
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
-from mpi_lidar.model import load_model
-from mpi_lidar.train import train_and_save
+from mpi_lidar.learning import tune
+from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.learning.train import train_and_save
+from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.cluster import dask_client
 
 
 def main() -> None:

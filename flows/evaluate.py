@@ -6,10 +6,10 @@ from prefect import flow, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 
-from mpi_lidar.baselines import table2
-from mpi_lidar.evaluate import evaluate_model
-from mpi_lidar.model import load_model
-from mpi_lidar.report import Report, evaluation_report, write_report
+from mpi_lidar.learning.baselines import table2
+from mpi_lidar.learning.evaluate import evaluate_model
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.report import Report, evaluation_report, write_report
 
 EVALUATION_ARTIFACT_KEY = "evaluation"
 TABLE2_ARTIFACT_KEY = "table-2"

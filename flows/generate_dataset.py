@@ -1,7 +1,7 @@
 """Prefect flow: generate a labelled dataset, one task per incomplete chunk on a Dask cluster.
 
-The library does the work (:mod:`mpi_lidar.dataset`, :mod:`mpi_lidar.report`); this flow only makes each
-step a task so that runs, retries and the summary are visible in Prefect. A chunk task that fails is retried
+The library does the work (:mod:`mpi_lidar.simulation.dataset`, :mod:`mpi_lidar.reporting.report`); this
+flow only makes each step a task so that runs, retries and the summary are visible in Prefect. A chunk task that fails is retried
 twice by Prefect after a short delay; chunks already complete are skipped, so a re-run resumes a store.
 """
 
@@ -17,8 +17,9 @@ from prefect.runtime import flow_run
 from prefect_dask import DaskTaskRunner
 
 from flows.runtime import dask_task_runner, describe_workers, shared_api
-from mpi_lidar import dataset, report
 from mpi_lidar.config import Config, config_sha256, resolve_config
+from mpi_lidar.reporting import report
+from mpi_lidar.simulation import dataset
 
 SUMMARY_ARTIFACT_KEY = "dataset-summary"
 CHUNK_RETRIES = 2
@@ -76,7 +77,7 @@ def write_chunks(runner: DaskTaskRunner, out: str, config: Config, todo: list[in
     """Run one chunk task per index on the cluster; the chunks written and the seconds spent writing.
 
     The cluster is started before the clock, so the time (and the throughput) is that of the simulation,
-    as in :func:`mpi_lidar.dataset.generate`, not of spawning workers.
+    as in :func:`mpi_lidar.simulation.dataset.generate`, not of spawning workers.
     """
     with runner:
         _ = runner.client  # start the cluster (or connect to the scheduler) now

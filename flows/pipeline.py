@@ -1,7 +1,7 @@
 """Prefect flow: the main job as subflows, so every step's artifacts are published.
 
 Generate the dataset, tune, train, evaluate on the test split, then render the demo scenes and correct
-them; each step resumes what a previous run left (see :mod:`mpi_lidar.pipeline`).
+them; each step resumes what a previous run left (see :mod:`mpi_lidar.workflows.pipeline`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from flows.generate_dataset import generate_dataset_flow
 from flows.train import train_flow
 from flows.tune import tune_flow
 from mpi_lidar.config import resolve_config
-from mpi_lidar.pipeline import demo_scans
+from mpi_lidar.workflows.pipeline import demo_scans
 
 
 @task(name="render-demo-scenes", cache_policy=NO_CACHE)

@@ -18,8 +18,8 @@ from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from flows.generate_dataset import build_config_task, generate_dataset_flow
-from mpi_lidar import dataset
 from mpi_lidar.errors import StoreError
+from mpi_lidar.simulation import dataset
 
 STORE_NAME = "dataset.zarr"
 LATEST_NAME = "latest"

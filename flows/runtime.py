@@ -68,7 +68,7 @@ def shared_api(startup_timeout_s: int | None = None, stop_started: bool = False)
 def dask_task_runner(workers: int = 2, scheduler: str | None = None) -> DaskTaskRunner:
     """A task runner on the scheduler at ``scheduler``, or on a LocalCluster of ``workers`` processes.
 
-    One thread per worker process, as in :func:`mpi_lidar.cluster.dask_client`: numpy does the inner work.
+    One thread per worker process, as in :func:`mpi_lidar.workflows.cluster.dask_client`: numpy does the inner work.
     The cluster starts when the first task is submitted, not here.
     """
     if scheduler:

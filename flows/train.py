@@ -9,11 +9,12 @@ from prefect import flow, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 
-from mpi_lidar import dataset, tune
-from mpi_lidar.cluster import dask_client
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
-from mpi_lidar.model import CARD_FILE
-from mpi_lidar.train import train_and_save
+from mpi_lidar.learning import tune
+from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.learning.model import CARD_FILE
+from mpi_lidar.learning.train import train_and_save
+from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.cluster import dask_client
 
 CARD_ARTIFACT_KEY = "model-card"
 

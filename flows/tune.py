@@ -1,6 +1,6 @@
 """Prefect flow: tune XGBoost with Optuna TPE, trials running as Dask tasks on a shared RDB study.
 
-:func:`mpi_lidar.tune.tune` submits the trials to the cluster itself; this flow wraps it in one task and
+:func:`mpi_lidar.learning.tune.tune` submits the trials to the cluster itself; this flow wraps it in one task and
 publishes the best trial, the trial table and the optimisation-history and importance plots.
 """
 
@@ -12,11 +12,12 @@ from prefect import flow, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 
-from mpi_lidar import dataset, tune
-from mpi_lidar.cluster import dask_client
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
-from mpi_lidar.report import write_report
-from mpi_lidar.tuning_report import tuning_report
+from mpi_lidar.learning import tune
+from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.reporting.report import write_report
+from mpi_lidar.reporting.tuning_report import tuning_report
+from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.cluster import dask_client
 
 TUNING_ARTIFACT_KEY = "tuning-study"
 

@@ -10,7 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from mpi_lidar.config import PRESETS, resolve_config
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import (
+from mpi_lidar.learning.features import (
     DEFAULT_FEATURE_SET,
     DEFAULT_GEOMETRIC,
     DEFAULT_TARGET_MODE,
@@ -48,12 +48,12 @@ def simulate(
     Re-running on a complete store of the same configuration only prints the summary; an interrupted
     store resumes where it stopped.
     """
-    from mpi_lidar import dataset
+    from mpi_lidar.simulation import dataset
 
     config = resolve_config(config_file, preset_name, samples=samples, chunk_rows=chunk_rows, seed=seed,
                             fidelity=fidelity)
 
-    from mpi_lidar.cluster import dask_client
+    from mpi_lidar.workflows.cluster import dask_client
 
     plan = dataset.SamplingPlan.from_config(config)
     todo = len(dataset.incomplete_chunks(dataset.create_store(out, config)))
@@ -89,7 +89,7 @@ def model_options(command):
 
 def feature_spec(data: Path, feature_set: str | None, target_mode: str | None,
                  geometric: bool | None = None) -> FeatureSpec:
-    from mpi_lidar import dataset
+    from mpi_lidar.simulation import dataset
 
     info = dataset.dataset_info(data)
     return FeatureSpec(info.frequencies_hz, feature_set or DEFAULT_FEATURE_SET, target_mode or DEFAULT_TARGET_MODE,
@@ -110,8 +110,8 @@ def feature_spec(data: Path, feature_set: str | None, target_mode: str | None,
 def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_rows: int, feature_set: str | None,
          target_mode: str | None, geometric: bool | None, workers: int, scheduler: str | None) -> None:
     """Tune XGBoost with Optuna TPE, trials running in parallel on Dask workers."""
-    from mpi_lidar import tune as tuning
-    from mpi_lidar.cluster import dask_client
+    from mpi_lidar.learning import tune as tuning
+    from mpi_lidar.workflows.cluster import dask_client
 
     storage = tuning.storage_url(storage, data)
     settings = tuning.TuneSettings(str(data), feature_spec(data, feature_set, target_mode, geometric),
@@ -140,9 +140,9 @@ def train(data: Path, out: Path, params_file: Path | None, study_name: str | Non
           feature_set: str | None, target_mode: str | None, geometric: bool | None, workers: int,
           scheduler: str | None) -> None:
     """Train the final XGBoost model through xgboost.dask on the whole train split."""
-    from mpi_lidar import tune as tuning
-    from mpi_lidar.cluster import dask_client
-    from mpi_lidar.train import train_and_save
+    from mpi_lidar.learning import tune as tuning
+    from mpi_lidar.learning.train import train_and_save
+    from mpi_lidar.workflows.cluster import dask_client
 
     if params_file and study_name:
         raise MpiLidarError("give either --params or --study, not both")
@@ -166,7 +166,7 @@ def load_params(path: Path) -> dict[str, object]:
     import json
     import tomllib
 
-    from mpi_lidar.train import DEFAULT_PARAMS
+    from mpi_lidar.learning.train import DEFAULT_PARAMS
 
     try:
         text = path.read_text()
@@ -190,9 +190,9 @@ def load_params(path: Path) -> dict[str, object]:
 @click.option("--split", type=click.Choice(["test", "train"]), default="test", show_default=True)
 def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
     """Evaluate a model on a dataset split: metrics table, error histogram, report files."""
-    from mpi_lidar.evaluate import evaluate_model
-    from mpi_lidar.model import load_model
-    from mpi_lidar.report import evaluation_report, write_report
+    from mpi_lidar.learning.evaluate import evaluate_model
+    from mpi_lidar.learning.model import load_model
+    from mpi_lidar.reporting.report import evaluation_report, write_report
 
     model = load_model(model_dir)
     evaluation = evaluate_model(model, data, split)
@@ -213,8 +213,8 @@ def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
 def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: int, tune_rows: int, workers: int,
              scheduler: str | None) -> None:
     """The main job: simulate, tune, train and evaluate into one run directory (resumable)."""
-    from mpi_lidar.cluster import dask_client
-    from mpi_lidar.pipeline import run_pipeline
+    from mpi_lidar.workflows.cluster import dask_client
+    from mpi_lidar.workflows.pipeline import run_pipeline
 
     config = resolve_config(config_file, preset_name)
     with dask_client(scheduler, workers) as client:
@@ -251,9 +251,9 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary."""
     import time
 
-    from mpi_lidar.cluster import dask_client
-    from mpi_lidar.correct import CorrectionOptions, correct_archive
-    from mpi_lidar.scan_report import write_batch_report
+    from mpi_lidar.correction.correct import CorrectionOptions, correct_archive
+    from mpi_lidar.reporting.scan_report import write_batch_report
+    from mpi_lidar.workflows.cluster import dask_client
 
     geometry_overrides = {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
                           "footprint_area_m2": footprint_area_m2}
@@ -282,7 +282,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
 @click.option("--frequencies", help="Comma-separated frequencies in Hz, if the .npz does not hold frequencies_hz.")
 def import_scan(source: Path, out: Path, frequencies: str | None) -> None:
     """Import a scan from an .npz of arrays (depth and amplitude (F, H, W), or taps (F, 4, H, W), plus extras)."""
-    from mpi_lidar.scans import load_npz, write_scan
+    from mpi_lidar.scans.scan import load_npz, write_scan
 
     freqs = None
     if frequencies:
@@ -302,7 +302,7 @@ def import_scan(source: Path, out: Path, frequencies: str | None) -> None:
 @click.option("--seed", type=int, default=0, show_default=True)
 def render_scenes_command(out_dir: Path, names: tuple[str, ...], seed: int) -> None:
     """Render simulated scenes (cornered board, multi-object, flat wall, ...) as scan stores with references."""
-    from mpi_lidar.scenes import DEMO_SCENES, SCENES, render_scenes
+    from mpi_lidar.simulation.scenes import DEMO_SCENES, SCENES, render_scenes
 
     unknown = sorted(set(names) - set(SCENES))
     if unknown:
@@ -321,8 +321,8 @@ def render_scenes_command(out_dir: Path, names: tuple[str, ...], seed: int) -> N
 @click.option("--svm-rows", type=click.IntRange(min=10), default=20_000, show_default=True)
 def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, train_rows: int, svm_rows: int) -> None:
     """The paper's Table II: KNN, RF, SVM, DNN and XGBoost against raw and weighted depth."""
-    from mpi_lidar.baselines import table2 as make_table2
-    from mpi_lidar.report import write_report
+    from mpi_lidar.learning.baselines import table2 as make_table2
+    from mpi_lidar.reporting.report import write_report
 
     with _progress() as progress:
         task = progress.add_task("baselines", total=4)
@@ -345,8 +345,8 @@ def bench(out_dir: Path, rows: int | None, quick: bool, seed: int | None) -> Non
     import os
     import platform
 
-    from mpi_lidar.bench import BenchPlan, run_bench, tradeoff_table, write_bench
     from mpi_lidar.config import Config
+    from mpi_lidar.workflows.bench import BenchPlan, run_bench, tradeoff_table, write_bench
 
     plan = BenchPlan.quick() if quick else BenchPlan()
     if rows is not None:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from distributed import Client, LocalCluster
 
-from mpi_lidar import dataset
 from mpi_lidar.config import Config
+from mpi_lidar.simulation import dataset
 
 POSTGRES_ADMIN_URL = os.environ.get("MPI_LIDAR_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/postgres")
 
@@ -56,8 +56,8 @@ def postgres_url():
 @pytest.fixture(scope="session")
 def small_model(tmp_path_factory, cluster_client, small_dataset) -> Path:
     """A quickly trained residual model on the small dataset (through xgboost.dask)."""
-    from mpi_lidar.features import FeatureSpec
-    from mpi_lidar.train import train_and_save
+    from mpi_lidar.learning.features import FeatureSpec
+    from mpi_lidar.learning.train import train_and_save
 
     params = {"max_depth": 6, "learning_rate": 0.3, "subsample": 1.0, "colsample_bytree": 1.0,
               "min_child_weight": 1.0, "reg_lambda": 1.0, "gamma": 0.0}

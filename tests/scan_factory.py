@@ -7,7 +7,7 @@ import numpy as np
 from mpi_lidar.config import Config
 from mpi_lidar.physics import make_sensor
 from mpi_lidar.physics.demod import depth_and_amplitude
-from mpi_lidar.scans import Scan
+from mpi_lidar.scans.scan import Scan
 
 
 def two_path_scan(name: str, height: int = 24, width: int = 32, multipath: bool = True, seed: int = 0,

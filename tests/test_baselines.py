@@ -6,9 +6,9 @@ import sys
 import numpy as np
 import pytest
 
-from mpi_lidar import dataset
-from mpi_lidar.baselines import PAPER_TABLE2, Baseline, knn, table2, tune_baseline
-from mpi_lidar.features import weighted_depth
+from mpi_lidar.learning.baselines import PAPER_TABLE2, Baseline, knn, table2, tune_baseline
+from mpi_lidar.learning.features import weighted_depth
+from mpi_lidar.simulation import dataset
 
 
 @pytest.fixture(scope="module")

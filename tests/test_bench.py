@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from mpi_lidar.bench import (
+from mpi_lidar.cli import cli
+from mpi_lidar.config import Config
+from mpi_lidar.correction.correct import ConsistencyGate
+from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.workflows.bench import (
     TEST_STREAM,
     TRAIN_STREAM,
     BenchRow,
@@ -21,10 +25,6 @@ from mpi_lidar.bench import (
     top_depth,
     with_pareto,
 )
-from mpi_lidar.cli import cli
-from mpi_lidar.config import Config
-from mpi_lidar.correct import ConsistencyGate
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
 
 CONFIG = Config()
 

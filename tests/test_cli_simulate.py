@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from mpi_lidar import cli, dataset
+from mpi_lidar import cli
 from mpi_lidar.config import Config, config_sha256
+from mpi_lidar.simulation import dataset
 
 SCRIPT = Path(sys.executable).with_name("mpi-lidar")
 SAMPLES = 2_000

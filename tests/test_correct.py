@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from mpi_lidar.cli import cli
 from mpi_lidar.config import Config
-from mpi_lidar.correct import (
+from mpi_lidar.correction.correct import (
     NO_GEOMETRY_NOTE,
     CorrectionOptions,
     Flag,
@@ -20,9 +20,9 @@ from mpi_lidar.correct import (
     process_scan,
 )
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.model import load_model
-from mpi_lidar.scans import Scan, write_scan
-from mpi_lidar.scenes import corner, flat_wall, render
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.scans.scan import Scan, write_scan
+from mpi_lidar.simulation.scenes import corner, flat_wall, render
 from tests.scan_factory import two_path_scan
 
 
@@ -225,8 +225,8 @@ def test_flag__existing_codes_are_stable():
 
 
 def test_batch_report__gated_out_counts_both_skip_flags():
-    from mpi_lidar.correct import ScanOutcome
-    from mpi_lidar.scan_report import batch_report
+    from mpi_lidar.correction.correct import ScanOutcome
+    from mpi_lidar.reporting.scan_report import batch_report
 
     outcome = ScanOutcome("s.scan.zarr", "s", "corrected",
                           counts={"corrected": 4, "not_needed": 1, "no_multipath": 3, "not_finite": 2})

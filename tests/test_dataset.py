@@ -14,9 +14,9 @@ import xarray as xr
 import zarr
 from distributed import Client, LocalCluster
 
-from mpi_lidar import dataset
 from mpi_lidar.config import Config
 from mpi_lidar.errors import StoreError
+from mpi_lidar.simulation import dataset
 
 ARRAY_NAMES = ("features", "target", "theta", "split")
 

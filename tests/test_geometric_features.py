@@ -6,12 +6,11 @@ import dask.array as da
 import numpy as np
 import pytest
 
-from mpi_lidar import dataset
 from mpi_lidar.config import Config, PriorConfig
-from mpi_lidar.correct import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, GeometryGate, correct_scan
+from mpi_lidar.correction.correct import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, GeometryGate, correct_scan
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.evaluate import evaluate_model
-from mpi_lidar.features import (
+from mpi_lidar.learning.evaluate import evaluate_model
+from mpi_lidar.learning.features import (
     GEOMETRIC_NAMES,
     GEOMETRY_ERROR_MODEL,
     FeatureSpec,
@@ -20,10 +19,11 @@ from mpi_lidar.features import (
     synthetic_geometry,
     synthetic_geometry_dask,
 )
-from mpi_lidar.model import load_model
-from mpi_lidar.sampling import THETA_NAMES, sample_theta
-from mpi_lidar.scenes import corner, render
-from mpi_lidar.train import train_and_save, training_geometry, training_geometry_lazy
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.learning.train import train_and_save, training_geometry, training_geometry_lazy
+from mpi_lidar.simulation import dataset
+from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
+from mpi_lidar.simulation.scenes import corner, render
 from tests.scan_factory import two_path_scan
 
 FREQS = Config().frequencies_hz

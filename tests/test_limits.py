@@ -10,7 +10,7 @@ from scipy import integrate
 
 from mpi_lidar.config import Config
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.limits import (
+from mpi_lidar.learning.limits import (
     _Posterior,
     _sample_coupling,
     bayes_limit,
@@ -19,7 +19,7 @@ from mpi_lidar.limits import (
     weighted_median,
 )
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.simulation.sampling import sample_theta
 
 
 @pytest.mark.parametrize("albedo, coupling", [((0.14, 1.0), (0.0, 1.0)), ((0.3, 0.6), (0.2, 0.9))])

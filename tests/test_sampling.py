@@ -10,11 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from mpi_lidar import dataset
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.physics.demod import depth_and_amplitude
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.sampling import SCHEMES, THETA_NAMES, sample_theta
+from mpi_lidar.simulation import dataset
+from mpi_lidar.simulation.sampling import SCHEMES, THETA_NAMES, sample_theta
 
 N = 20_000
 KS_ALPHA = 1e-3

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import zarr
 
-from mpi_lidar import geometry
 from mpi_lidar.config import Config
 from mpi_lidar.physics.demod import taps_from_quadratures
-from mpi_lidar.scans import ScanError, grid_rays, import_arrays, load_npz, read_scan, write_scan
+from mpi_lidar.scans import geometry
+from mpi_lidar.scans.scan import ScanError, grid_rays, import_arrays, load_npz, read_scan, write_scan
 from tests.scan_factory import two_path_scan
 
 FREQS = Config().frequencies_hz

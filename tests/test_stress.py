@@ -15,10 +15,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, SensorConfig
-from mpi_lidar.correct import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan, validity_flags
-from mpi_lidar.features import FeatureSpec
-from mpi_lidar.limits import posterior_estimates
-from mpi_lidar.model import CorrectionModel
+from mpi_lidar.correction.correct import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan, validity_flags
+from mpi_lidar.learning.features import FeatureSpec
+from mpi_lidar.learning.limits import posterior_estimates
+from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.physics import demod, make_sensor
 from mpi_lidar.physics.inverse import (
     FIT_OK,
@@ -30,8 +30,8 @@ from mpi_lidar.physics.inverse import (
 )
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.physics.transport import two_path_phase_bias
-from mpi_lidar.sampling import sample_theta
-from mpi_lidar.scans import Scan
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.simulation.sampling import sample_theta
 
 FREQS = np.array(PAPER_FREQUENCIES_HZ)
 C = 3.0e8

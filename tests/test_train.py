@@ -6,14 +6,14 @@ import shutil
 import numpy as np
 import pytest
 
-from mpi_lidar import dataset
 from mpi_lidar.config import Config
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.evaluate import evaluate_model
-from mpi_lidar.features import FeatureSpec
-from mpi_lidar.model import load_model, save_model
-from mpi_lidar.report import evaluation_report, write_report
-from mpi_lidar.train import train_and_save
+from mpi_lidar.learning.evaluate import evaluate_model
+from mpi_lidar.learning.features import FeatureSpec
+from mpi_lidar.learning.model import load_model, save_model
+from mpi_lidar.learning.train import train_and_save
+from mpi_lidar.reporting.report import evaluation_report, write_report
+from mpi_lidar.simulation import dataset
 
 FREQS = Config().frequencies_hz
 FAST = {"max_depth": 6, "learning_rate": 0.3, "subsample": 1.0, "colsample_bytree": 1.0, "min_child_weight": 1.0,

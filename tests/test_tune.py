@@ -4,10 +4,10 @@ import optuna
 import pytest
 from optuna.trial import TrialState
 
-from mpi_lidar import tune
 from mpi_lidar.config import Config
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import FeatureSpec
+from mpi_lidar.learning import tune
+from mpi_lidar.learning.features import FeatureSpec
 
 FREQS = Config().frequencies_hz
 

@@ -119,7 +119,7 @@ def unwrapped_weighted_depth(raw: ArrayLike, frequencies_hz: ArrayLike,
     The phase step between neighbouring frequencies, arg sum_k z_{k+1} conj(z_k), gives a coarse depth
     that no single frequency's wrap affects; each frequency's depth is unwrapped next to it (d_k + n_k c / 2 f_k)
     and the unwrapped depths are averaged with inverse-variance weights (f_k A_k)^2, as the weighted depth of
-    :func:`mpi_lidar.features.weighted_depth` does (which, without unwrapping, is wrong once d_AS passes the
+    :func:`mpi_lidar.learning.features.weighted_depth` does (which, without unwrapping, is wrong once d_AS passes the
     highest frequency's range, 4.8 m).
 
     Parameters

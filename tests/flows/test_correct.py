@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from flows.correct import SUMMARY_ARTIFACT_KEY, correct_archive_flow
-from mpi_lidar.scans import write_scan
+from mpi_lidar.scans.scan import write_scan
 from tests.flows.helpers import artifacts
 from tests.scan_factory import two_path_scan
 

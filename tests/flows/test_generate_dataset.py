@@ -10,8 +10,8 @@ from matplotlib import pyplot as plt
 
 from flows import generate_dataset
 from flows.generate_dataset import SUMMARY_ARTIFACT_KEY, generate_dataset_flow, histogram_path
-from mpi_lidar import dataset
 from mpi_lidar.config import config_sha256, resolve_config
+from mpi_lidar.simulation import dataset
 from tests.flows.helpers import CHUNKS, SAMPLES, artifacts, chunk_task_runs, wait_for
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

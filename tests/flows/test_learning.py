@@ -8,7 +8,7 @@ import pytest
 from flows.evaluate import EVALUATION_ARTIFACT_KEY, TABLE2_ARTIFACT_KEY, evaluate_flow, table2_flow
 from flows.train import CARD_ARTIFACT_KEY, train_flow
 from flows.tune import TUNING_ARTIFACT_KEY, tune_flow
-from mpi_lidar.model import load_model
+from mpi_lidar.learning.model import load_model
 from tests.flows.helpers import artifacts
 
 

@@ -10,10 +10,11 @@ import pytest
 
 from flows import generate_dataset
 from flows.regenerate import point_latest_task, regenerate_dataset_flow
-from mpi_lidar import __version__, dataset
+from mpi_lidar import __version__
 from mpi_lidar.config import config_sha256, resolve_config
-from mpi_lidar.dataset import store_key
 from mpi_lidar.errors import StoreError
+from mpi_lidar.simulation import dataset
+from mpi_lidar.simulation.dataset import store_key
 from tests.flows.helpers import CHUNKS, SEED, chunk_task_runs, subflow_runs, write_config
 
 

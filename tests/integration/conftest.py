@@ -128,8 +128,8 @@ def cluster_model(tmp_path_factory: pytest.TempPathFactory, dask_cluster: DaskCl
     from distributed import Client
 
     from mpi_lidar.config import Config
-    from mpi_lidar.features import FeatureSpec
-    from mpi_lidar.train import train_and_save
+    from mpi_lidar.learning.features import FeatureSpec
+    from mpi_lidar.learning.train import train_and_save
 
     params = {"max_depth": 4, "learning_rate": 0.3}
     with Client(dask_cluster.address, timeout=START_TIMEOUT_S) as client:

@@ -10,7 +10,7 @@ import optuna
 import pytest
 import zarr
 
-from mpi_lidar import tune
+from mpi_lidar.learning import tune
 from tests.integration.conftest import DaskCluster, database_url, run_cli, subprocess_env
 
 pytestmark = pytest.mark.slow

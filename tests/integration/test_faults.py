@@ -21,11 +21,12 @@ import zarr
 from distributed import Client
 from optuna.trial import TrialState
 
-from mpi_lidar import dataset, tune
 from mpi_lidar.config import Config
-from mpi_lidar.correct import CorrectionOptions, correct_archive
-from mpi_lidar.features import FeatureSpec
-from mpi_lidar.scans import write_scan
+from mpi_lidar.correction.correct import CorrectionOptions, correct_archive
+from mpi_lidar.learning import tune
+from mpi_lidar.learning.features import FeatureSpec
+from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.simulation import dataset
 from tests.integration.conftest import (
     BIN,
     REPO,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from mpi_lidar import dataset
+from mpi_lidar.simulation import dataset
 from tests.integration.conftest import BIN, REPO, free_port, stop_group, subprocess_env
 
 pytestmark = pytest.mark.slow

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from mpi_lidar import model as model_io
-from mpi_lidar import tune
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning import model as model_io
+from mpi_lidar.learning import tune
 from tests.integration.conftest import free_port, run_cli, subprocess_env
 
 PASSWORD = "Tr1cky-s3cret-pw"

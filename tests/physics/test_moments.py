@@ -11,7 +11,7 @@ from scipy import stats
 from mpi_lidar.config import Config
 from mpi_lidar.physics import demod, make_sensor
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.simulation.sampling import sample_theta
 
 # Below ~1000 photons per bin at the peak the rounding of eq 16 moves the phase by more than 1e-4 rad.
 LOW_SIGNAL_PEAK_PHOTONS = 1000.0

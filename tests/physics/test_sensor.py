@@ -21,7 +21,7 @@ from mpi_lidar.physics.sensor import (
     tia_noise_electron_variance,
 )
 from mpi_lidar.physics.transport import two_path_phasors
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.simulation.sampling import sample_theta
 
 C = 3.0e8
 FREQS = np.array([12.5e6, 18.75e6, 25e6, 31.25e6])

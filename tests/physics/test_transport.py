@@ -16,7 +16,7 @@ from mpi_lidar.physics.transport import (
     two_path_phase_bias,
     two_path_phasors,
 )
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.simulation.sampling import sample_theta
 
 C = 3.0e8
 GAMMA_R = 0.1794

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar import __version__
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import FeatureSpec
+from mpi_lidar.learning.features import FeatureSpec
 
 MODEL_SCHEMA = "mpi-lidar/model@1"
 MODEL_FILE = "model.ubj"

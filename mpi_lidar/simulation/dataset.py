@@ -33,9 +33,9 @@ from numpy.typing import NDArray
 from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
 from mpi_lidar.errors import StoreError
-from mpi_lidar.features import raw_feature_names
+from mpi_lidar.learning.features import raw_feature_names
 from mpi_lidar.physics import SensorModel, make_sensor
-from mpi_lidar.sampling import THETA_NAMES, sample_theta
+from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 
 SCHEMA = "mpi-lidar/dataset@1"
 SPLIT_CODES = {"train": 0, "test": 1}

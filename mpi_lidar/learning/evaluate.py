@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar import dataset
-from mpi_lidar.features import frequency_labels, weighted_depth
-from mpi_lidar.model import CorrectionModel
-from mpi_lidar.train import training_geometry
+from mpi_lidar.learning.features import frequency_labels, weighted_depth
+from mpi_lidar.learning.model import CorrectionModel
+from mpi_lidar.learning.train import training_geometry
+from mpi_lidar.simulation import dataset
 
 
 @dataclass(frozen=True)

@@ -16,18 +16,19 @@ from pathlib import Path
 
 from distributed import Client
 
-from mpi_lidar import dataset, tune
 from mpi_lidar.config import Config
-from mpi_lidar.correct import CorrectionOptions, ScanOutcome, correct_archive
+from mpi_lidar.correction.correct import CorrectionOptions, ScanOutcome, correct_archive
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.evaluate import Evaluation, evaluate_model
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
-from mpi_lidar.model import CARD_FILE, load_model
-from mpi_lidar.report import evaluation_report, write_report
-from mpi_lidar.scan_report import write_batch_report
-from mpi_lidar.scans import SCAN_SUFFIX
-from mpi_lidar.scenes import DEMO_SCENES, render_scenes
-from mpi_lidar.train import BASE_PARAMS, train_and_save
+from mpi_lidar.learning import tune
+from mpi_lidar.learning.evaluate import Evaluation, evaluate_model
+from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.learning.model import CARD_FILE, load_model
+from mpi_lidar.learning.train import BASE_PARAMS, train_and_save
+from mpi_lidar.reporting.report import evaluation_report, write_report
+from mpi_lidar.reporting.scan_report import write_batch_report
+from mpi_lidar.scans.scan import SCAN_SUFFIX
+from mpi_lidar.simulation import dataset
+from mpi_lidar.simulation.scenes import DEMO_SCENES, render_scenes
 
 
 @dataclass(frozen=True)

@@ -21,11 +21,11 @@ import xgboost as xgb
 from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
-from mpi_lidar.correct import CorrectionOptions
-from mpi_lidar.dataset import cached_sensor, seeded_rng
+from mpi_lidar.correction.correct import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec, weighted_depth
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec, weighted_depth
+from mpi_lidar.simulation.dataset import cached_sensor, seeded_rng
+from mpi_lidar.simulation.sampling import sample_theta
 
 # Seed streams of the benchmark (under the configured dataset seed): train and test never share one.
 TRAIN_STREAM, TEST_STREAM = 101, 202
@@ -73,7 +73,7 @@ def fit_xgboost(x: NDArray, y: NDArray, params: dict[str, object], rounds: int,
 
     Returns the booster (trimmed to its best iteration when early-stopped) and the fit wall time [s].
     """
-    from mpi_lidar.train import BASE_PARAMS
+    from mpi_lidar.learning.train import BASE_PARAMS
 
     full = {**BASE_PARAMS, "nthread": nthread, "seed": 0, **params}
     started = time.perf_counter()
@@ -147,7 +147,7 @@ def _sklearn(build: Callable[[None, int], object], spec: FeatureSpec, max_rows: 
 def xgboost_method(spec: FeatureSpec, trees: int, depth: int, learning_rate: float = XGB_LEARNING_RATE,
                    nthread: int = 1) -> Callable[[Sample], Predictor]:
     """XGBoost with a fixed number of trees of a fixed depth (no early stopping: the size is the point)."""
-    from mpi_lidar.train import DEFAULT_PARAMS
+    from mpi_lidar.learning.train import DEFAULT_PARAMS
 
     params = {**DEFAULT_PARAMS, "max_depth": depth, "learning_rate": learning_rate}
 
@@ -161,8 +161,8 @@ def xgboost_method(spec: FeatureSpec, trees: int, depth: int, learning_rate: flo
 
 
 def gated(predict: Predictor, config: Config, p_value: float = 0.01) -> Predictor:
-    """A predictor behind the consistency gate (mpi_lidar.correct): rows it skips keep the raw depth."""
-    from mpi_lidar.correct import ConsistencyGate
+    """A predictor behind the consistency gate (mpi_lidar.correction.correct): rows it skips keep the raw depth."""
+    from mpi_lidar.correction.correct import ConsistencyGate
 
     gate, raw_depth = ConsistencyGate(p_value), top_depth(config.frequencies_hz)
 
@@ -178,7 +178,7 @@ def gated(predict: Predictor, config: Config, p_value: float = 0.01) -> Predicto
 def methods(config: Config, spec: FeatureSpec, xgb_sizes: Sequence[tuple[int, int]], learner_rows: int | None,
             solver_rows: int | None) -> list[Method]:
     """Every estimator of the benchmark, in table order."""
-    from mpi_lidar.baselines import dnn, knn, random_forest
+    from mpi_lidar.learning.baselines import dnn, knn, random_forest
     from mpi_lidar.physics.inverse import least_squares_two_path, prony_two_path
 
     freqs = config.frequencies_hz
@@ -261,7 +261,7 @@ def with_pareto(rows: list[BenchRow]) -> list[BenchRow]:
 
 def reference_xgboost(spec: FeatureSpec, train: Sample, nthread: int = 1) -> tuple[xgb.Booster, float]:
     """XGBoost with the project's DEFAULT_PARAMS, early-stopped on every tenth train row (as ``train`` does)."""
-    from mpi_lidar.train import DEFAULT_EARLY_STOPPING, DEFAULT_PARAMS, DEFAULT_ROUNDS
+    from mpi_lidar.learning.train import DEFAULT_EARLY_STOPPING, DEFAULT_PARAMS, DEFAULT_ROUNDS
 
     return fit_xgboost(spec.transform(train.raw), spec.target(train.raw, train.target), dict(DEFAULT_PARAMS),
                        DEFAULT_ROUNDS, early_stopping=DEFAULT_EARLY_STOPPING, nthread=nthread)
@@ -301,14 +301,14 @@ def range_guarded_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray, d
     """Corrected depth [m] where the measured top-frequency depth lies in the training prior's d_AS range
     ``d_as_m`` [m] widened by ``tolerance_m`` [m], the raw depth elsewhere.
 
-    The rule of batch correction (:func:`mpi_lidar.correct.in_model_range`), on a bare booster: trees do not
+    The rule of batch correction (:func:`mpi_lidar.correction.correct.in_model_range`), on a bare booster: trees do not
     extrapolate, so a model must not touch depths it never saw. A model also learns the prior's edge (near
     the top of the range a measured depth is pulled inwards, since no true depth lies beyond it), so a
     positive tolerance lets rows from beyond the range be corrected wrongly: at +2 cm the MAE of a d_AS
     2.4-3.0 m set rises about 1.5% above the raw depth's, at 0 it stays equal (docs/tradeoff.md).
     """
-    from mpi_lidar.correct import in_model_range
-    from mpi_lidar.model import CorrectionModel
+    from mpi_lidar.correction.correct import in_model_range
+    from mpi_lidar.learning.model import CorrectionModel
 
     options = CorrectionOptions(range_tolerance_m=tolerance_m)
     model = CorrectionModel(booster, {"frequencies_hz": list(spec.frequencies_hz), "feature_set": spec.feature_set,
@@ -443,7 +443,7 @@ def _mark(flag: bool) -> str:
 
 
 def tradeoff_table(result: BenchResult):
-    from mpi_lidar.report import Table
+    from mpi_lidar.reporting.report import Table
 
     body = tuple((r.method, r.family, f"{r.fit_rows:,}" if r.fit_rows else "", f"{r.test_rows:,}",
                   f"{r.train_s:.2f}" if r.train_s else "none", f"{r.rows_per_s:,.0f}", f"{r.mae_mm:.3f}",
@@ -453,7 +453,7 @@ def tradeoff_table(result: BenchResult):
 
 
 def curve_table(points: list[CurvePoint]):
-    from mpi_lidar.report import Table
+    from mpi_lidar.reporting.report import Table
 
     body = tuple((f"{p.noise_scale:g}", f"{p.train_rows:,}", str(p.trees), f"{p.train_s:.2f}", f"{p.raw_mae_mm:.3f}",
                   f"{p.weighted_mae_mm:.3f}", f"{p.xgboost_mae_mm:.3f}") for p in points)
@@ -462,7 +462,7 @@ def curve_table(points: list[CurvePoint]):
 
 
 def out_of_range_table(o: OutOfRange):
-    from mpi_lidar.report import Table
+    from mpi_lidar.reporting.report import Table
 
     tol = CorrectionOptions().range_tolerance_m
     return Table(("true d_AS [m]", "rows", "raw MAE [mm]", "model alone MAE [mm]", "range-guarded MAE [mm]",
@@ -520,7 +520,7 @@ def curve_figure(points: list[CurvePoint], x_name: str, xlabel: str) -> plt.Figu
 
 def write_bench(result: BenchResult, out_dir: str | Path, machine: str = "") -> Path:
     """report.md/.html, metrics.json, tradeoff.png, learning_curve.png, noise.png and one CSV per table."""
-    from mpi_lidar.report import Report, write_report
+    from mpi_lidar.reporting.report import Report, write_report
 
     p = result.plan
     notes = (f"Train rows: {p.rows:,}, test rows: {p.test_rows:,}, independent draws from the default prior "

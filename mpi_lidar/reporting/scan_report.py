@@ -11,8 +11,7 @@ import numpy as np
 import zarr
 from matplotlib.colors import ListedColormap
 
-from mpi_lidar import geometry
-from mpi_lidar.correct import (
+from mpi_lidar.correction.correct import (
     CORRECTED_SCHEMA,
     INVALID_FLAGS,
     Correction,
@@ -22,9 +21,10 @@ from mpi_lidar.correct import (
     staged_directory,
     swap_into_place,
 )
-from mpi_lidar.evaluate import error_metrics
-from mpi_lidar.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
-from mpi_lidar.scans import Scan
+from mpi_lidar.learning.evaluate import error_metrics
+from mpi_lidar.reporting.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
+from mpi_lidar.scans import geometry
+from mpi_lidar.scans.scan import Scan
 
 FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d"]
 GATED_OUT = ("not_needed", "no_multipath")

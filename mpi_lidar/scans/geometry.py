@@ -72,7 +72,7 @@ def read_ply_points(path: str | Path) -> NDArray[np.float32]:
 # --- multipath potential -----------------------------------------------------------------------------------
 
 # Effective receiver footprint A_fp [m^2] of the A -> B -> A coupling: pi (12 mm)^2 times the gain that
-# calibrates the scene simulator's Lambertian boards to the paper's Fig. 7 (see mpi_lidar.scenes).
+# calibrates the scene simulator's Lambertian boards to the paper's Fig. 7 (see mpi_lidar.simulation.scenes).
 DEFAULT_FOOTPRINT_AREA_M2 = 90.0 * np.pi * 0.012**2
 DEFAULT_BLOCK_M = 0.03
 DEFAULT_MAX_RANGE_M = 0.5
@@ -181,7 +181,7 @@ def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAU
     make fake partners. For each pair of blocks A, B closer than ``max_range_m`` [m] that face each other
     (cos_A, cos_B > ``min_cos``, and each centre further from the other's plane than three times the
     two fits' residual RMS, so noisy planes of one surface never face each other), B couples to A with
-    the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i) (mpi_lidar.scenes,
+    the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i) (mpi_lidar.simulation.scenes,
     module docstring; r clamped below by the block size, the sum capped at 1). A plane, a convex surface
     or open sky has no facing pair: zero everywhere. Block values are interpolated bilinearly to pixels.
     Occlusion between A and B is ignored, and surfaces outside the scan's field of view are not known.

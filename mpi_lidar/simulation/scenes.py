@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from mpi_lidar.config import Config
 from mpi_lidar.physics import demod, make_sensor
 from mpi_lidar.physics.sensor import received_voltage_amplitude
-from mpi_lidar.scans import Scan, grid_rays, write_scan
+from mpi_lidar.scans.scan import Scan, grid_rays, write_scan
 
 DEFAULT_FOOTPRINT_RADIUS_M = 0.012
 DEFAULT_PATCH_SPACING_M = 0.02
@@ -261,7 +261,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     Returns (phasor, dc) where dc is sum |Gamma_k| over paths [V^2]. A dict passed as ``coupling_out``
     receives the true per-pixel multipath of the render: ``coupling`` (H*W,), the summed kappa of the
     prior (ratio Gamma_M / Gamma_D over a b, after the cap at 1; the quantity
-    :func:`mpi_lidar.geometry.multipath_potential` estimates) [1], and ``d_ab_m`` (H*W,), the
+    :func:`mpi_lidar.scans.geometry.multipath_potential` estimates) [1], and ``d_ab_m`` (H*W,), the
     ratio-weighted mean A-B distance [m] (NaN without multipath).
     """
     s = config.sensor

@@ -16,9 +16,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from mpi_lidar import dataset
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.evaluate import Evaluation
+from mpi_lidar.learning.evaluate import Evaluation
+from mpi_lidar.simulation import dataset
 
 
 def generation_markdown(summary: dataset.DatasetSummary, run: dataset.GenerationReport, workers: str) -> str:

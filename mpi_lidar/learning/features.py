@@ -15,7 +15,8 @@ Target modes:
 - ``residual``: the true depth minus the measured highest-frequency depth; the prediction is a correction.
 
 Geometric inputs (``FeatureSpec.geometric``): two more columns after the feature set's, the coupling kappa and
-the A-B distance d_AB that the scan's geometry estimates for the pixel (:func:`mpi_lidar.geometry.multipath_potential`).
+the A-B distance d_AB that the scan's geometry estimates for the pixel
+(:func:`mpi_lidar.scans.geometry.multipath_potential`).
 Training rows have no scan, so :func:`synthetic_geometry` builds the estimate the geometry would give from the
 row's scene parameters and the estimation error measured on rendered scenes (docs/scenes.md).
 """

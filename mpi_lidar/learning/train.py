@@ -17,10 +17,10 @@ import xgboost.dask as dxgb
 from distributed import Client
 from numpy.typing import NDArray
 
-from mpi_lidar import dataset
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import GEOMETRY_ERROR_MODEL, FeatureSpec, synthetic_geometry, synthetic_geometry_dask
-from mpi_lidar.model import save_model
+from mpi_lidar.learning.features import GEOMETRY_ERROR_MODEL, FeatureSpec, synthetic_geometry, synthetic_geometry_dask
+from mpi_lidar.learning.model import save_model
+from mpi_lidar.simulation import dataset
 
 VALIDATION_EVERY = 10
 # Absolute error: the model then estimates the posterior median of the depth, which minimises the MAE (the

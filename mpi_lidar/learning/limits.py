@@ -42,9 +42,9 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import weighted_depth
+from mpi_lidar.learning.features import weighted_depth
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.sampling import sample_theta
+from mpi_lidar.simulation.sampling import sample_theta
 
 DEFAULT_POOL = 2000
 DEFAULT_STAGES = 4

@@ -9,7 +9,7 @@ import numpy as np
 import optuna
 from optuna.trial import TrialState
 
-from mpi_lidar.report import Report, Table
+from mpi_lidar.reporting.report import Report, Table
 
 
 def history_figure(study: optuna.Study) -> plt.Figure:

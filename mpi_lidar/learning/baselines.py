@@ -1,6 +1,6 @@
 """The paper's Table II: KNN, random forest, SVM and a two-hidden-layer network against XGBoost.
 
-Every learner maps the raw features (the same :class:`~mpi_lidar.features.FeatureSpec` as XGBoost) to the
+Every learner maps the raw features (the same :class:`~mpi_lidar.learning.features.FeatureSpec` as XGBoost) to the
 true depth. KNN, the forest and the network are tuned by TPE, as in the paper, on a subsample of the train
 split (four fifths to fit, one fifth to validate), then refitted on the training rows with the best
 parameters; that final fit is what "training time" measures. Differences from the paper, stated in the
@@ -28,11 +28,11 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVR
 
-from mpi_lidar import dataset
-from mpi_lidar.evaluate import error_metrics
-from mpi_lidar.features import FeatureSpec, weighted_depth
-from mpi_lidar.model import load_model
-from mpi_lidar.report import Report, Table
+from mpi_lidar.learning.evaluate import error_metrics
+from mpi_lidar.learning.features import FeatureSpec, weighted_depth
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.report import Report, Table
+from mpi_lidar.simulation import dataset
 
 # Table II of the paper: RMSE train/test, MAE train/test [mm], training time [s].
 PAPER_TABLE2: dict[str, tuple[float, float, float, float, float]] = {

@@ -5,7 +5,7 @@ above the noise floor, saturated, frequencies that disagree by more than a phase
 NaN. Valid pixels whose depth lies outside the range the model was trained on keep their raw depth (trees
 do not extrapolate). Valid pixels the gate lets through are corrected by the model; the others keep the
 raw depth of the highest frequency, exactly as measured. The default gate, ``geometry``, corrects only
-where the scan's own geometry lets another surface send light back (:mod:`mpi_lidar.geometry`); a scan
+where the scan's own geometry lets another surface send light back (:mod:`mpi_lidar.scans.geometry`); a scan
 without geometry falls back to pixel-wise correction of every valid pixel, and its report says so. A model
 trained with geometric inputs gets the geometry's coupling and d_AB for each pixel it corrects (computed
 even under another gate); on a scan without geometry it corrects nothing, and the report says so.
@@ -36,14 +36,14 @@ from distributed import Client, as_completed
 from numpy.typing import NDArray
 from scipy import stats
 
-from mpi_lidar import geometry
 from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import geometry_inputs
-from mpi_lidar.model import CorrectionModel, load_model
+from mpi_lidar.learning.features import geometry_inputs
+from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.physics.sensor import received_voltage_amplitude
-from mpi_lidar.scans import SCAN_SUFFIX, Scan, read_scan
+from mpi_lidar.scans import geometry
+from mpi_lidar.scans.scan import SCAN_SUFFIX, Scan, read_scan
 
 CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
@@ -372,7 +372,7 @@ def _cached_model(model_dir: str) -> CorrectionModel:
 
 def _process_scan(source: str, model_dir: Path, out_dir: Path, options: CorrectionOptions,
                   started: float) -> ScanOutcome:
-    from mpi_lidar.scan_report import scan_metrics, write_scan_outputs
+    from mpi_lidar.reporting.scan_report import scan_metrics, write_scan_outputs
 
     scan = read_scan(source)
     name = safe_scan_name(scan.name)

@@ -29,10 +29,10 @@ from optuna.trial import TrialState
 from optuna_integration import XGBoostPruningCallback
 from sqlalchemy.engine import make_url
 
-from mpi_lidar import dataset
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.features import FeatureSpec
-from mpi_lidar.train import BASE_PARAMS, check_dataset_matches, training_geometry
+from mpi_lidar.learning.features import FeatureSpec
+from mpi_lidar.learning.train import BASE_PARAMS, check_dataset_matches, training_geometry
+from mpi_lidar.simulation import dataset
 
 DEFAULT_TRIALS = 30
 DEFAULT_TUNE_ROWS = 100_000
