@@ -35,12 +35,13 @@ from pathlib import Path
 from distributed import Client, LocalCluster
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction.correct import CorrectionOptions, correct_archive
+from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.train import train_and_save
 from mpi_lidar.scans.scan import write_scan
 from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.correct_archive import correct_archive
 
 BIN = Path(sys.executable).parent
 

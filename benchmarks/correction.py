@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correction.correct import CorrectionOptions, Flag, correct_scan, make_gate, validity_flags
+from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan, make_gate, validity_flags
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.scans.scan import Scan, read_scan, write_scan
 from mpi_lidar.simulation.scenes import SCENES, render

@@ -24,7 +24,7 @@ from datetime import date
 import numpy as np
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction.correct import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.scans.geometry import multipath_potential
 from mpi_lidar.scans.scan import Scan, grid_rays

@@ -1,6 +1,7 @@
 """Prefect flow: correct an archive of scans, one task per scan on a Dask cluster.
 
-The library does the work (:func:`mpi_lidar.correction.correct.process_scan` reads, corrects and writes one scan's
+The library does the work (:func:`mpi_lidar.workflows.correct_archive.process_scan` reads, corrects and
+writes one scan's
 outputs atomically, and turns a bad scan into a 'failed' outcome with its reason); this flow makes each scan
 a task, writes the batch summary, and publishes it and every scan's metrics as artifacts. A scan already
 corrected with the same model and options is skipped. The flow ends Failed when any scan failed, after all
@@ -17,10 +18,11 @@ from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from flows.runtime import dask_task_runner, shared_api
-from mpi_lidar.correction.correct import CorrectionOptions, ScanOutcome, expand_archive, process_scan
+from mpi_lidar.correction import CorrectionOptions, ScanOutcome
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.scan_report import batch_report, write_batch_report
+from mpi_lidar.workflows.correct_archive import expand_archive, process_scan
 
 SUMMARY_ARTIFACT_KEY = "correction-summary"
 

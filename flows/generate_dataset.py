@@ -1,8 +1,9 @@
 """Prefect flow: generate a labelled dataset, one task per incomplete chunk on a Dask cluster.
 
 The library does the work (:mod:`mpi_lidar.simulation.dataset`, :mod:`mpi_lidar.reporting.report`); this
-flow only makes each step a task so that runs, retries and the summary are visible in Prefect. A chunk task that fails is retried
-twice by Prefect after a short delay; chunks already complete are skipped, so a re-run resumes a store.
+flow only makes each step a task so that runs, retries and the summary are visible in Prefect. A
+chunk task that fails is retried twice by Prefect after a short delay; chunks already complete are
+skipped, so a re-run resumes a store.
 """
 
 from __future__ import annotations

@@ -9,8 +9,6 @@ or interrupted one is generated (resumed) by :func:`flows.generate_dataset.gener
 
 from __future__ import annotations
 
-import os
-import uuid
 from pathlib import Path
 
 from prefect import flow, task
@@ -20,6 +18,7 @@ from prefect.runtime import flow_run
 from flows.generate_dataset import build_config_task, generate_dataset_flow
 from mpi_lidar.errors import StoreError
 from mpi_lidar.simulation import dataset
+from mpi_lidar.storage.atomic import atomic_path
 
 STORE_NAME = "dataset.zarr"
 LATEST_NAME = "latest"
@@ -43,12 +42,8 @@ def point_latest_task(root: str, key: str) -> str:
     latest = Path(root) / LATEST_NAME
     if latest.exists() and not latest.is_symlink():
         raise StoreError(f"{latest} exists and is not a symlink; move it away so 'latest' can be updated")
-    staging = Path(root) / f".{LATEST_NAME}.{uuid.uuid4().hex[:8]}"
-    staging.symlink_to(key, target_is_directory=True)
-    try:
-        os.replace(staging, latest)
-    finally:
-        staging.unlink(missing_ok=True)
+    with atomic_path(latest, replace=True, what="link") as staging:
+        staging.symlink_to(key, target_is_directory=True)
     return str(latest)
 
 

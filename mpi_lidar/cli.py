@@ -251,9 +251,10 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary."""
     import time
 
-    from mpi_lidar.correction.correct import CorrectionOptions, correct_archive
+    from mpi_lidar.correction import CorrectionOptions
     from mpi_lidar.reporting.scan_report import write_batch_report
     from mpi_lidar.workflows.cluster import dask_client
+    from mpi_lidar.workflows.correct_archive import correct_archive
 
     geometry_overrides = {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
                           "footprint_area_m2": footprint_area_m2}

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 
 from mpi_lidar.cli import cli
 from mpi_lidar.config import Config
-from mpi_lidar.correction.correct import ConsistencyGate
+from mpi_lidar.correction import ConsistencyGate
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.workflows.bench import (
     TEST_STREAM,

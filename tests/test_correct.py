@@ -11,18 +11,12 @@ from click.testing import CliRunner
 
 from mpi_lidar.cli import cli
 from mpi_lidar.config import Config
-from mpi_lidar.correction.correct import (
-    NO_GEOMETRY_NOTE,
-    CorrectionOptions,
-    Flag,
-    correct_archive,
-    correct_scan,
-    process_scan,
-)
+from mpi_lidar.correction import NO_GEOMETRY_NOTE, CorrectionOptions, Flag, correct_scan
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.scans.scan import Scan, write_scan
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
+from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
 from tests.scan_factory import two_path_scan
 
 
@@ -225,7 +219,7 @@ def test_flag__existing_codes_are_stable():
 
 
 def test_batch_report__gated_out_counts_both_skip_flags():
-    from mpi_lidar.correction.correct import ScanOutcome
+    from mpi_lidar.correction import ScanOutcome
     from mpi_lidar.reporting.scan_report import batch_report
 
     outcome = ScanOutcome("s.scan.zarr", "s", "corrected",

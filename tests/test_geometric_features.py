@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config, PriorConfig
-from mpi_lidar.correction.correct import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, GeometryGate, correct_scan
+from mpi_lidar.correction import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, GeometryGate, correct_scan
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import evaluate_model
 from mpi_lidar.learning.features import (

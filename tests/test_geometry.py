@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correction.correct import INVALID_FLAGS, CorrectionOptions, validity_flags
+from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, validity_flags
 from mpi_lidar.scans.geometry import DEFAULT_FOOTPRINT_AREA_M2, fit_block_planes, multipath_potential, point_cloud
 from mpi_lidar.scans.scan import grid_rays
 from mpi_lidar.simulation.scenes import (

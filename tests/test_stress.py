@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, SensorConfig
-from mpi_lidar.correction.correct import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan, validity_flags
+from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan, validity_flags
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.limits import posterior_estimates
 from mpi_lidar.learning.model import CorrectionModel

@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import shutil
-import uuid
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
@@ -24,6 +21,7 @@ from numpy.typing import NDArray
 from mpi_lidar import __version__
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSpec
+from mpi_lidar.storage.atomic import atomic_path
 
 MODEL_SCHEMA = "mpi-lidar/model@1"
 MODEL_FILE = "model.ubj"
@@ -109,20 +107,12 @@ def save_model(out_dir: str | Path, booster: xgb.Booster, card: dict[str, object
     An existing directory is never overwritten: choose a new ``out_dir`` or remove the old one.
     """
     out_dir = Path(out_dir)
-    if out_dir.exists():
-        raise MpiLidarError(f"model directory {out_dir} already exists; choose another --out or remove it")
-    staging = out_dir.parent / f".{out_dir.name}.saving-{uuid.uuid4().hex[:8]}"
-    try:
-        staging.mkdir(parents=True)
+    with atomic_path(out_dir, what="model directory") as staging:
+        staging.mkdir()
         booster.save_model(str(staging / MODEL_FILE))
         full_card = {"schema": MODEL_SCHEMA, **card, "model_sha256": file_sha256(staging / MODEL_FILE),
                      "versions": package_versions()}
         (staging / CARD_FILE).write_text(json.dumps(full_card, indent=2, sort_keys=True) + "\n")
-        os.replace(staging, out_dir)
-    except OSError as exc:
-        raise MpiLidarError(f"cannot write model directory {out_dir}: {exc.strerror or exc}") from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return out_dir
 
 

@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import html
 import json
-import os
-import shutil
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,9 +13,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import Evaluation
 from mpi_lidar.simulation import dataset
+from mpi_lidar.storage.atomic import atomic_path
 
 
 def generation_markdown(summary: dataset.DatasetSummary, run: dataset.GenerationReport, workers: str) -> str:
@@ -40,14 +37,11 @@ def generation_markdown(summary: dataset.DatasetSummary, run: dataset.Generation
 def save_figure(fig: plt.Figure, path: str | Path) -> Path:
     """Save a figure through a temporary file and a rename, so a reader never sees half a PNG."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    staging = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        fig.savefig(staging, dpi=120, bbox_inches="tight", format="png")
-        os.replace(staging, path)
+        with atomic_path(path, replace=True, what="figure") as staging:
+            fig.savefig(staging, dpi=120, bbox_inches="tight", format="png")
     finally:
         plt.close(fig)
-        staging.unlink(missing_ok=True)
     return path
 
 
@@ -131,29 +125,24 @@ def write_report(report: Report, report_dir: str | Path, figures: dict[str, plt.
     A previous report of ours at the same place is replaced; any other existing directory is refused.
     """
     report_dir = Path(report_dir)
-    if report_dir.exists() and not (report_dir / REPORT_MARKER).exists():
+    try:
+        with atomic_path(report_dir, replace=True, what="report", keep=_not_a_report) as staging:
+            staging.mkdir()
+            for name, fig in figures.items():
+                save_figure(fig, staging / name)
+            (staging / "report.md").write_text(report.markdown())
+            (staging / "report.html").write_text(report.html())
+            (staging / "metrics.json").write_text(
+                json.dumps(report.data, indent=2, sort_keys=True, default=float) + "\n")
+            (staging / REPORT_MARKER).write_text("")
+    finally:
         for fig in figures.values():
             plt.close(fig)
-        raise MpiLidarError(f"{report_dir} exists and is not an mpi-lidar report; choose another --report")
-    staging = report_dir.parent / f".{report_dir.name}.writing-{uuid.uuid4().hex[:8]}"
-    retired = report_dir.parent / f".{report_dir.name}.old-{uuid.uuid4().hex[:8]}"
-    try:
-        staging.mkdir(parents=True)
-        for name, fig in figures.items():
-            save_figure(fig, staging / name)
-        (staging / "report.md").write_text(report.markdown())
-        (staging / "report.html").write_text(report.html())
-        (staging / "metrics.json").write_text(json.dumps(report.data, indent=2, sort_keys=True, default=float) + "\n")
-        (staging / REPORT_MARKER).write_text("")
-        if report_dir.exists():
-            os.replace(report_dir, retired)
-        os.replace(staging, report_dir)
-    except OSError as exc:
-        raise MpiLidarError(f"cannot write report {report_dir}: {exc.strerror or exc}") from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-        shutil.rmtree(retired, ignore_errors=True)
     return report_dir
+
+
+def _not_a_report(path: Path) -> bool:
+    return not (path / REPORT_MARKER).exists()
 
 
 def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> plt.Figure:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -11,20 +10,20 @@ import numpy as np
 import zarr
 from matplotlib.colors import ListedColormap
 
-from mpi_lidar.correction.correct import (
+from mpi_lidar.correction import (
     CORRECTED_SCHEMA,
     INVALID_FLAGS,
     Correction,
     CorrectionOptions,
     Flag,
     ScanOutcome,
-    staged_directory,
-    swap_into_place,
+    ScanStatus,
 )
 from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.reporting.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
+from mpi_lidar.storage.atomic import atomic_path
 
 FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d"]
 GATED_OUT = ("not_needed", "no_multipath")
@@ -124,37 +123,37 @@ def metrics_table(metrics: dict[str, dict[str, float]]) -> Table:
 def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]],
                        identity: dict[str, str], options: CorrectionOptions) -> list[str]:
     """Everything for one scan, written into a staging directory and swapped in at the end."""
-    staging = staged_directory(target)
     notes: list[str] = list(correction.notes)
     try:
-        _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options)
-        figures = {"maps.png": maps_figure(scan, correction)}
-        if scan.reference_depth is not None:
-            where = _regions(scan, correction)["whole map"]
-            figures["error_hist.png"] = error_histogram_figure(
-                {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz": 1e3 * (scan.depth[-1] - scan.reference_depth)[where],
-                 "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
-        else:
-            notes.append("no reference depth: errors, error maps and histogram skipped")
-        rays = scan.rays()
-        if rays is not None:
-            raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan), rays)
-            corrected_points = geometry.point_cloud(correction.depth, rays)
-            geometry.write_ply(staging / "raw.ply", raw_points, scan.amplitude[-1])
-            geometry.write_ply(staging / "corrected.ply", corrected_points, scan.amplitude[-1])
-            figures["point_cloud.png"] = point_cloud_figure(raw_points, corrected_points)
-        else:
-            notes.append("no scan geometry: point clouds and views skipped")
-        for name, fig in figures.items():
-            save_figure(fig, staging / name)
-        report = scan_report(scan, correction, metrics, notes, sorted(figures))
-        (staging / "report.md").write_text(report.markdown())
-        (staging / "report.html").write_text(report.html())
-        (staging / "metrics.json").write_text(json.dumps(report.data, indent=2, sort_keys=True) + "\n")
-        (staging / REPORT_MARKER).write_text("")
-        swap_into_place(staging, target)
+        with atomic_path(target, replace=True, what="scan outputs") as staging:
+            staging.mkdir()
+            _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options)
+            figures = {"maps.png": maps_figure(scan, correction)}
+            if scan.reference_depth is not None:
+                where = _regions(scan, correction)["whole map"]
+                figures["error_hist.png"] = error_histogram_figure(
+                    {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz": 1e3 * (scan.depth[-1] - scan.reference_depth)[where],
+                     "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
+            else:
+                notes.append("no reference depth: errors, error maps and histogram skipped")
+            rays = scan.rays()
+            if rays is not None:
+                raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan),
+                                                  rays)
+                corrected_points = geometry.point_cloud(correction.depth, rays)
+                geometry.write_ply(staging / "raw.ply", raw_points, scan.amplitude[-1])
+                geometry.write_ply(staging / "corrected.ply", corrected_points, scan.amplitude[-1])
+                figures["point_cloud.png"] = point_cloud_figure(raw_points, corrected_points)
+            else:
+                notes.append("no scan geometry: point clouds and views skipped")
+            for name, fig in figures.items():
+                save_figure(fig, staging / name)
+            report = scan_report(scan, correction, metrics, notes, sorted(figures))
+            (staging / "report.md").write_text(report.markdown())
+            (staging / "report.html").write_text(report.html())
+            (staging / "metrics.json").write_text(json.dumps(report.data, indent=2, sort_keys=True) + "\n")
+            (staging / REPORT_MARKER).write_text("")
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
         plt.close("all")
     return notes
 
@@ -167,7 +166,7 @@ def _write_corrected_store(path: Path, scan: Scan, correction: Correction, ident
     if correction.multipath_bias_m is not None:
         group.create_array("multipath_bias_m", data=correction.multipath_bias_m, dimension_names=("y", "x"))
     group.attrs.update({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
-                        "options": options.__dict__, "flag_codes": {f.name.lower(): int(f) for f in Flag},
+                        "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},
                         "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz)})
 
 
@@ -207,9 +206,10 @@ def batch_report(outcomes: list[ScanOutcome], wall_s: float) -> Report:
                      o.reason or "; ".join(o.notes)))
     table = Table(("scan", "status", "gated out", "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]",
                    "masked corrected MAE [mm]", "seconds", "notes"), tuple(rows))
-    failed = sum(o.status == "failed" for o in outcomes)
-    summary = (f"{len(outcomes)} scans in {wall_s:.1f} s: {sum(o.status == 'corrected' for o in outcomes)} corrected, "
-               f"{sum(o.status == 'skipped' for o in outcomes)} already done, {failed} failed.")
+    failed = sum(o.status == ScanStatus.FAILED for o in outcomes)
+    corrected = sum(o.status == ScanStatus.CORRECTED for o in outcomes)
+    summary = (f"{len(outcomes)} scans in {wall_s:.1f} s: {corrected} corrected, "
+               f"{sum(o.status == ScanStatus.SKIPPED for o in outcomes)} already done, {failed} failed.")
     return Report(title="Batch correction", blocks=[summary, table],
                   data={"wall_s": wall_s, "scans": [o.__dict__ for o in outcomes]})
 

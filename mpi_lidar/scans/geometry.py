@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+
+from mpi_lidar.storage.atomic import write_bytes
 
 
 def point_cloud(depth: NDArray, rays: NDArray) -> NDArray[np.float64]:
@@ -50,12 +51,7 @@ def write_ply(path: str | Path, points: NDArray, values: NDArray | None = None) 
         records["value"] = np.asarray(values, dtype=np.float32).reshape(-1)[keep]
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {records.size}"]
     header += [f"property float {name}" for name, _ in fields] + ["end_header", ""]
-    staging = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with staging.open("wb") as handle:
-        handle.write("\n".join(header).encode("ascii"))
-        handle.write(records.tobytes())
-    os.replace(staging, path)
-    return path
+    return write_bytes(path, "\n".join(header).encode("ascii") + records.tobytes(), what="point cloud")
 
 
 def read_ply_points(path: str | Path) -> NDArray[np.float32]:

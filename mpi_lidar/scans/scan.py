@@ -15,9 +15,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import shutil
-import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -27,6 +24,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.physics import demod
+from mpi_lidar.storage.atomic import atomic_path
 
 SCAN_SCHEMA = "mpi-lidar/scan@1"
 SCAN_SUFFIX = ".scan.zarr"
@@ -148,9 +146,7 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
     scan = validate(scan, str(path))
     if path.exists() and not overwrite:
         raise ScanError(f"{path} already exists; choose another name or remove it")
-    staging = path.parent / f".{path.name}.writing-{uuid.uuid4().hex[:8]}"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, replace=overwrite, what="scan", error=ScanError) as staging:
         group = zarr.open_group(store=str(staging), mode="w-")
         h, w = scan.shape
         chunks = (1, min(h, 512), min(w, 512))
@@ -162,13 +158,6 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
                 group.create_array(name, data=np.asarray(value), dimension_names=dims)
         group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": [float(f) for f in scan.frequencies_hz],
                             "name": scan.name, "scene": scan.scene})
-        if path.exists():
-            shutil.rmtree(path)
-        os.replace(staging, path)
-    except OSError as exc:
-        raise ScanError(f"cannot write scan {path}: {exc.strerror or exc}") from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return path
 
 

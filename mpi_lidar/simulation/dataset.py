@@ -15,10 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import shutil
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache
@@ -36,6 +33,7 @@ from mpi_lidar.errors import StoreError
 from mpi_lidar.learning.features import raw_feature_names
 from mpi_lidar.physics import SensorModel, make_sensor
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
+from mpi_lidar.storage.atomic import atomic_path
 
 SCHEMA = "mpi-lidar/dataset@1"
 SPLIT_CODES = {"train": 0, "test": 1}
@@ -156,16 +154,9 @@ def create_store(path: str | Path, config: Config) -> zarr.Group:
         group = open_store(path)
         _check_same_config(path, group, config)
         return zarr.open_group(store=str(path), mode="r+")
-    staging = path.parent / f".{path.name}.creating-{uuid.uuid4().hex[:8]}"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+    # Here path is absent or an empty directory, which the new store may replace.
+    with atomic_path(path, replace=True, what="dataset store", error=StoreError) as staging:
         _build_layout(staging, config)
-        os.replace(staging, path)
-    except OSError as exc:
-        raise StoreError(f"cannot create dataset store {path}: {exc.strerror or exc}; "
-                         "choose a writable --out with free space") from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return zarr.open_group(store=str(path), mode="r+")
 
 

@@ -21,7 +21,7 @@ import xgboost as xgb
 from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction.correct import CorrectionOptions
+from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec, weighted_depth
 from mpi_lidar.simulation.dataset import cached_sensor, seeded_rng
@@ -162,7 +162,7 @@ def xgboost_method(spec: FeatureSpec, trees: int, depth: int, learning_rate: flo
 
 def gated(predict: Predictor, config: Config, p_value: float = 0.01) -> Predictor:
     """A predictor behind the consistency gate (mpi_lidar.correction.correct): rows it skips keep the raw depth."""
-    from mpi_lidar.correction.correct import ConsistencyGate
+    from mpi_lidar.correction import ConsistencyGate
 
     gate, raw_depth = ConsistencyGate(p_value), top_depth(config.frequencies_hz)
 
@@ -307,7 +307,7 @@ def range_guarded_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray, d
     positive tolerance lets rows from beyond the range be corrected wrongly: at +2 cm the MAE of a d_AS
     2.4-3.0 m set rises about 1.5% above the raw depth's, at 0 it stays equal (docs/tradeoff.md).
     """
-    from mpi_lidar.correction.correct import in_model_range
+    from mpi_lidar.correction import in_model_range
     from mpi_lidar.learning.model import CorrectionModel
 
     options = CorrectionOptions(range_tolerance_m=tolerance_m)

@@ -17,7 +17,7 @@ from pathlib import Path
 from distributed import Client
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction.correct import CorrectionOptions, ScanOutcome, correct_archive
+from mpi_lidar.correction import CorrectionOptions, ScanOutcome
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.evaluate import Evaluation, evaluate_model
@@ -29,6 +29,7 @@ from mpi_lidar.reporting.scan_report import write_batch_report
 from mpi_lidar.scans.scan import SCAN_SUFFIX
 from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.scenes import DEMO_SCENES, render_scenes
+from mpi_lidar.workflows.correct_archive import correct_archive
 
 
 @dataclass(frozen=True)

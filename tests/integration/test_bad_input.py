@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 import zarr
 
-from mpi_lidar.correction.correct import CorrectionOptions, correct_archive
+from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans.scan import read_scan, write_scan
 from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.scan_factory import two_path_scan
 
 HEIGHT, WIDTH = 12, 16

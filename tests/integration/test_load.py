@@ -15,10 +15,11 @@ import pytest
 from distributed import Client, LocalCluster
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction.correct import CorrectionOptions, correct_archive
+from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.integration.conftest import DaskCluster, database_url
 from tests.scan_factory import two_path_scan
 

@@ -1,0 +1,126 @@
+"""Gates: which valid pixels need correction, so that correction does no harm where a scene has no multipath."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+from mpi_lidar.config import SensorConfig
+from mpi_lidar.correction.options import CorrectionOptions
+from mpi_lidar.correction.validity import quadrature_noise_v2
+from mpi_lidar.scans import geometry
+from mpi_lidar.scans.scan import Scan
+
+
+class Gate(ABC):
+    """Decides which valid pixels need correction.
+
+    Contract: ``needs_correction(raw, frequencies_hz, sensor)`` takes the raw measurements (n, 2F) of valid
+    pixels and returns a bool (n,): True where the model should correct. It must be much cheaper than
+    inference, since its purpose is to skip work. A gate that looks at the whole scan first overrides
+    ``scan_candidates``: a bool (H*W,) of the pixels that may need correction (the others get
+    NO_MULTIPATH), or None where it cannot tell; ``uses_geometry`` says whether it wants the geometry.
+    """
+
+    name: str
+    uses_geometry = False
+
+    def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
+        """Bool (H*W,) of pixels that may need correction, from the whole scan; None: every pixel may."""
+        return None
+
+    @abstractmethod
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        """Bool (n,)."""
+
+
+class CorrectAll(Gate):
+    """Every valid pixel is corrected (the paper's pixel-wise correction)."""
+
+    name = "all"
+
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        return np.ones(raw.shape[0], dtype=bool)
+
+
+class ConsistencyGate(Gate):
+    """Corrects pixels whose per-frequency depths disagree by more than their predicted noise allows.
+
+    A pixel with no multipath has the same depth at every frequency up to noise; chi^2 of the depths around
+    their inverse-variance mean, with each depth's noise predicted by the moment model at the measured
+    amplitude (thermal, TIA and shot noise), follows chi^2(F-1).
+    Pixels below the (1 - p) quantile are skipped. At Table I noise and d_AB <= 15 cm the multipath offset
+    is almost the same at every frequency, so this test misses most multipath: it is cheap, not sufficient.
+    """
+
+    name = "consistency"
+
+    def __init__(self, p_value: float):
+        self.p_value = p_value
+
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        f = len(frequencies_hz)
+        freqs = np.asarray(frequencies_hz)
+        depth = raw[:, :f].astype(np.float64)
+        amplitude = np.maximum(raw[:, f:].astype(np.float64), 1e-12)
+        metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * freqs)
+        sigma = quadrature_noise_v2(sensor, tuple(frequencies_hz), amplitude) / amplitude * metres_per_rad[None, :]
+        weight = sigma**-2
+        mean = (weight * depth).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
+        chi2 = (weight * (depth - mean) ** 2).sum(1)
+        return chi2 > stats.chi2.ppf(1 - self.p_value, df=f - 1)
+
+
+class GeometryGate(Gate):
+    """Corrects only pixels where the scan's geometry allows multipath (:func:`geometry.multipath_potential`).
+
+    A pixel is a candidate where the expected multipath bias of its facing surfaces (white partner, small
+    phase) reaches ``min_bias_m`` [m]; flat walls, convex objects and open sky have none. The potential is
+    computed from the raw highest-frequency depth of the valid pixels. Scans without geometry (no rays or
+    scan grid) get None: every valid pixel is corrected, pixel-wise.
+    """
+
+    name = "geometry"
+    uses_geometry = True
+
+    def __init__(self, min_bias_m: float, block_m: float, partner_range_m: float, footprint_area_m2: float):
+        self.min_bias_m = min_bias_m
+        self.block_m = block_m
+        self.partner_range_m = partner_range_m
+        self.footprint_area_m2 = footprint_area_m2
+        self.potential_: geometry.MultipathPotential | None = None
+
+    def potential(self, scan: Scan, valid_depth: NDArray) -> geometry.MultipathPotential | None:
+        rays = scan.rays()
+        if rays is None:
+            return None
+        return geometry.multipath_potential(valid_depth.reshape(scan.shape), rays, block_m=self.block_m,
+                                            max_range_m=self.partner_range_m,
+                                            footprint_area_m2=self.footprint_area_m2)
+
+    def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
+        self.potential_ = self.potential(scan, valid_depth)
+        if self.potential_ is None:
+            return None
+        return (self.potential_.bias_m >= self.min_bias_m).ravel()
+
+    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
+        return np.ones(raw.shape[0], dtype=bool)
+
+
+NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
+NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (coupling, d_AB), so every valid "
+                           "pixel keeps its raw depth")
+
+
+def geometry_gate(options: CorrectionOptions) -> GeometryGate:
+    return GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
+                        options.footprint_area_m2)
+
+def make_gate(options: CorrectionOptions) -> Gate:
+    gates = {"all": lambda: CorrectAll(), "consistency": lambda: ConsistencyGate(options.consistency_p_value),
+             "geometry": lambda: geometry_gate(options)}
+    return gates[options.gate]()

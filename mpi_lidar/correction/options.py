@@ -1,0 +1,67 @@
+"""What correction may do and how a pixel or a scan ended: flags, statuses, validated options."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from enum import IntEnum, StrEnum
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from mpi_lidar.scans import geometry
+
+CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
+GATES = ("geometry", "all", "consistency")
+
+
+class Flag(IntEnum):
+    """What was done to a pixel."""
+
+    CORRECTED = 0
+    NOT_NEEDED = 1
+    NOT_FINITE = 2
+    NO_RETURN = 3
+    SATURATED = 4
+    INCONSISTENT = 5
+    OUT_OF_RANGE = 6
+    NO_MULTIPATH = 7
+
+
+INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
+
+class ScanStatus(StrEnum):
+    """How one scan of a batch ended."""
+
+    CORRECTED = "corrected"
+    SKIPPED = "skipped"  # already corrected with the same model and options
+    FAILED = "failed"
+
+
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+
+
+class CorrectionOptions(BaseModel):
+    """Thresholds of the validity mask and the gate, bounds checked.
+
+    Their hash is part of a corrected scan's identity.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    gate: Literal["geometry", "all", "consistency"] = "geometry"
+    min_amplitude_sigmas: NonNegative = 5.0
+    saturation_amplitude_v2: Positive = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
+    max_depth_spread_m: Positive = 0.3
+    # Zero: near the edge of its prior the model pulls depths inwards, so beyond it raw depth is safer.
+    range_tolerance_m: NonNegative = 0.0
+    consistency_p_value: Annotated[float, Field(gt=0, lt=1)] = 0.01
+    min_multipath_bias_m: NonNegative = 0.004
+    geometry_block_m: Positive = geometry.DEFAULT_BLOCK_M
+    partner_range_m: Positive = geometry.DEFAULT_MAX_RANGE_M
+    footprint_area_m2: Positive = geometry.DEFAULT_FOOTPRINT_AREA_M2
+    tile_pixels: Annotated[int, Field(ge=1)] = 262_144
+
+    def sha256(self) -> str:
+        return hashlib.sha256(json.dumps(self.model_dump(), sort_keys=True).encode()).hexdigest()

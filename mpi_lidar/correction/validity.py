@@ -1,0 +1,58 @@
+"""Which pixels can be trusted at all: finite, above the noise floor, unsaturated, frequencies consistent."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
+from mpi_lidar.correction.options import CorrectionOptions, Flag
+from mpi_lidar.physics.moments import MomentSensor
+from mpi_lidar.physics.sensor import received_voltage_amplitude
+
+
+@lru_cache(maxsize=4)
+def _noise_model(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> MomentSensor:
+    # Rounding off: the closed-form moments, which is all a noise prediction needs.
+    return MomentSensor(Config(sensor=sensor, frequencies_hz=frequencies_hz,
+                               simulator=SimulatorConfig(round_photons=False)))
+
+
+def noise_floor_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
+    """Std of each tap quadrature with no light [V^2]: the amplitude of a pixel with no return is of this order."""
+    return quadrature_noise_v2(sensor, frequencies_hz, np.zeros((1, len(frequencies_hz))))[0]
+
+
+def quadrature_noise_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray) -> NDArray:
+    """Std of a tap quadrature (n, F) [V^2] for single-path light of the measured amplitudes (n, F) [V^2].
+
+    Shot noise grows with the signal, so the depth noise of a pixel is this over its amplitude, times c / 4 pi f.
+    """
+    model = _noise_model(sensor, tuple(frequencies_hz))
+    r = received_voltage_amplitude(np.maximum(amplitude_v2, 0.0), sensor.modulation_contrast,
+                                   sensor.demodulation_amplitude_v)
+    waveforms = model.waveforms_from_phasors(r, r.astype(np.complex128))
+    _, cov = model.waveform_moments(waveforms)
+    return np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
+
+
+def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: CorrectionOptions,
+                   sensor: SensorConfig) -> NDArray[np.uint8]:
+    """Flag per pixel: NOT_NEEDED for valid pixels (the gate decides later), else the first reason it is invalid."""
+    f = len(frequencies_hz)
+    depth, amplitude = raw[:, :f], raw[:, f:]
+    flags = np.full(raw.shape[0], Flag.NOT_NEEDED, dtype=np.uint8)
+    spread = depth.max(axis=1) - depth.min(axis=1) if raw.size else np.zeros(0)  # NaN rows: NOT_FINITE
+    floor = options.min_amplitude_sigmas * noise_floor_v2(sensor, tuple(frequencies_hz))
+    rules = [
+        (Flag.INCONSISTENT, spread > options.max_depth_spread_m),
+        (Flag.SATURATED, (amplitude > options.saturation_amplitude_v2).any(axis=1)),
+        (Flag.NO_RETURN, (amplitude < floor[None, :]).any(axis=1)),
+        (Flag.NOT_FINITE, ~np.isfinite(raw).all(axis=1)),
+    ]
+    for flag, where in rules:  # later rules win: the most basic reason is reported
+        flags[where] = flag
+    return flags
+
