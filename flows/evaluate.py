@@ -10,6 +10,7 @@ from mpi_lidar.learning.baselines import table2
 from mpi_lidar.learning.evaluate import evaluate_model
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.report import Report, evaluation_report, write_report
+from mpi_lidar.reporting.table2 import table2_report
 
 EVALUATION_ARTIFACT_KEY = "evaluation"
 TABLE2_ARTIFACT_KEY = "table-2"
@@ -32,7 +33,7 @@ def evaluate_task(data: str, model: str, report_dir: str, split: str) -> str:
 
 @task(name="table-2", cache_policy=NO_CACHE)
 def table2_task(data: str, model: str | None, report_dir: str, trials: int, train_rows: int, svm_rows: int) -> str:
-    report, figures = table2(data, model, trials=trials, train_rows=train_rows, svm_rows=svm_rows).to_report()
+    report, figures = table2_report(table2(data, model, trials=trials, train_rows=train_rows, svm_rows=svm_rows))
     write_report(report, report_dir, figures)
     return _publish(report, report_dir, TABLE2_ARTIFACT_KEY)
 

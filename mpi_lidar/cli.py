@@ -324,14 +324,15 @@ def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, tr
     """The paper's Table II: KNN, RF, SVM, DNN and XGBoost against raw and weighted depth."""
     from mpi_lidar.learning.baselines import table2 as make_table2
     from mpi_lidar.reporting.report import write_report
+    from mpi_lidar.reporting.table2 import table2_report, table2_table
 
     with _progress() as progress:
         task = progress.add_task("baselines", total=4)
         result = make_table2(data, model_dir, train_rows=train_rows, trials=trials, svm_rows=svm_rows,
                              on_row=lambda _row: progress.advance(task))
-    report, figures = result.to_report()
+    report, figures = table2_report(result)
     write_report(report, report_dir, figures)
-    click.echo(result.table().markdown())
+    click.echo(table2_table(result).markdown())
     click.echo(f"\nreport written to {report_dir}")
 
 

@@ -16,7 +16,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 import optuna
 from numpy.typing import NDArray
@@ -31,7 +30,6 @@ from sklearn.svm import SVR
 from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.learning.features import FeatureSpec, weighted_depth
 from mpi_lidar.learning.model import load_model
-from mpi_lidar.reporting.report import Report, Table
 from mpi_lidar.simulation import dataset
 
 # Table II of the paper: RMSE train/test, MAE train/test [mm], training time [s].
@@ -128,40 +126,6 @@ class Row:
 class Table2:
     rows: list[Row]
     notes: list[str]
-
-    def table(self) -> Table:
-        body = []
-        for row in self.rows:
-            paper = PAPER_TABLE2.get(row.name)
-            ours = [f"{1e3 * v:.3f}" for v in (row.rmse_train, row.rmse_test, row.mae_train, row.mae_test)]
-            theirs = [f"{v:g}" for v in paper[:4]] if paper else ["", "", "", ""]
-            if row.name.startswith("raw depth"):
-                theirs[3] = f"{PAPER_RAW_MAE_MM:g}"
-            timing = "" if row.train_s is None else f"{row.train_s:.2f}"
-            body.append((row.name, *(f"{o} ({t})" if t else o for o, t in zip(ours, theirs, strict=True)),
-                         timing + (f" ({paper[4]:g})" if paper else ""), f"{row.fit_rows:,}" if row.fit_rows else ""))
-        return Table(("method", "RMSE train [mm]", "RMSE test [mm]", "MAE train [mm]", "MAE test [mm]",
-                      "training [s]", "fit rows"), tuple(body))
-
-    def to_report(self) -> tuple[Report, dict[str, plt.Figure]]:
-        report = Report(
-            title="Table II: depth correction including MPI",
-            blocks=["Ours (the paper's value in brackets).", self.table(), *self.notes, Path("table2_mae.png")],
-            data={"rows": [row.__dict__ for row in self.rows], "paper": PAPER_TABLE2, "notes": self.notes},
-        )
-        return report, {"table2_mae.png": self.figure()}
-
-    def figure(self) -> plt.Figure:
-        fig, ax = plt.subplots(figsize=(7, 4))
-        names = [row.name for row in self.rows]
-        ax.bar(np.arange(len(names)) - 0.2, [1e3 * row.mae_test for row in self.rows], 0.4, label="ours")
-        paper = [PAPER_TABLE2[n][3] if n in PAPER_TABLE2 else np.nan for n in names]
-        ax.bar(np.arange(len(names)) + 0.2, paper, 0.4, label="paper")
-        ax.set_xticks(np.arange(len(names)), names, rotation=30, ha="right")
-        ax.set_ylabel("test MAE [mm]")
-        ax.legend()
-        fig.tight_layout()
-        return fig
 
 
 def _row(name: str, train_estimate: NDArray, y_train: NDArray, test_estimate: NDArray, y_test: NDArray,

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import PriorConfig
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.simulation.dataset import frequency_labels, raw_feature_names
 
 FeatureSet = Literal["raw", "engineered"]
 TargetMode = Literal["absolute", "residual"]
@@ -121,16 +122,6 @@ def geometry_inputs(coupling: NDArray, d_ab_m: NDArray) -> NDArray[np.float64]:
     coupling = np.nan_to_num(np.asarray(coupling, dtype=np.float64).ravel(), nan=0.0)
     d_ab = np.nan_to_num(np.asarray(d_ab_m, dtype=np.float64).ravel(), nan=0.0)
     return np.column_stack([coupling, np.where(coupling > 0, d_ab, 0.0)])
-
-
-def frequency_labels(frequencies_hz: tuple[float, ...]) -> list[str]:
-    return [f"{f / 1e6:g}MHz" for f in frequencies_hz]
-
-
-def raw_feature_names(frequencies_hz: tuple[float, ...]) -> list[str]:
-    """depth_<f>MHz then amplitude_<f>MHz, in frequency order (the dataset's ``features`` columns)."""
-    labels = frequency_labels(frequencies_hz)
-    return [f"depth_{x}" for x in labels] + [f"amplitude_{x}" for x in labels]
 
 
 def weighted_depth(raw: NDArray, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:

@@ -30,7 +30,6 @@ from numpy.typing import NDArray
 from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
 from mpi_lidar.errors import StoreError
-from mpi_lidar.learning.features import raw_feature_names
 from mpi_lidar.physics import SensorModel, make_sensor
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
@@ -41,6 +40,16 @@ ARRAYS = ("features", "target", "theta", "split", "chunk_done")
 # Stream of the seed tree reserved for summary statistics, apart from the chunk streams (seed, i).
 SUMMARY_STREAM = (1, 0)
 CHUNK_RETRIES = 2
+
+
+def frequency_labels(frequencies_hz: tuple[float, ...]) -> list[str]:
+    return [f"{f / 1e6:g}MHz" for f in frequencies_hz]
+
+
+def raw_feature_names(frequencies_hz: tuple[float, ...]) -> list[str]:
+    """depth_<f>MHz then amplitude_<f>MHz, in frequency order (the dataset's ``features`` columns)."""
+    labels = frequency_labels(frequencies_hz)
+    return [f"depth_{x}" for x in labels] + [f"amplitude_{x}" for x in labels]
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ import pytest
 
 from mpi_lidar.learning.baselines import PAPER_TABLE2, Baseline, knn, table2, tune_baseline
 from mpi_lidar.learning.features import weighted_depth
+from mpi_lidar.reporting.table2 import table2_report
 from mpi_lidar.simulation import dataset
 
 
@@ -50,7 +51,7 @@ def test_tune_baseline__runs_the_requested_trials(small_dataset):
 
 
 def test_to_report__table_carries_the_papers_numbers(result):
-    report, figures = result.to_report()
+    report, figures = table2_report(result)
     markdown = report.markdown()
     assert f"({PAPER_TABLE2['XGBoost'][3]:g})" in markdown and "Bayes limit" in markdown
     assert set(figures) == {"table2_mae.png"}
