@@ -22,16 +22,20 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
-from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import demod
 from mpi_lidar.storage.atomic import atomic_path
+from mpi_lidar.storage.integrity import array_fingerprints, verify_array
 
 SCAN_SCHEMA = "mpi-lidar/scan@1"
 SCAN_SUFFIX = ".scan.zarr"
+# Every array of a scan together, decoded: depth and amplitude of 4 frequencies x 4096 x 4096 in float32 take
+# half of it. Correction holds a few times this while it works, so more would not fit a worker safely.
+MAX_SCAN_BYTES = 2**30
 MAX_ARRAY_VALUES = 2**28  # 1 GiB of float32 per array: 4 taps x 4 frequencies x 4096 x 4096
 
 
-class ScanError(MpiLidarError):
+class ScanError(StoreError):
     """A scan that cannot be read or used."""
 
 
@@ -94,6 +98,9 @@ def validate(scan: Scan, source: str) -> Scan:
     f = len(scan.frequencies_hz)
     if f == 0 or any(not np.isfinite(x) or x <= 0 for x in scan.frequencies_hz):
         raise ScanError(f"{source}: frequencies_hz must be positive numbers, got {list(scan.frequencies_hz)}")
+    if len(set(scan.frequencies_hz)) != f:
+        raise ScanError(f"{source}: frequencies_hz has duplicates {list(scan.frequencies_hz)}; each frequency "
+                        "is measured once")
     depth, amplitude = np.asarray(scan.depth), np.asarray(scan.amplitude)
     if depth.ndim != 3 or depth.shape[0] != f:
         raise ScanError(f"{source}: depth must have shape (F={f}, H, W), got {depth.shape}")
@@ -114,6 +121,13 @@ def validate(scan: Scan, source: str) -> Scan:
     _check_optional(source, "reference_depth", scan.reference_depth, (h, w))
     _check_optional(source, "reference_mask", scan.reference_mask, (h, w))
     _check_optional(source, "taps", scan.taps, (f, 4, h, w))
+    if scan.reference_mask is not None and np.asarray(scan.reference_mask).dtype != np.bool_:
+        raise ScanError(f"{source}: reference_mask must be boolean, got {np.asarray(scan.reference_mask).dtype}; "
+                        "store it as bool (True where the reference holds)")
+    for name in ("azimuth_rad", "elevation_rad", "ray_directions", "reference_depth", "taps"):
+        value = getattr(scan, name)
+        if value is not None and not np.issubdtype(np.asarray(value).dtype, np.floating):
+            raise ScanError(f"{source}: {name} must be floating point, got {np.asarray(value).dtype}")
     return replace(scan, depth=depth.astype(np.float32, copy=False), amplitude=amplitude.astype(np.float32, copy=False))
 
 
@@ -125,6 +139,9 @@ def _check_optional(source: str, name: str, array: NDArray | None, shape: tuple[
 def from_taps(name: str, frequencies_hz: tuple[float, ...], taps: NDArray, c: float, **optional: object) -> Scan:
     """A scan from raw taps (F, 4, H, W), demodulated with eq 5-7 (float64 differencing)."""
     taps = np.asarray(taps)
+    if taps.ndim != 4 or taps.shape[:2] != (len(frequencies_hz), 4) or not np.issubdtype(taps.dtype, np.floating):
+        raise ScanError(f"{name}: taps must be floating point of shape (F={len(frequencies_hz)}, 4, H, W), got "
+                        f"{taps.dtype}{taps.shape}")
     moved = np.moveaxis(taps, 1, -1)  # (F, H, W, 4)
     freqs = np.asarray(frequencies_hz)[:, None, None]
     depth, amplitude = demod.depth_and_amplitude(moved, freqs, c)
@@ -157,8 +174,13 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
             if value is not None:
                 group.create_array(name, data=np.asarray(value), dimension_names=dims)
         group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": [float(f) for f in scan.frequencies_hz],
-                            "name": scan.name, "scene": scan.scene})
+                            "name": scan.name, "scene": scan.scene, "chunk_sha256": store_fingerprints(group)})
     return path
+
+
+def store_fingerprints(group: zarr.Group) -> dict[str, list[str]]:
+    """Fingerprints of every chunk of every array of a store just written (read back, so exactly as stored)."""
+    return {name: array_fingerprints(group[name][...], group[name].chunks) for name in sorted(group.array_keys())}
 
 
 def read_scan(path: str | Path, c: float = 3.0e8) -> Scan:
@@ -177,18 +199,24 @@ def read_scan(path: str | Path, c: float = 3.0e8) -> Scan:
     try:
         _check_declared_sizes(path, group, members)
         frequencies = tuple(float(f) for f in attrs["frequencies_hz"])
-        optional = {name: group[name][...] for name in OPTIONAL_ARRAYS if name in members}
+        fingerprints = attrs.get("chunk_sha256")  # absent in scans written before fingerprints existed
+        fingerprints = fingerprints if isinstance(fingerprints, dict) else {}
+
+        def read(name: str) -> NDArray:
+            return verify_array(group[name], fingerprints.get(name), str(path), name)
+
+        optional = {name: read(name) for name in OPTIONAL_ARRAYS if name in members}
         name = str(attrs.get("name") or path.name.removesuffix(SCAN_SUFFIX))
         scene = attrs.get("scene") or {}
         if {"depth", "amplitude"} <= members:
-            scan = Scan(name=name, frequencies_hz=frequencies, depth=group["depth"][...],
-                        amplitude=group["amplitude"][...], scene=scene, **optional)
+            scan = Scan(name=name, frequencies_hz=frequencies, depth=read("depth"), amplitude=read("amplitude"),
+                        scene=scene, **optional)
         elif "taps" in members:
             taps = optional.pop("taps")
             scan = from_taps(name, frequencies, taps, c, scene=scene, **optional)
         else:
             raise ScanError(f"{path} has neither depth+amplitude nor taps; it is truncated or not a scan")
-    except ScanError:
+    except StoreError:  # ScanError and IntegrityError: already one clear line
         raise
     except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:  # codecs raise RuntimeError
         reason = str(exc).splitlines()[0] if str(exc) else ""
@@ -197,12 +225,21 @@ def read_scan(path: str | Path, c: float = 3.0e8) -> Scan:
 
 
 def _check_declared_sizes(path: Path, group: zarr.Group, members: set[str]) -> None:
-    """Refuse arrays whose declared shape is beyond any scan before reading them (a damaged or hostile store)."""
+    """Refuse a store whose declared arrays exceed the memory budget, before allocating anything.
+
+    A damaged or hostile store can declare 4 x 8000 x 8000 pixels in a few hundred bytes of metadata.
+    """
+    total = 0
     for name in members:
-        shape = group[name].shape
-        if int(np.prod(shape, dtype=np.float64)) > MAX_ARRAY_VALUES:
-            raise ScanError(f"{path}: array {name!r} declares shape {shape}, more than the {MAX_ARRAY_VALUES:,} "
-                            "values a scan array may hold; the store is damaged")
+        array = group[name]
+        values = float(np.prod(array.shape, dtype=np.float64))
+        if values > MAX_ARRAY_VALUES:
+            raise ScanError(f"{path}: array {name!r} declares shape {array.shape}, more than the "
+                            f"{MAX_ARRAY_VALUES:,} values a scan array may hold; the store is damaged")
+        total += values * array.dtype.itemsize
+    if total > MAX_SCAN_BYTES:
+        raise ScanError(f"{path}: its arrays declare {total / 2**30:.1f} GiB, more than the {MAX_SCAN_BYTES / 2**30:g} "
+                        "GiB a scan may hold in memory; split the scan into smaller ones")
 
 
 def import_arrays(

@@ -33,10 +33,12 @@ from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import SensorModel, make_sensor
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
+from mpi_lidar.storage.integrity import FINGERPRINT_BYTES, check_fingerprint, fingerprint, read_chunk
 
 SCHEMA = "mpi-lidar/dataset@1"
 SPLIT_CODES = {"train": 0, "test": 1}
-ARRAYS = ("features", "target", "theta", "split", "chunk_done")
+DATA_ARRAYS = ("features", "target", "theta", "split")
+ARRAYS = (*DATA_ARRAYS, "chunk_done", "chunk_sha256")
 # Stream of the seed tree reserved for summary statistics, apart from the chunk streams (seed, i).
 SUMMARY_STREAM = (1, 0)
 CHUNK_RETRIES = 2
@@ -148,6 +150,10 @@ def _build_layout(path: Path, config: Config) -> None:
     group["target"].attrs["units"] = "m"
     group.create_array("chunk_done", shape=(plan.chunks,), chunks=(1,), dtype="uint8", fill_value=0,
                        dimension_names=("chunk",))
+    # One row of fingerprints per chunk, written with its completion mark (mpi_lidar.storage.integrity).
+    group.create_array("chunk_sha256", shape=(plan.chunks, len(DATA_ARRAYS), FINGERPRINT_BYTES),
+                       chunks=(1, len(DATA_ARRAYS), FINGERPRINT_BYTES), dtype="uint8", fill_value=0,
+                       dimension_names=("chunk", "array", "byte"))
     group.attrs.update(_root_attributes(config))
 
 
@@ -208,6 +214,8 @@ def _check_layout(path: Path, group: zarr.Group, attrs: dict[str, object]) -> No
             "theta": ((n, len(THETA_NAMES)), np.float64), "split": ((n,), np.uint8),
             "chunk_done": ((chunks,), np.uint8),
         }
+        if "chunk_sha256" in group:
+            expected["chunk_sha256"] = ((chunks, len(DATA_ARRAYS), FINGERPRINT_BYTES), np.uint8)
         for name, (shape, dtype) in expected.items():
             array = group[name]
             if array.shape != shape or array.dtype != dtype:
@@ -256,6 +264,10 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
     group["target"][rows] = chunk.target
     group["theta"][rows] = chunk.theta
     group["split"][rows] = chunk.split
+    if "chunk_sha256" in group:  # stores written before fingerprints existed have none
+        group["chunk_sha256"][index] = np.stack([
+            np.frombuffer(fingerprint(np.asarray(getattr(chunk, name), dtype=group[name].dtype)), dtype=np.uint8)
+            for name in DATA_ARRAYS])
     group["chunk_done"][index] = 1
     return True
 
@@ -385,8 +397,71 @@ class LazyDataset:
 def read_lazy(path: str | Path) -> LazyDataset:
     """Open a complete dataset as dask arrays (for training on a cluster)."""
     info = _complete_info(path)
-    arrays = {name: da.from_zarr(str(path), component=name) for name in ("features", "target", "theta", "split")}
+    group = open_store(path)
+    fingerprints = chunk_fingerprints(group)
+    arrays = {name: _verified_lazy(path, group[name], k, fingerprints) for k, name in enumerate(DATA_ARRAYS)}
     return LazyDataset(info=info, **arrays)
+
+
+def chunk_fingerprints(group: zarr.Group) -> NDArray[np.uint8] | None:
+    """The fingerprints (chunks, arrays, 32) recorded by :func:`write_chunk`; None for older stores."""
+    return group["chunk_sha256"][:] if "chunk_sha256" in group else None
+
+
+def _verified_lazy(path: str | Path, array: zarr.Array, k: int, fingerprints: NDArray | None) -> da.Array:
+    """A dask array whose every block is read and checked against its fingerprint where it is computed."""
+    chunks = da.core.normalize_chunks(array.chunks, array.shape)
+    return da.map_blocks(_load_verified_block, dtype=array.dtype, chunks=chunks, path=str(path),
+                         array_name=array.basename, k=k, fingerprints=fingerprints,
+                         meta=np.empty((0,) * array.ndim, dtype=array.dtype))
+
+
+def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArray | None, block_info=None) -> NDArray:
+    info = block_info[None]
+    where = tuple(slice(start, stop) for start, stop in info["array-location"])
+    index = info["chunk-location"][0]
+    values = read_chunk(zarr.open_group(store=path, mode="r")[array_name], where, path, array_name, index)
+    if fingerprints is not None:
+        check_fingerprint(values, fingerprints[index, k], path, array_name, index)
+    return values
+
+
+def read_verified_chunk(path: str | Path, group: zarr.Group, index: int, fingerprints: NDArray | None,
+                        names: tuple[str, ...] = DATA_ARRAYS) -> dict[str, NDArray]:
+    """The rows of chunk ``index`` of the named arrays, each checked against its fingerprint."""
+    rows = slice(index * group["target"].chunks[0], (index + 1) * group["target"].chunks[0])
+    out = {}
+    for name in names:
+        array = group[name]
+        where = (rows,) + (slice(None),) * (array.ndim - 1)
+        values = read_chunk(array, where, str(path), name, index)
+        if fingerprints is not None:
+            check_fingerprint(values, fingerprints[index, DATA_ARRAYS.index(name)], str(path), name, index)
+        out[name] = values
+    return out
+
+
+def read_verified(path: str | Path, names: tuple[str, ...] = DATA_ARRAYS,
+                  on_chunk: Callable[[dict[str, NDArray]], dict[str, NDArray]] | None = None) -> dict[str, NDArray]:
+    """Whole arrays of a store, streamed chunk by chunk and each chunk verified; ``on_chunk`` may reduce a chunk."""
+    group = open_store(path)
+    fingerprints = chunk_fingerprints(group)
+    done = completed_chunks(group)
+    parts: dict[str, list[NDArray]] = {name: [] for name in names}
+    for index in range(done.size):
+        chunk = read_verified_chunk(path, group, index, fingerprints if done[index] else None, names)
+        if on_chunk is not None:
+            chunk = on_chunk(chunk)
+        for name in names:
+            parts[name].append(chunk[name])
+    return {name: np.concatenate(parts[name]) for name in names}
+
+
+def verify_dataset(path: str | Path) -> int:
+    """Check every chunk of a complete dataset store against its fingerprint; the number of chunks checked."""
+    info = _complete_info(path)
+    read_verified(path, on_chunk=lambda chunk: {name: values[:0] for name, values in chunk.items()})
+    return info.chunks
 
 
 @dataclass(frozen=True)
@@ -405,24 +480,30 @@ def read_subsample(
 ) -> Subsample:
     """Read the rows of ``split`` ("train", "test" or "all"), or a seeded random ``max_rows`` of them."""
     info = _complete_info(path)
-    group = open_store(path)
-    if split == "all":
-        rows = np.arange(info.samples)
-    elif split in SPLIT_CODES:
-        rows = np.flatnonzero(group["split"][:] == SPLIT_CODES[split])
-    else:
+    if split not in (*SPLIT_CODES, "all"):
         raise StoreError(f"unknown split {split!r}; choose train, test or all")
+    split_codes = read_verified(path, ("split",))["split"]
+    rows = np.arange(info.samples) if split == "all" else np.flatnonzero(split_codes == SPLIT_CODES[split])
     if max_rows is not None and max_rows < rows.size:
         rows = np.sort(np.random.default_rng(seed).choice(rows, size=max_rows, replace=False))
     if rows.size == 0:
         raise StoreError(f"dataset {path} has no {split} rows")
-    try:
-        arrays = {name: group[name].get_orthogonal_selection((rows, slice(None)) if group[name].ndim == 2 else rows)
-                  for name in ("features", "target", "theta")}
-    except (RuntimeError, ValueError) as exc:  # a truncated or corrupted chunk fails in its codec
-        raise StoreError(f"dataset {path} has a damaged chunk ({type(exc).__name__}: "
-                         f"{str(exc).splitlines()[0] if str(exc) else ''}); regenerate it") from None
+    arrays = _rows_verified(path, rows, ("features", "target", "theta"))
     return Subsample(info=info, rows=rows, **arrays)
+
+
+def _rows_verified(path: str | Path, rows: NDArray[np.int64], names: tuple[str, ...]) -> dict[str, NDArray]:
+    """The given sorted rows of the named arrays, read chunk by chunk, every chunk touched verified."""
+    group = open_store(path)
+    fingerprints = chunk_fingerprints(group)
+    chunk_rows = group["target"].chunks[0]
+    parts: dict[str, list[NDArray]] = {name: [] for name in names}
+    for index in np.unique(rows // chunk_rows):
+        chunk = read_verified_chunk(path, group, int(index), fingerprints, names)
+        local = rows[(rows // chunk_rows) == index] - index * chunk_rows
+        for name in names:
+            parts[name].append(chunk[name][local])
+    return {name: np.concatenate(parts[name]) for name in names}
 
 
 # --- summary --------------------------------------------------------------------------------------------
@@ -467,11 +548,11 @@ def summarize(path: str | Path, noise_only_rows: int = 200_000) -> DatasetSummar
     group = open_store(path)
     config = store_config(group)
     n_freq = len(config.frequencies_hz)
-    depth = group["features"][:, :n_freq].astype(np.float64)
-    error = depth - group["target"][:][:, None]
-    split = group["split"][:]
+    stored = read_verified(path)
+    error = stored["features"][:, :n_freq].astype(np.float64) - stored["target"][:, None]
+    split = stored["split"]
     rows = min(noise_only_rows, config.dataset.samples)
-    theta = group["theta"][:rows]
+    theta = stored["theta"][:rows]
     clean_depth, _ = cached_sensor(config).measure(theta, seeded_rng(config.dataset.seed, *SUMMARY_STREAM),
                                                    multipath=False)
     noise_error = clean_depth - theta[:, :1]
