@@ -19,7 +19,7 @@ lint: $(VENV)/.installed
 	$(VENV)/bin/lint-imports
 
 bench: $(VENV)/.installed
-	$(VENV)/bin/python -m benchmarks.sensor_speed
+	$(VENV)/bin/python -m benchmarks.sensor
 
 # uv installs exactly what uv.lock pins; it is bootstrapped into .venv with the interpreter's own pip.
 $(VENV)/.installed: pyproject.toml uv.lock

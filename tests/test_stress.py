@@ -129,7 +129,7 @@ def test_phase_from_taps__float32_taps_with_dc_lose_at_most_their_storage_precis
     assert error <= 2.0**-22 * (dc_over_amplitude + 1) + 1e-12
     assert abs((demod.phase_from_taps(taps64) - phase + np.pi) % (2 * np.pi) - np.pi) <= 1e-15 * (
         dc_over_amplitude + 1) * 8 + 1e-15
-    # the DESIGN.md claim: a DC 1e4 times the swing costs float32 taps up to ~1 mm at 31.25 MHz
+    # the documented float32 pitfall: a DC 1e4 times the swing costs float32 taps up to ~1 mm at 31.25 MHz
     if dc_over_amplitude > 1e4:
         assert 2.0**-22 * dc_over_amplitude * C / (4 * np.pi * FREQS[3]) > 1e-3
 

@@ -32,6 +32,7 @@ from sqlalchemy.engine import make_url
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.train import BASE_PARAMS, check_dataset_matches, training_geometry
+from mpi_lidar.redact import MASK, SECRET_KEYS, redact
 from mpi_lidar.simulation import dataset
 
 DEFAULT_TRIALS = 30
@@ -85,7 +86,7 @@ def normalise_storage_url(url: str) -> str:
 def masked(url: str) -> str:
     """The storage URL with any password replaced by ***, for messages and logs."""
     try:
-        return make_url(url).render_as_string(hide_password=True)
+        return redact(make_url(url).render_as_string(hide_password=True))
     except sqlalchemy.exc.ArgumentError:
         return "<unparseable storage URL>"
 
@@ -104,10 +105,14 @@ def _storage(url: str) -> optuna.storages.RDBStorage:
 
 def _strip_password(text: str, url: str) -> str:
     try:
-        password = make_url(url).password
+        parsed = make_url(url)
     except sqlalchemy.exc.ArgumentError:
-        return text
-    return text.replace(password, "***") if password else text
+        return redact(text)
+    secrets = [parsed.password, *(v for k, v in parsed.query.items() if k.lower() in SECRET_KEYS)]
+    for secret in secrets:
+        for value in ([secret] if isinstance(secret, str) else list(secret or ())):
+            text = text.replace(value, MASK) if value else text
+    return redact(text)
 
 
 def open_study(storage_url: str, study_name: str, settings: TuneSettings) -> optuna.Study:

@@ -22,7 +22,7 @@ from mpi_lidar.correction import (
 from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.reporting.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
 from mpi_lidar.scans import geometry
-from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.scan import Scan, store_fingerprints
 from mpi_lidar.storage.atomic import atomic_path
 
 FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d"]
@@ -167,7 +167,8 @@ def _write_corrected_store(path: Path, scan: Scan, correction: Correction, ident
         group.create_array("multipath_bias_m", data=correction.multipath_bias_m, dimension_names=("y", "x"))
     group.attrs.update({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
                         "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},
-                        "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz)})
+                        "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz),
+                        "chunk_sha256": store_fingerprints(group)})
 
 
 def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]], notes: list[str],

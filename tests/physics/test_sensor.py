@@ -1,4 +1,4 @@
-"""Detector chain (paper eq 16-30), calibration constants of DESIGN.md section 5, and the noiseless sensor."""
+"""Detector chain (paper eq 16-30), calibration constants that make Table I self-consistent, and the noiseless sensor."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def chain(**simulator: object) -> DetectorChain:
     return DetectorChain.from_config(config.sensor, config.simulator)
 
 
-# --- reference values of DESIGN.md section 5 -------------------------------------------------------------
+# --- calibration reference values ----------------------------------------------------------------------
 
 
 def test_photon_energy__eq17_reference_value():
@@ -232,7 +232,7 @@ def test_measure__noiseless_depth_near_phase_wrap_points(noiseless, scene, fidel
 
 
 def test_measure__noiseless_depth_matches_direct_bin_sum(noiseless, reciprocal_scene, fidelity):
-    """Independent re-derivation from DESIGN.md section 5: x(t_i), V_i = g x_i, C_n = (m/K) sum V_i cos(...)."""
+    """Independent re-derivation of the calibration: x(t_i), V_i = g x_i, C_n = (m/K) sum V_i cos(...)."""
     theta = reciprocal_scene(np.array([1.4, 1.9, 2.4]), rho=np.array([1.0, 0.3, 0.14]),
                              d_ab=np.array([0.0, 0.05, 0.15]), rho_aba=np.array([0.0, 0.5, 1.0]))
     depth, amplitude = make_sensor(noiseless(fidelity)).measure(theta, np.random.default_rng(0))
@@ -251,7 +251,7 @@ def test_measure__noiseless_depth_matches_direct_bin_sum(noiseless, reciprocal_s
             assert amplitude[row, j] == pytest.approx(np.hypot(taps[3] - taps[1], taps[2] - taps[0]) / 2, rel=1e-8)
 
 
-# --- noise level of DESIGN.md section 5 -----------------------------------------------------------------
+# --- noise level at the reference point -------------------------------------------------------------------
 
 
 def _analytic_depth_std(sensor: MomentSensor, theta: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Scene-parameter priors, chunk seeding, and the prior's raw-error statistics of DESIGN.md section 5."""
+"""Scene-parameter priors, chunk seeding, and the prior's raw-error statistics."""
 
 from __future__ import annotations
 
@@ -166,7 +166,7 @@ def test_simulate_chunk__independent_of_other_chunks():
     assert chunk_bytes(dataset.simulate_chunk(reseeded, 1))[2] != alone[2]
 
 
-# --- DESIGN.md section 5: the default reciprocal prior gives the paper's raw MAE -------------------------------
+# --- the default reciprocal prior gives the paper's raw MAE -------------------------------
 
 
 @pytest.fixture(scope="module")
