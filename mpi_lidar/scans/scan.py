@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -252,7 +253,7 @@ def import_arrays(
         raise ScanError(f"{name}: unknown arrays {unknown}; expected some of {sorted(known)}")
     optional = {k: np.asarray(v) for k, v in arrays.items() if k in OPTIONAL_ARRAYS and k != "taps"}
     if "reference_mask" in optional:
-        optional["reference_mask"] = optional["reference_mask"].astype(bool)
+        optional["reference_mask"] = _boolean_mask(name, optional["reference_mask"])
     if "depth" in arrays and "amplitude" in arrays:
         scan = Scan(name=name, frequencies_hz=tuple(frequencies_hz), depth=np.asarray(arrays["depth"]),
                     amplitude=np.asarray(arrays["amplitude"]), taps=arrays.get("taps"), **optional)
@@ -263,16 +264,59 @@ def import_arrays(
     return validate(scan, name)
 
 
+def _boolean_mask(name: str, mask: NDArray) -> NDArray[np.bool_]:
+    """A 0/1 mask of any numeric type as booleans; anything else is refused rather than guessed."""
+    if mask.dtype != np.bool_ and not (np.issubdtype(mask.dtype, np.number) and np.isin(mask, (0, 1)).all()):
+        raise ScanError(f"{name}: reference_mask must be boolean or 0/1, got {mask.dtype} with other values")
+    return mask.astype(bool)
+
+
 def load_npz(path: str | Path, frequencies_hz: tuple[float, ...] | None = None) -> Scan:
-    """Import an ``.npz`` archive (arrays named as in the scan store; frequencies_hz inside or given)."""
+    """Import an ``.npz`` archive (arrays named as in the scan store; frequencies_hz inside or given).
+
+    Every member's header is checked (dtype, declared size against the memory budget) before any array
+    is read, so a damaged or hostile archive is refused without allocating what it claims.
+    """
     path = Path(path)
+    _check_npz_headers(path)
     try:
         with np.load(path, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
-    except (OSError, ValueError) as exc:
-        raise ScanError(f"{path} is not a readable .npz archive ({exc})") from None
+    except Exception as exc:  # zipfile, numpy and OS errors of a damaged archive
+        raise ScanError(f"{path} is not a readable .npz archive ({type(exc).__name__}: {exc})") from None
     stored = arrays.pop("frequencies_hz", None)
     if frequencies_hz is None and stored is None:
         raise ScanError(f"{path} holds no frequencies_hz array; pass --frequencies")
-    freqs = tuple(float(f) for f in (frequencies_hz if frequencies_hz is not None else stored))
-    return import_arrays(path.name.removesuffix(".npz"), freqs, arrays)
+    freqs = frequencies_hz if frequencies_hz is not None else _stored_frequencies(path, stored)
+    return import_arrays(path.name.removesuffix(".npz"), tuple(float(f) for f in freqs), arrays)
+
+
+def _stored_frequencies(path: Path, stored: NDArray) -> NDArray:
+    if stored.ndim != 1 or stored.size == 0 or not np.issubdtype(stored.dtype, np.number):
+        raise ScanError(f"{path}: frequencies_hz must be a 1-D array of numbers in Hz, got "
+                        f"{stored.dtype}{stored.shape}; pass --frequencies instead")
+    return stored
+
+
+def _check_npz_headers(path: Path) -> None:
+    """Refuse members that are not plain numeric arrays, or that declare more than a scan may hold."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            total = 0.0
+            for info in archive.infolist():
+                with archive.open(info) as member:
+                    version = np.lib.format.read_magic(member)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(member)
+                if dtype.hasobject or dtype.kind not in "biuf":
+                    raise ScanError(f"{path}: member {info.filename} has dtype {dtype}; only numbers and booleans "
+                                    "can be imported")
+                total += float(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+    except ScanError:
+        raise
+    except Exception as exc:  # not a zip, a member without an .npy header, a damaged header
+        raise ScanError(f"{path} is not a readable .npz archive ({type(exc).__name__}: {exc})") from None
+    if total > MAX_SCAN_BYTES:
+        raise ScanError(f"{path}: its arrays declare {total / 2**30:.1f} GiB, more than the "
+                        f"{MAX_SCAN_BYTES / 2**30:g} GiB a scan may hold in memory; split the scan into smaller ones")
