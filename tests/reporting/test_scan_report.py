@@ -23,7 +23,7 @@ def test_mean_raster__mean_per_cell_and_nan_where_empty():
 
 
 def test_point_cloud_figure__images_not_markers_for_a_million_points():
-    points = np.random.default_rng(0).normal(size=(1000, 1000, 3)) + [0.0, 0.0, 2.0]
+    points = np.random.default_rng(0).normal(size=(1000, 1000, 3)) + np.array([0.0, 0.0, 2.0])
     points[0, :10] = np.nan  # invalid pixels are left out, not drawn at the origin
     fig = point_cloud_figure(points, points + 0.01)
     views = [ax for ax in fig.axes if ax.get_title()]
