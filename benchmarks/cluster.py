@@ -40,8 +40,8 @@ from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.train import train_and_save
 from mpi_lidar.scans.scan import write_scan
-from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.correct_archive import correct_archive
+from mpi_lidar.workflows.generate import generate
 
 BIN = Path(sys.executable).parent
 
@@ -113,12 +113,12 @@ def main() -> None:
           f"{platform.python_version()}, {date.today()}; work directory {work}\n")
     try:
         data = work / "dataset.zarr"
-        local_gen = timed(lambda: dataset.generate(work / "local.zarr", config))
+        local_gen = timed(lambda: generate(work / "local.zarr", config))
         archive = small_scans(work / "archive", args.scans)
         with process_cluster(2) as address, Client(address) as client:
             warm = config.replace(dataset={"samples": 400, "chunk_rows": 100})
-            dataset.generate(work / "warm.zarr", warm, client)  # imports and sensor caches in every worker
-            cluster_gen = timed(lambda: dataset.generate(data, config, client))
+            generate(work / "warm.zarr", warm, client)  # imports and sensor caches in every worker
+            cluster_gen = timed(lambda: generate(data, config, client))
             model, _ = train_and_save(client, data, work / "model", FeatureSpec(config.frequencies_hz),
                                       {"max_depth": 6, "learning_rate": 0.3}, num_boost_round=100)
             cluster_correct = timed(lambda: correct_archive([str(archive)], model, work / "out-cluster",

@@ -16,19 +16,19 @@ from datetime import date
 from pathlib import Path
 
 from mpi_lidar.config import PAPER_SAMPLES, preset
-from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.cluster import dask_client
+from mpi_lidar.workflows.generate import GenerationReport, generate
 
 
 def peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def run(client, root: Path, name: str, **overrides: object) -> dataset.GenerationReport:
+def run(client, root: Path, name: str, **overrides: object) -> GenerationReport:
     config = preset("paper").replace(**overrides)
     path = root / f"{name}.zarr"
     try:
-        return dataset.generate(path, config, client)
+        return generate(path, config, client)
     finally:
         shutil.rmtree(path, ignore_errors=True)
 

@@ -26,6 +26,7 @@ import numpy as np
 from mpi_lidar.config import Config
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
 from mpi_lidar.learning.model import load_model
+from mpi_lidar.physics.coupling import footprint_area
 from mpi_lidar.scans.geometry import multipath_potential
 from mpi_lidar.scans.scan import Scan, grid_rays
 from mpi_lidar.simulation.scenes import (
@@ -68,8 +69,8 @@ def scene_set() -> list[tuple[str, Callable[[], Scene], tuple[float, float] | No
     return scenes
 
 
-# footprint_area_m2 of a sensor with footprint radius r: this gain times pi r^2 (geometry.DEFAULT_FOOTPRINT_AREA_M2).
-MATCHED_FOOTPRINT_GAIN = 90.0
+# footprint_area_m2 of a sensor with footprint radius r: this gain times pi r^2 (physics.coupling.footprint_area).
+MATCHED_FOOTPRINT_GAIN = DEFAULT_COUPLING_GAIN
 
 
 def external_corner(footprint_radius_m: float, config: Config, rng: np.random.Generator) -> Scan:
@@ -143,7 +144,7 @@ def main() -> None:
     config = Config()
     models = {path: load_model(path) for path in args.model}
     print(f"Machine: {platform.node()} ({platform.machine()}), {date.today()}; models "
-          + ", ".join(f"{p} ({m.booster.num_boosted_rounds()} trees, prior {m.card['dataset']['prior']})"
+          + ", ".join(f"{p} ({m.booster.num_boosted_rounds()} trees, prior {m.card.dataset.prior.model_dump()})"
                       for p, m in models.items()) + "\n")
     print("| scene | model | gate | min bias [mm] | gated out | raw MAE [mm] | corrected MAE [mm] | masked raw "
           "[mm] | masked corrected [mm] | edge raw [mm] | edge corrected [mm] | gate ms |")
@@ -153,7 +154,7 @@ def main() -> None:
         items.append((label, render(factory(), config, np.random.default_rng([args.seed, index])), edge, None))
     for k, radius in enumerate((0.004, DEFAULT_FOOTPRINT_RADIUS_M * 2)):
         scan = external_corner(radius, config, np.random.default_rng([args.seed, 100 + k]))
-        area = MATCHED_FOOTPRINT_GAIN * np.pi * radius**2 if args.matched_footprint else None
+        area = footprint_area(radius, MATCHED_FOOTPRINT_GAIN) if args.matched_footprint else None
         items.append((f"external corner 90 deg, footprint {radius * 1e3:g} mm", scan, _edge(2.0), area))
     for label, scan, edge, footprint_area_m2 in items:
         for path, model in models.items():

@@ -20,8 +20,9 @@ import numpy as np
 
 from mpi_lidar.config import Config
 from mpi_lidar.learning.features import FEATURE_SETS, TARGET_MODES, FeatureSpec
-from mpi_lidar.learning.train import DEFAULT_PARAMS
-from mpi_lidar.workflows.bench import TEST_STREAM, TRAIN_STREAM, fit_xgboost, mae, simulate
+from mpi_lidar.learning.model import booster_depth
+from mpi_lidar.learning.train import DEFAULT_PARAMS, train_arrays
+from mpi_lidar.workflows.bench import TEST_STREAM, TRAIN_STREAM, mae, reference_xgboost, simulate
 
 
 def features(train_rows: int, test_rows: int, noise_scales: list[float], sets: list[str], modes: list[str],
@@ -37,19 +38,18 @@ def features(train_rows: int, test_rows: int, noise_scales: list[float], sets: l
         for feature_set in sets:
             for mode in modes:
                 spec = FeatureSpec(config.frequencies_hz, feature_set, mode)
-                booster, fit_s = fit_xgboost(spec.transform(train.raw), spec.target(train.raw, train.target),
-                                             {**DEFAULT_PARAMS, **({"objective": objective} if objective else {})},
-                                             4000, early_stopping=early_stopping, nthread=nthread)
-                pred = booster.inplace_predict(spec.transform(test.raw)).astype(np.float64)
-                err = mae(spec.depth(test.raw, pred), test.target)
-                print(f"| {noise:g} | {feature_set} | {mode} | {booster.num_boosted_rounds()} | {fit_s:.1f} "
+                fitted = train_arrays(*train.inputs(spec),
+                                      {**DEFAULT_PARAMS, **({"objective": objective} if objective else {})},
+                                      4000, early_stopping_rounds=early_stopping, nthread=nthread)
+                booster = fitted.booster
+                err = mae(booster_depth(booster, spec, test.raw), test.target)
+                print(f"| {noise:g} | {feature_set} | {mode} | {booster.num_boosted_rounds()} | {fitted.wall_s:.1f} "
                       f"| {1e3 * err:.3f} |", flush=True)
 
 
 def limit(train_rows: int, test_rows: int, noise_scales: list[float], seed: int = 5) -> None:
     from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE
     from mpi_lidar.learning.limits import posterior_estimates
-    from mpi_lidar.workflows.bench import booster_depth, reference_xgboost
 
     config = Config()
     spec = FeatureSpec(config.frequencies_hz, DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE)
@@ -59,7 +59,7 @@ def limit(train_rows: int, test_rows: int, noise_scales: list[float], seed: int 
     for noise in noise_scales:
         train = simulate(config, train_rows, TRAIN_STREAM, noise_scale=noise)
         test = simulate(config, test_rows, TEST_STREAM + 7, noise_scale=noise)
-        booster, _ = reference_xgboost(spec, train)
+        booster = reference_xgboost(spec, train).booster
         post = posterior_estimates(test.raw.astype(np.float64), config.replace(simulator={"noise_scale": noise}),
                                    np.random.default_rng(seed))
         ex = np.abs(booster_depth(booster, spec, test.raw) - test.target)

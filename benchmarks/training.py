@@ -15,9 +15,8 @@ import time
 from datetime import date
 from pathlib import Path
 
-import numpy as np
-
 from mpi_lidar.learning import tune
+from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.learning.train import train_and_save
@@ -41,7 +40,7 @@ def main() -> None:
         with dask_client(workers=2) as client:
             _, result = train_and_save(client, args.data, scratch / "model", spec)
         test = dataset.read_subsample(args.data, split="test")
-        mae = np.abs(load_model(scratch / "model").predict_depth(test.features) - test.target).mean()
+        mae = error_metrics(load_model(scratch / "model").predict_depth(test.features), test.target).mae_m
         print("| final training (2 workers) | rows | trees | wall [s] | test MAE [mm] |\n|---|---|---|---|---|")
         print(f"| xgboost.dask, default parameters | {result.fit_rows:,} | {result.best_iteration + 1} | "
               f"{result.wall_s:.1f} | {1e3 * mae:.3f} |\n")

@@ -1,44 +1,38 @@
 """Prefect flow: correct an archive of scans, one task per scan on a Dask cluster.
 
-The library does the work (:func:`mpi_lidar.workflows.correct_archive.process_scan` reads, corrects and
-writes one scan's
-outputs atomically, and turns a bad scan into a 'failed' outcome with its reason); this flow makes each scan
-a task, writes the batch summary, and publishes it and every scan's metrics as artifacts. A scan already
-corrected with the same model and options is skipped. The flow ends Failed when any scan failed, after all
-the others were corrected and the summary was written, so nothing is lost and nothing failed silently.
+The library does the work: :func:`mpi_lidar.workflows.correct_archive.correct_archive`, the same call as
+``mpi-lidar correct``, checks the model and the gate, removes the staging an interrupted run left, and runs
+:func:`~mpi_lidar.workflows.correct_archive.process_scan` once per scan (it reads, corrects and writes one
+scan's outputs atomically, and turns a bad scan into a 'failed' outcome with its reason) on a
+:class:`flows.runtime.PrefectExecutor`, so each scan is a run of :data:`correct_scan_task`. This flow adds
+the tasks, the batch summary and the artifacts of it and of every scan's metrics. A scan already corrected
+with the same model and options is skipped. The flow ends Failed when any scan failed, after all the others
+were corrected and the summary was written, so nothing is lost and nothing failed silently.
 """
 
 from __future__ import annotations
 
 import time
+from typing import Literal
 
 from prefect import flow, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
-from flows.runtime import dask_task_runner, shared_api
+from flows.runtime import PrefectExecutor, dask_task_runner, shared_api
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.scan_report import batch_report, write_batch_report
-from mpi_lidar.workflows.correct_archive import expand_archive, process_scan
+from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
 
 SUMMARY_ARTIFACT_KEY = "correction-summary"
+Gate = Literal["geometry", "all", "consistency"]  # mpi_lidar.correction.GATES, as a parameter schema enum
 
-
-@task(name="list-scans", cache_policy=NO_CACHE)
-def list_scans_task(scans: list[str], model: str) -> list[str]:
-    """The scan stores to correct; a model that cannot be loaded stops the batch before any work."""
-    load_model(model)
-    return expand_archive(scans)
-
-
-@task(name="correct-scan", task_run_name="correct-{source}", cache_policy=NO_CACHE, retries=1,
-      retry_delay_seconds=2)
-def correct_scan_task(source: str, model: str, out: str, options: CorrectionOptions) -> ScanOutcome:
-    """One scan: validity mask, gate, inference, outputs. Retried once for infrastructure failures only."""
-    return process_scan(source, model, out, options)
+# One scan: the library's process_scan itself (validity mask, gate, inference, outputs), as a task run named
+# after its source. A bad scan returns a 'failed' outcome, so the one retry is for infrastructure failures.
+correct_scan_task = task(process_scan, name="correct-scan", task_run_name="correct-{source}",
+                         cache_policy=NO_CACHE, retries=1, retry_delay_seconds=2)
 
 
 @task(name="publish-scan", cache_policy=NO_CACHE)
@@ -62,21 +56,36 @@ def summary_task(outcomes: list[ScanOutcome], wall_s: float, out: str) -> str:
     return markdown
 
 
-@flow(name="correct-archive")
-def correct_archive_flow(scans: list[str], model: str, out: str, gate: str = "geometry", workers: int = 2,
-                         scheduler: str | None = None) -> dict[str, object]:
-    """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``."""
-    options = CorrectionOptions(gate=gate)
-    sources = list_scans_task(scans, model)
+def correct_and_publish(scans: list[str], model: str, out: str, options: CorrectionOptions, workers: int,
+                        scheduler: str | None) -> tuple[list[ScanOutcome], float]:
+    """Inside a flow: correct the scans, publish each outcome and write and publish the batch summary.
+
+    ``workers`` processes of a LocalCluster, or the Dask cluster at ``scheduler``, run the scans; with
+    neither (``workers=0``) they run in the flow's process, as ``mpi-lidar correct --workers 0``. Returns
+    the outcomes, by source, and the seconds the batch took.
+    """
+    runner = dask_task_runner(workers, scheduler) if workers > 0 or scheduler else None
     started = time.perf_counter()
-    with shared_api(), dask_task_runner(workers, scheduler) as runner:
-        futures = [runner.submit(correct_scan_task, {"source": s, "model": model, "out": out, "options": options})
-                   for s in sources]
-        outcomes = sorted((f.result() for f in futures), key=lambda o: o.source)
+    with shared_api(), PrefectExecutor(runner, [correct_scan_task]) as executor:
+        outcomes = correct_archive(scans, model, out, options, executor)
     wall_s = time.perf_counter() - started
     for outcome in outcomes:
         publish_scan_task(outcome)
     summary_task(outcomes, wall_s, out)
+    return outcomes, wall_s
+
+
+@flow(name="correct-archive")
+def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "geometry",
+                         min_bias_mm: float | None = None, footprint_area_m2: float | None = None, workers: int = 2,
+                         scheduler: str | None = None) -> dict[str, object]:
+    """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
+
+    The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm] and ``footprint_area_m2``
+    [m^2] (None keeps the default), ``workers`` (0: in the flow's process) and ``scheduler``.
+    """
+    options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2)
+    outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler)
     failed = [o for o in outcomes if o.status == "failed"]
     result = {"flow_run_id": str(flow_run.id), "wall_s": wall_s,
               "statuses": {o.source: o.status for o in outcomes}}

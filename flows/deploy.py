@@ -22,8 +22,8 @@ from flows.correct import correct_archive_flow
 from flows.regenerate import regenerate_dataset_flow
 from flows.train import train_flow
 from flows.tune import tune_flow
-from mpi_lidar.cli import EXIT_USER_ERROR
 from mpi_lidar.config import PRESETS
+from mpi_lidar.errors import EXIT_USER_ERROR
 
 DEPLOYMENT_NAME = "nightly-regeneration"
 DEFAULT_ROOT = "runs/nightly"
@@ -49,7 +49,11 @@ def build_deployments(
 
 
 def on_demand_deployments(workers: int = 2, scheduler: str | None = None) -> list[RunnerDeployment]:
-    """Tuning, training and archive correction, run when triggered with their data as parameters."""
+    """Tuning, training and archive correction, run when triggered with their data as parameters.
+
+    Every option of the flow (for correction: ``gate``, ``min_bias_mm``, ``footprint_area_m2``, as
+    ``mpi-lidar correct``) is a parameter of its deployment, set with ``--param`` when triggered.
+    """
     cluster: dict[str, object] = {"workers": workers, **({"scheduler": scheduler} if scheduler else {})}
     return [
         tune_flow.to_deployment(name="tune", parameters=cluster, tags=["mpi-lidar", "tuning"],

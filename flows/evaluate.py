@@ -7,10 +7,10 @@ from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 
 from mpi_lidar.learning.baselines import table2
-from mpi_lidar.learning.evaluate import evaluate_model
-from mpi_lidar.learning.model import load_model
-from mpi_lidar.reporting.report import Report, evaluation_report, write_report
+from mpi_lidar.learning.evaluate import Evaluation
+from mpi_lidar.reporting.report import Report, write_report
 from mpi_lidar.reporting.table2 import table2_report
+from mpi_lidar.workflows.pipeline import evaluate_to_report
 
 EVALUATION_ARTIFACT_KEY = "evaluation"
 TABLE2_ARTIFACT_KEY = "table-2"
@@ -23,12 +23,14 @@ def _publish(report: Report, report_dir: str, key: str) -> str:
 
 
 @task(name="evaluate-model", cache_policy=NO_CACHE)
-def evaluate_task(data: str, model: str, report_dir: str, split: str) -> str:
-    """Metrics of raw, weighted and corrected depth, and the error histogram before and after correction."""
-    loaded = load_model(model)
-    report, figures = evaluation_report(evaluate_model(loaded, data, split), loaded.card)
-    write_report(report, report_dir, figures)
-    return _publish(report, report_dir, EVALUATION_ARTIFACT_KEY)
+def evaluate_task(data: str, model: str, report_dir: str, split: str) -> tuple[Evaluation, str]:
+    """Metrics of raw, weighted and corrected depth, and the error histogram before and after correction.
+
+    The report is written as ``mpi-lidar evaluate`` writes it, and published; returns the evaluation and
+    the published markdown.
+    """
+    evaluation, report = evaluate_to_report(data, model, report_dir, split)
+    return evaluation, _publish(report, report_dir, EVALUATION_ARTIFACT_KEY)
 
 
 @task(name="table-2", cache_policy=NO_CACHE)
@@ -40,7 +42,7 @@ def table2_task(data: str, model: str | None, report_dir: str, trials: int, trai
 
 @flow(name="evaluate")
 def evaluate_flow(data: str, model: str, report: str, split: str = "test") -> str:
-    return evaluate_task(data, model, report, split)
+    return evaluate_task(data, model, report, split)[1]
 
 
 @flow(name="table-2")

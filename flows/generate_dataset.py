@@ -1,29 +1,28 @@
 """Prefect flow: generate a labelled dataset, one task per incomplete chunk on a Dask cluster.
 
-The library does the work (:mod:`mpi_lidar.simulation.dataset`, :mod:`mpi_lidar.reporting.report`); this
-flow only makes each step a task so that runs, retries and the summary are visible in Prefect. A
-chunk task that fails is retried twice by Prefect after a short delay; chunks already complete are
-skipped, so a re-run resumes a store.
+The library does the work: :func:`mpi_lidar.workflows.generate.generate` runs the chunk loop (the same as
+``mpi-lidar simulate``) on a :class:`flows.runtime.PrefectExecutor`, so each chunk is a run of
+:data:`write_chunk_task`; :mod:`mpi_lidar.reporting.report` makes the summary. This flow only adds the tasks,
+their retries and the artifact. A chunk task that fails is retried twice by Prefect after a short delay;
+chunks already complete are skipped, so a re-run resumes a store. A complete store starts no cluster.
 """
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from prefect import flow, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
-from prefect_dask import DaskTaskRunner
 
-from flows.runtime import dask_task_runner, describe_workers, shared_api
+from flows.runtime import PrefectExecutor, dask_task_runner, describe_workers, shared_api
 from mpi_lidar.config import Config, config_sha256, resolve_config
 from mpi_lidar.reporting import report
 from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.generate import CHUNK_RETRIES, GenerationReport, generate
 
 SUMMARY_ARTIFACT_KEY = "dataset-summary"
-CHUNK_RETRIES = 2
 CHUNK_RETRY_DELAY_S = 2
 
 
@@ -34,9 +33,10 @@ def histogram_path(out: str | Path) -> Path:
 
 
 @task(name="build-config", cache_policy=NO_CACHE)
-def build_config_task(preset: str, config_file: str | None, samples: int | None, seed: int | None) -> Config:
-    """Preset, then the TOML file, then samples/seed: the same precedence as the CLI."""
-    return resolve_config(config_file, preset, samples=samples, seed=seed)
+def build_config_task(preset: str, config_file: str | None, samples: int | None, seed: int | None,
+                      chunk_rows: int | None = None, fidelity: str | None = None) -> Config:
+    """Preset, then the TOML file, then the options: the same precedence as the CLI."""
+    return resolve_config(config_file, preset, samples=samples, chunk_rows=chunk_rows, seed=seed, fidelity=fidelity)
 
 
 @task(name="create-store", cache_policy=NO_CACHE)
@@ -46,11 +46,9 @@ def create_store_task(out: str, config: Config) -> list[int]:
     return dataset.incomplete_chunks(group)
 
 
-@task(name="write-chunk", task_run_name="write-chunk-{index}", cache_policy=NO_CACHE,
-      retries=CHUNK_RETRIES, retry_delay_seconds=CHUNK_RETRY_DELAY_S)
-def write_chunk_task(path: str, config: Config, index: int) -> bool:
-    """Simulate one chunk into its rows of the store; False when it was already complete."""
-    return dataset.write_chunk(path, config, index)
+# One chunk: the library's write_chunk itself, as a task run named after its chunk, retried by Prefect.
+write_chunk_task = task(dataset.write_chunk, name="write-chunk", task_run_name="write-chunk-{index}",
+                        cache_policy=NO_CACHE, retries=CHUNK_RETRIES, retry_delay_seconds=CHUNK_RETRY_DELAY_S)
 
 
 @task(name="summarize", cache_policy=NO_CACHE)
@@ -66,26 +64,12 @@ def histogram_task(out: str, png: str) -> str:
 
 
 @task(name="publish-summary", cache_policy=NO_CACHE)
-def publish_summary_task(summary: dataset.DatasetSummary, run: dataset.GenerationReport, workers: str) -> str:
+def publish_summary_task(summary: dataset.DatasetSummary, run: GenerationReport, workers: str) -> str:
     """The generation summary as a markdown artifact, under a key that keeps its history across runs."""
     markdown = report.generation_markdown(summary, run, workers)
     create_markdown_artifact(markdown=markdown, key=SUMMARY_ARTIFACT_KEY,
                              description=f"Dataset generation summary of {summary.path}")
     return markdown
-
-
-def write_chunks(runner: DaskTaskRunner, out: str, config: Config, todo: list[int]) -> tuple[list[int], float]:
-    """Run one chunk task per index on the cluster; the chunks written and the seconds spent writing.
-
-    The cluster is started before the clock, so the time (and the throughput) is that of the simulation,
-    as in :func:`mpi_lidar.simulation.dataset.generate`, not of spawning workers.
-    """
-    with runner:
-        _ = runner.client  # start the cluster (or connect to the scheduler) now
-        started = time.perf_counter()
-        futures = {i: runner.submit(write_chunk_task, {"path": out, "config": config, "index": i}) for i in todo}
-        written = [i for i, future in futures.items() if future.result()]
-        return written, time.perf_counter() - started
 
 
 @flow(name="generate-dataset")
@@ -97,22 +81,20 @@ def generate_dataset_flow(
     seed: int | None = None,
     workers: int = 2,
     scheduler: str | None = None,
+    chunk_rows: int | None = None,
+    fidelity: str | None = None,
 ) -> dict[str, object]:
     """Generate (or resume) the dataset store ``out``; publish its raw-error summary and histogram.
 
-    ``workers`` processes of a LocalCluster simulate the chunks, or the Dask cluster at ``scheduler``
-    (``tcp://host:8786``). A complete store is only summarised again: no cluster is started.
+    The options are those of ``mpi-lidar simulate``: ``workers`` processes of a LocalCluster simulate the
+    chunks, or the Dask cluster at ``scheduler`` (``tcp://host:8786``); ``workers=0`` runs them in the flow's
+    process. A complete store is only summarised again: no cluster is started.
     """
-    config = build_config_task(preset, config_file, samples, seed)
-    plan = dataset.SamplingPlan.from_config(config)
-    started = time.perf_counter()
+    config = build_config_task(preset, config_file, samples, seed, chunk_rows, fidelity)
     todo = create_store_task(out, config)
-    store_s = time.perf_counter() - started
-    written, chunks_s = [], 0.0
-    if todo:
-        with shared_api():
-            written, chunks_s = write_chunks(dask_task_runner(workers, scheduler), out, config, todo)
-    run = dataset.GenerationReport(len(written), plan.chunks - len(written), plan.rows_in(written), store_s + chunks_s)
+    runner = dask_task_runner(workers, scheduler) if todo and workers > 0 else None
+    with shared_api(), PrefectExecutor(runner, [write_chunk_task]) as executor:
+        run = generate(out, config, executor)
     summary = summarize_task(out)
     png = histogram_task(out, str(histogram_path(out)))
     publish_summary_task(summary, run, describe_workers(workers, scheduler))

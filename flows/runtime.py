@@ -1,4 +1,5 @@
-"""Where flow runs report to and where their tasks run: one Prefect API per run, a Dask task runner.
+"""Where flow runs report to and where their tasks run: one Prefect API per run, a Dask task runner, and the
+executor through which the library's loops submit the flows' tasks.
 
 Prefect with no ``PREFECT_API_URL`` runs in ephemeral mode: the first API client of a process starts a
 temporary server (:class:`~prefect.server.api.server.SubprocessASGIServer`) for that process alone. A Dask
@@ -10,21 +11,33 @@ process's default temporary server, the very instance ``prefect.get_client()`` s
 (``SubprocessASGIServer()``, keyed by port ``None``), so the flow and its tasks use one server. Its URL then
 goes into the current settings, which Prefect serialises into every task it ships to a Dask worker, and into
 ``os.environ["PREFECT_API_URL"]``, which worker processes spawned from here inherit before they import Prefect.
+
+:class:`PrefectExecutor` is the flows' :class:`~mpi_lidar.workflows.executor.Executor`: the library's loops
+(:func:`mpi_lidar.workflows.generate.generate`, :func:`mpi_lidar.workflows.correct_archive.correct_archive`)
+run each call as a run of the flow's Prefect task for that library function (its name, run names, retries),
+submitted to a :class:`~prefect_dask.DaskTaskRunner`, or run in the flow's process when there is no runner.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
+from typing import Any, Self, TypeVar
 
 from distributed import LocalCluster
+from prefect import Task, task
+from prefect.cache_policies import NO_CACHE
+from prefect.futures import as_completed
 from prefect.server.api.server import SubprocessASGIServer
 from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
 from prefect_dask import DaskTaskRunner
 
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.workflows.executor import Call, Executor
+
+R = TypeVar("R")
 
 API_URL_VARIABLE = "PREFECT_API_URL"
 
@@ -83,7 +96,52 @@ def dask_task_runner(workers: int = 2, scheduler: str | None = None) -> DaskTask
 
 
 def describe_workers(workers: int, scheduler: str | None) -> str:
-    """How the chunks ran, for reports."""
+    """How the chunks ran, for reports (no workers: in the flow's process, as ``mpi-lidar simulate --workers 0``)."""
+    if workers == 0:
+        return "the flow's process"
     if scheduler:
         return f"Dask scheduler {scheduler}"
     return f"LocalCluster, {workers} process{'es' * (workers != 1)} x 1 thread"
+
+
+class PrefectExecutor(Executor):
+    """Each call of a library loop as a run of a Prefect task, on a Dask task runner or in the flow's process.
+
+    ``tasks`` are the flow's tasks made from the library functions themselves (``task(dataset.write_chunk,
+    name="write-chunk", ...)``): a call of ``fn`` runs the task whose ``fn`` it is, so the flow sets the task's
+    name, run names and retries. A function without a task gets a plain one named after it, retried
+    ``retries`` times. Entering the executor starts the runner's cluster (or connects to its scheduler), and
+    leaving it shuts down what it started; without a runner the calls run one after the other in this
+    process, still as task runs of the flow.
+    """
+
+    def __init__(self, runner: DaskTaskRunner | None, tasks: Iterable[Task[..., Any]] = ()) -> None:
+        self.runner = runner
+        self.tasks = {t.fn: t for t in tasks}
+
+    def __enter__(self) -> Self:
+        if self.runner is not None:
+            self.runner.__enter__()
+            _ = self.runner.client  # start the cluster (or connect to the scheduler) now, not in the first map
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        if self.runner is not None:
+            self.runner.__exit__(*exc_info)
+
+    def task_for(self, fn: Callable[..., R], retries: int = 0) -> Task[..., R]:
+        found = self.tasks.get(fn)
+        if found is None:
+            name = getattr(fn, "__name__", "call").replace("_", "-")
+            found = self.tasks[fn] = task(fn, name=name, cache_policy=NO_CACHE, retries=retries)
+        return found
+
+    def map(self, fn: Callable[..., R], calls: Iterable[Call], *, retries: int = 0) -> Iterator[tuple[Call, R]]:
+        run = self.task_for(fn, retries)
+        if self.runner is None:
+            for call in calls:
+                yield call, run(**call)
+            return
+        futures = {self.runner.submit(run, dict(call)): call for call in calls}
+        for future in as_completed(list(futures)):
+            yield futures[future], future.result()

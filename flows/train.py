@@ -11,7 +11,7 @@ from prefect.cache_policies import NO_CACHE
 
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
-from mpi_lidar.learning.model import CARD_FILE
+from mpi_lidar.learning.model import CARD_FILE, read_card
 from mpi_lidar.learning.train import train_and_save
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.cluster import dask_client
@@ -36,11 +36,14 @@ def train_task(data: str, out: str, spec: FeatureSpec, params: dict[str, object]
 
 @task(name="publish-card", cache_policy=NO_CACHE)
 def publish_card_task(model_dir: str) -> str:
-    card = json.loads((Path(model_dir) / CARD_FILE).read_text())
+    card = read_card(Path(model_dir) / CARD_FILE)
+    shown = {"feature_set": card.feature_set, "target_mode": card.target_mode, "geometric": card.geometric,
+             "num_boost_round": card.num_boost_round, "metrics": card.metrics.model_dump(),
+             "training": card.training.model_dump(), "params": card.params}
     lines = ["| card field | value |", "|---|---|"]
-    for key in ("feature_set", "target_mode", "geometric", "num_boost_round", "metrics", "training", "params"):
-        lines.append(f"| {key} | `{json.dumps(card[key], sort_keys=True)}` |")
-    lines.append(f"| dataset | `{card['dataset']['config_sha256'][:12]}` ({card['dataset']['samples']:,} rows) |")
+    for key, value in shown.items():
+        lines.append(f"| {key} | `{json.dumps(value, sort_keys=True)}` |")
+    lines.append(f"| dataset | `{card.dataset.config_sha256[:12]}` ({card.dataset.samples:,} rows) |")
     markdown = "\n".join(lines)
     create_markdown_artifact(markdown=markdown, key=CARD_ARTIFACT_KEY, description=f"Model {model_dir}")
     return markdown

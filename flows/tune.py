@@ -54,4 +54,4 @@ def tune_flow(data: str, storage: str | None = None, study: str = "xgboost", tri
     publish_study_task(storage, study, report_dir)
     return {"trials_run": result.trials_run, "complete": result.complete, "pruned": result.pruned,
             "failed": result.failed, "best_value_m": result.best_value_m, "best_params": result.best_params,
-            "report_dir": report_dir}
+            "wall_s": result.wall_s, "report_dir": report_dir}

@@ -9,7 +9,7 @@ import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from mpi_lidar.config import PRESETS, resolve_config
-from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.errors import EXIT_USER_ERROR, MpiLidarError
 from mpi_lidar.learning.features import (
     DEFAULT_FEATURE_SET,
     DEFAULT_GEOMETRIC,
@@ -18,8 +18,6 @@ from mpi_lidar.learning.features import (
     TARGET_MODES,
     FeatureSpec,
 )
-
-EXIT_USER_ERROR = 2
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -53,17 +51,15 @@ def simulate(
     config = resolve_config(config_file, preset_name, samples=samples, chunk_rows=chunk_rows, seed=seed,
                             fidelity=fidelity)
 
-    from mpi_lidar.workflows.cluster import dask_client
+    from mpi_lidar.workflows.executor import InProcess, dask_executor
+    from mpi_lidar.workflows.generate import generate
 
     plan = dataset.SamplingPlan.from_config(config)
     todo = len(dataset.incomplete_chunks(dataset.create_store(out, config)))
     with _progress() as progress:
         task = progress.add_task("simulating chunks", total=todo)
-        if todo and workers > 0:
-            with dask_client(scheduler, workers) as client:
-                report = dataset.generate(out, config, client, on_chunk=lambda _i: progress.advance(task))
-        else:
-            report = dataset.generate(out, config, on_chunk=lambda _i: progress.advance(task))
+        with InProcess() if not todo or workers == 0 else dask_executor(scheduler, workers) as executor:
+            report = generate(out, config, executor, on_chunk=lambda _i: progress.advance(task))
     click.echo(dataset.summarize(out).to_markdown())
     click.echo(f"\n{report.chunks_written} of {plan.chunks} chunks simulated in {report.wall_s:.1f} s "
                f"({report.rows_per_s:,.0f} rows/s, {config.simulator.fidelity} fidelity)")
@@ -190,14 +186,9 @@ def load_params(path: Path) -> dict[str, object]:
 @click.option("--split", type=click.Choice(["test", "train"]), default="test", show_default=True)
 def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
     """Evaluate a model on a dataset split: metrics table, error histogram, report files."""
-    from mpi_lidar.learning.evaluate import evaluate_model
-    from mpi_lidar.learning.model import load_model
-    from mpi_lidar.reporting.report import evaluation_report, write_report
+    from mpi_lidar.workflows.pipeline import evaluate_to_report
 
-    model = load_model(model_dir)
-    evaluation = evaluate_model(model, data, split)
-    report, figures = evaluation_report(evaluation, model.card)
-    write_report(report, report_dir, figures)
+    _, report = evaluate_to_report(data, model_dir, report_dir, split)
     click.echo(report.blocks[1].markdown())
     click.echo(f"\nreport written to {report_dir}")
 
@@ -214,11 +205,11 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
              scheduler: str | None) -> None:
     """The main job: simulate, tune, train and evaluate into one run directory (resumable)."""
     from mpi_lidar.workflows.cluster import dask_client
-    from mpi_lidar.workflows.pipeline import run_pipeline
+    from mpi_lidar.workflows.pipeline import ClusterSteps, run_pipeline
 
     config = resolve_config(config_file, preset_name)
     with dask_client(scheduler, workers) as client:
-        result = run_pipeline(client, out_dir, config, trials, tune_rows, echo=click.echo)
+        result = run_pipeline(ClusterSteps(client), out_dir, config, trials, tune_rows, echo=click.echo)
     metrics = result.evaluation.metrics
     raw, corrected = metrics[result.evaluation.raw_label], metrics["corrected (XGBoost)"]
     click.echo(f"test split: {result.evaluation.raw_label} MAE {1e3 * raw.mae_m:.3f} mm -> corrected "
@@ -253,21 +244,16 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
 
     from mpi_lidar.correction import CorrectionOptions
     from mpi_lidar.reporting.scan_report import write_batch_report
-    from mpi_lidar.workflows.cluster import dask_client
     from mpi_lidar.workflows.correct_archive import correct_archive
+    from mpi_lidar.workflows.executor import InProcess, dask_executor
 
-    geometry_overrides = {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
-                          "footprint_area_m2": footprint_area_m2}
-    options = CorrectionOptions(gate=gate, **{k: v for k, v in geometry_overrides.items() if v is not None})
+    options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2)
     started = time.perf_counter()
     with _progress() as progress:
         task = progress.add_task("scans", total=None)
-        advance = lambda _outcome: progress.advance(task)  # noqa: E731
-        if workers == 0 and not scheduler:
-            outcomes = correct_archive(list(scans), model_dir, out_dir, options, on_scan=advance)
-        else:
-            with dask_client(scheduler, workers) as client:
-                outcomes = correct_archive(list(scans), model_dir, out_dir, options, client, on_scan=advance)
+        with InProcess() if workers == 0 and not scheduler else dask_executor(scheduler, workers) as executor:
+            outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
+                                       on_scan=lambda _outcome: progress.advance(task))
     summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
     click.echo(summary.joinpath("report.md").read_text())
     failed = [o for o in outcomes if o.status == "failed"]

@@ -26,7 +26,14 @@ from pydantic import (
     model_validator,
 )
 
+from mpi_lidar.constants import (
+    TABLE_BOLTZMANN_J_PER_K,
+    TABLE_ELECTRON_CHARGE_C,
+    TABLE_PLANCK_J_S,
+    TABLE_SPEED_OF_LIGHT_M_PER_S,
+)
 from mpi_lidar.errors import ConfigError
+from mpi_lidar.timing import whole_cycle_bins
 
 PAPER_FREQUENCIES_HZ = (12.5e6, 18.75e6, 25e6, 31.25e6)
 PAPER_SAMPLES = 1_338_670
@@ -42,26 +49,30 @@ class _Frozen(BaseModel):
 
 
 class SensorConfig(_Frozen):
-    """The AMCW coaxial scanning LiDAR of Table I, plus the integration time of section IV.B."""
+    """The AMCW coaxial scanning LiDAR of Table I, plus the integration time of section IV.B.
+
+    The physical constants (speed of light, Planck, electron charge, Boltzmann) default to the table's own
+    rounded values, ``mpi_lidar.constants.TABLE_*``, not to CODATA: the hash and the datasets depend on them.
+    """
 
     gamma_r_v2: Positive = 0.1794
     modulation_contrast: Annotated[float, Field(gt=0, le=1)] = 1.0
-    speed_of_light_m_per_s: Positive = 3.0e8
+    speed_of_light_m_per_s: Positive = TABLE_SPEED_OF_LIGHT_M_PER_S
     demodulation_amplitude_v: Positive = 0.4785
     tia_gain_v_per_a: Positive = 50e3
     transit_time_s: Positive = 6e-9
     integration_time_s: Positive = 16e-6
     wavelength_m: Positive = 852e-9
-    planck_j_s: Positive = 6.62606896e-34
+    planck_j_s: Positive = TABLE_PLANCK_J_S
     quantum_efficiency: Annotated[float, Field(gt=0, le=1)] = 0.67
     avalanche_gain: Annotated[float, Field(ge=1)] = 50.0
     excess_noise_factor: Annotated[float, Field(ge=1)] = 4.862
-    electron_charge_c: Positive = 1.60217663e-19
+    electron_charge_c: Positive = TABLE_ELECTRON_CHARGE_C
     apd_area_m2: NonNegative = 0.7854e-6
     dark_current_fom_a_per_m2: NonNegative = 1e-5
     temperature_k: Positive = 297.0
     bandgap_ev: Positive = 1.1116
-    boltzmann_j_per_k: Positive = 1.380649e-23
+    boltzmann_j_per_k: Positive = TABLE_BOLTZMANN_J_PER_K
     bandwidth_hz: Positive = 50e6
     tia_noise_psd_a2_per_hz: NonNegative = 4.314e-24
     load_resistance_ohm: Positive = 50.0
@@ -189,8 +200,6 @@ class Config(_Frozen):
         return self
 
     def _check_whole_cycle_windows(self) -> None:
-        from mpi_lidar.physics.demod import whole_cycle_bins  # physics imports this module
-
         s = self.sensor
         window = round(s.integration_time_s / s.transit_time_s)
         for f in self.frequencies_hz:

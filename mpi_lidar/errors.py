@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+EXIT_USER_ERROR = 2  # the exit code of a user error, for the command line and python -m flows.deploy
+
 
 class MpiLidarError(Exception):
     """A user-facing error: the message says what was wrong, where, and what to do."""

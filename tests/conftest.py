@@ -9,7 +9,7 @@ import pytest
 from distributed import Client, LocalCluster
 
 from mpi_lidar.config import Config
-from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.generate import generate
 
 POSTGRES_ADMIN_URL = os.environ.get("MPI_LIDAR_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/postgres")
 
@@ -36,7 +36,7 @@ def cluster_client():
 def small_dataset(tmp_path_factory) -> Path:
     """A complete 8,000-row dataset of the default configuration (6,400 train, 1,600 test)."""
     path = tmp_path_factory.mktemp("small") / "dataset.zarr"
-    dataset.generate(path, Config().replace(dataset={"samples": 8_000, "chunk_rows": 2_000, "seed": 11}))
+    generate(path, Config().replace(dataset={"samples": 8_000, "chunk_rows": 2_000, "seed": 11}))
     return path
 
 

@@ -18,7 +18,8 @@ from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan, validity_flags
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.limits import posterior_estimates
-from mpi_lidar.learning.model import CorrectionModel
+from mpi_lidar.learning.model import CorrectionModel, DatasetCard
+from mpi_lidar.learning.train import TrainResult, model_card
 from mpi_lidar.physics import demod, make_sensor
 from mpi_lidar.physics.inverse import (
     FIT_OK,
@@ -241,9 +242,8 @@ def tiny_model() -> CorrectionModel:
     spec = FeatureSpec(PAPER_FREQUENCIES_HZ, "engineered", "residual")
     booster = xgb.train({"max_depth": 3, "eta": 0.3, "nthread": 1}, xgb.DMatrix(spec.transform(raw),
                         label=spec.target(raw, theta[:, 0])), num_boost_round=20)
-    card = {"frequencies_hz": list(PAPER_FREQUENCIES_HZ), "feature_set": "engineered", "target_mode": "residual",
-            "raw_feature_names": spec.raw_names, "dataset": {"prior": {"d_as_m": list(config.prior.d_as_m)}}}
-    return CorrectionModel(booster, card)
+    result = TrainResult(booster, 19, float("nan"), 3000, 0, 0.0)
+    return CorrectionModel(booster, model_card(spec, DatasetCard.from_config(config), None, result, workers=0))
 
 
 def test_predict_depth__finite_outside_training_range(tiny_model):

@@ -55,7 +55,12 @@ class Correction:
 
 def in_model_range(depth: NDArray, model: CorrectionModel, options: CorrectionOptions) -> NDArray[np.bool_]:
     """Whether measured depths [m] lie in the d_AS range of the model's training prior (plus a tolerance)."""
-    low, high = model.card["dataset"]["prior"]["d_as_m"]
+    return in_depth_range(depth, model.card.dataset.prior.d_as_m, options)
+
+
+def in_depth_range(depth: NDArray, d_as_m: tuple[float, float], options: CorrectionOptions) -> NDArray[np.bool_]:
+    """Whether measured depths [m] lie in the range ``d_as_m`` [m] widened by ``options.range_tolerance_m``."""
+    low, high = d_as_m
     return (depth >= low - options.range_tolerance_m) & (depth <= high + options.range_tolerance_m)
 
 

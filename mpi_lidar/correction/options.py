@@ -7,8 +7,9 @@ import json
 from enum import IntEnum, StrEnum
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans import geometry
 
 CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
@@ -65,3 +66,19 @@ class CorrectionOptions(BaseModel):
 
     def sha256(self) -> str:
         return hashlib.sha256(json.dumps(self.model_dump(), sort_keys=True).encode()).hexdigest()
+
+    @classmethod
+    def from_cli(cls, gate: str = "geometry", min_bias_mm: float | None = None,
+                 footprint_area_m2: float | None = None) -> CorrectionOptions:
+        """The options of ``mpi-lidar correct`` and of the correction flow, in their units; None keeps a default.
+
+        ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000).
+        Out-of-range values are refused with one line.
+        """
+        overrides = {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
+                     "footprint_area_m2": footprint_area_m2}
+        try:
+            return cls(gate=gate, **{k: v for k, v in overrides.items() if v is not None})
+        except ValidationError as exc:
+            problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors())
+            raise MpiLidarError(f"invalid correction options ({problems})") from None

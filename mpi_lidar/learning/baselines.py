@@ -166,10 +166,9 @@ def table2(data_path: str | Path, model_dir: str | Path | None = None, *, train_
     if model_dir is not None:
         xgb_model = load_model(model_dir)
         xgb_model.check_compatible(info.frequencies_hz, info.feature_names, f"dataset {data_path}")
-        card = xgb_model.card
+        training = xgb_model.card.training
         rows.append(_row("XGBoost", xgb_model.predict_depth(train_eval.features), train_eval.target,
-                         xgb_model.predict_depth(test.features), test.target, card["training"]["wall_s"],
-                         card["training"]["fit_rows"]))
+                         xgb_model.predict_depth(test.features), test.target, training.wall_s, training.fit_rows))
     notes = [
         f"Errors on {test.rows.size:,} test rows and {train_eval.rows.size:,} train rows of {data_path}. "
         f"KNN, RF and DNN tuned by TPE ({trials} trials on {tuning.size:,} rows), then fitted on at most "

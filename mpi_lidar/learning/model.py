@@ -2,7 +2,8 @@
 
 The card says what the model expects and how it was made: frequencies, raw and model feature names in
 order, feature set and target mode, the dataset it learned from, its parameters, metrics and package
-versions. Loading checks the card against the model file; correction checks it against the data.
+versions. In code it is a :class:`ModelCard`; on disk the same keys as a JSON object. Loading validates
+the card and checks it against the model file; correction checks it against the data.
 """
 
 from __future__ import annotations
@@ -12,15 +13,18 @@ import json
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
+from typing import Annotated, Literal
 
 import dask.array as da
 import numpy as np
 import xgboost as xgb
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationError, model_validator
 
 from mpi_lidar import __version__
+from mpi_lidar.config import Config, config_sha256
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.learning.features import FeatureSpec
+from mpi_lidar.learning.features import FeatureSet, FeatureSpec, TargetMode
 from mpi_lidar.storage.atomic import atomic_path
 
 MODEL_SCHEMA = "mpi-lidar/model@1"
@@ -47,36 +51,212 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def booster_sha256(booster: xgb.Booster) -> str:
+    """SHA-256 of the booster as ``save_model`` writes it to ``model.ubj`` (UBJSON)."""
+    return hashlib.sha256(booster.save_raw("ubj")).hexdigest()
+
+
+# --- the card ------------------------------------------------------------------------------------------------
+
+
+class _Part(BaseModel):
+    """A part of the card with a fixed set of keys: an unknown or missing key is an error."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class _Dump(BaseModel):
+    """A configuration section copied into the card at training time: the keys read here are typed, the others
+    are kept as written (the configuration's fields change between versions; old cards keep theirs)."""
+
+    model_config = ConfigDict(frozen=True, extra="allow")
+
+
+class PriorCard(_Dump):
+    """The prior the training rows were drawn from (:class:`mpi_lidar.config.PriorConfig` as written)."""
+
+    d_as_m: tuple[float, float]
+    """Range of the true direct depth d_AS [m]: the depths the model has seen."""
+
+    @model_validator(mode="after")
+    def _ordered(self) -> PriorCard:
+        if not self.d_as_m[0] <= self.d_as_m[1]:
+            raise ValueError(f"d_as_m {list(self.d_as_m)} is not a (low, high) range")
+        return self
+
+
+class SimulatorCard(_Dump):
+    """The simulator settings of the training rows (:class:`mpi_lidar.config.SimulatorConfig` as written)."""
+
+    noise_scale: float
+
+
+class DatasetCard(_Part):
+    """The dataset the model learned from."""
+
+    path: str
+    config_sha256: str
+    samples: int = Field(ge=0)
+    prior: PriorCard
+    simulator: SimulatorCard
+
+    @classmethod
+    def from_config(cls, config: Config, path: str = "", sha256: str | None = None,
+                    samples: int | None = None) -> DatasetCard:
+        """The card of a dataset made from ``config`` (``path`` empty for rows simulated in memory)."""
+        return cls(path=path, config_sha256=sha256 or config_sha256(config),
+                   samples=config.dataset.samples if samples is None else samples,
+                   prior=PriorCard(**config.prior.model_dump(mode="json")),
+                   simulator=SimulatorCard(**config.simulator.model_dump(mode="json")))
+
+
+class GeometryErrorCard(_Part):
+    """The error model of the synthetic geometric inputs a geometric model trained on
+    (:data:`mpi_lidar.learning.features.GEOMETRY_ERROR_MODEL`)."""
+
+    coupling_log_median: float
+    coupling_log_sd: float
+    d_ab_offset_m: float
+    d_ab_sd_m: float
+
+
+class MetricsCard(_Part):
+    validation_mae_m: float
+    """MAE of the residual or depth target on the validation rows at the best iteration. [m]"""
+
+
+class TrainingCard(_Part):
+    fit_rows: int = Field(ge=0)
+    validation_rows: int = Field(ge=0)
+    wall_s: float = Field(ge=0)
+    dask_workers: int = Field(ge=0)
+
+
+def _param_value(value: object) -> str | int | float | bool:
+    if isinstance(value, str | int | float | bool):
+        return value
+    raise ValueError(f"an XGBoost parameter must be a string, number or boolean, not {type(value).__name__}")
+
+
+ParamValue = Annotated[str | int | float | bool, PlainValidator(_param_value)]
+
+
+class ModelCard(_Part):
+    """What a model expects and how it was made; ``card.json`` holds exactly these keys.
+
+    ``geometric`` is False and ``geometry_error_model`` absent on cards written before geometric inputs.
+    """
+
+    card_schema: Literal["mpi-lidar/model@1"] = Field(alias="schema")
+    frequencies_hz: tuple[float, ...] = Field(min_length=1)
+    raw_feature_names: tuple[str, ...]
+    feature_set: FeatureSet
+    feature_names: tuple[str, ...]
+    geometric: bool = False
+    geometry_error_model: GeometryErrorCard | None = None
+    target_mode: TargetMode
+    residual_reference: str | None
+    dataset: DatasetCard
+    params: dict[str, ParamValue]
+    num_boost_round: int = Field(ge=0)
+    metrics: MetricsCard
+    training: TrainingCard
+    versions: dict[str, str]
+    model_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+
+    @property
+    def spec(self) -> FeatureSpec:
+        return FeatureSpec(self.frequencies_hz, self.feature_set, self.target_mode, self.geometric)
+
+    def to_json(self) -> str:
+        """The card as ``card.json`` holds it (sorted keys; no ``geometry_error_model`` key when it has none)."""
+        data = self.model_dump(mode="json", by_alias=True)
+        if data["geometry_error_model"] is None:
+            del data["geometry_error_model"]
+        return json.dumps(data, indent=2, sort_keys=True) + "\n"
+
+
+def read_card(card_path: Path) -> ModelCard:
+    """The validated card in ``card_path``; :class:`MpiLidarError` (one line naming the file) if it is not one."""
+    try:
+        text = card_path.read_text()
+        found = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise MpiLidarError(f"{card_path} is not valid JSON ({exc}); the model directory is damaged") from None
+    except OSError as exc:
+        raise MpiLidarError(f"{card_path} cannot be read: {exc.strerror or exc}") from None
+    if not isinstance(found, dict):
+        raise MpiLidarError(f"{card_path} holds a JSON {_json_kind(found)}, not an object; the model directory "
+                            "is damaged")
+    if found.get("schema") != MODEL_SCHEMA:
+        raise MpiLidarError(f"{card_path} has schema {found.get('schema')!r}, expected {MODEL_SCHEMA!r}")
+    try:
+        return ModelCard.model_validate_json(text, strict=True)
+    except ValidationError as exc:
+        raise MpiLidarError(f"{card_path} is not a valid model card: {_problems(exc)}; the model directory is "
+                            "damaged or from another mpi-lidar version") from None
+
+
+def _json_kind(value: object) -> str:
+    kinds = {list: "list", str: "string", bool: "boolean", int: "number", float: "number", type(None): "null"}
+    return kinds.get(type(value), type(value).__name__)
+
+
+def _problems(exc: ValidationError, shown: int = 3) -> str:
+    """The validation errors in one line: where in the card, and what is wrong there."""
+    found: list[str] = []
+    for error in exc.errors(include_url=False):
+        where = ".".join(str(part) for part in error["loc"]) or "the card"
+        if error["type"] == "missing":
+            problem = f"lacks key {where!r}"
+        elif error["type"] == "extra_forbidden":
+            problem = f"has unknown key {where!r}"
+        else:
+            problem = f"{where}: {error['msg']} (found {_json_kind(error.get('input'))})"
+        if problem not in found:
+            found.append(problem)
+    more = f"; and {len(found) - shown} more" if len(found) > shown else ""
+    return ("; ".join(found[:shown]) + more).replace("\n", " ")
+
+
+# --- the model -----------------------------------------------------------------------------------------------
+
+
+def booster_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray,
+                  geometry: NDArray | None = None) -> NDArray[np.float64]:
+    """Corrected depth [m] of raw rows (n, 2F) by a booster trained on ``spec``, in this process."""
+    prediction = booster.inplace_predict(spec.transform(raw, geometry))
+    return np.asarray(spec.depth(raw, prediction.astype(np.float64)))
+
+
 @dataclass
 class CorrectionModel:
     """A loaded, card-checked model that turns raw measurements into corrected depths."""
 
     booster: xgb.Booster
-    card: dict[str, object]
+    card: ModelCard
 
     @property
     def spec(self) -> FeatureSpec:
-        c = self.card
-        return FeatureSpec(tuple(c["frequencies_hz"]), c["feature_set"], c["target_mode"],
-                           bool(c.get("geometric", False)))
+        return self.card.spec
 
     def check_compatible(self, frequencies_hz: tuple[float, ...], raw_names: list[str] | tuple[str, ...],
                          source: str) -> None:
         """Refuse data whose frequencies or raw columns differ from the card's, with one clear line."""
-        expected = tuple(float(f) for f in self.card["frequencies_hz"])
+        expected = self.card.frequencies_hz
         if tuple(float(f) for f in frequencies_hz) != expected:
             raise MpiLidarError(
                 f"{source} was measured at {_mhz(frequencies_hz)} but the model expects {_mhz(expected)}; "
                 "use a model trained for these frequencies"
             )
-        if list(raw_names) != list(self.card["raw_feature_names"]):
+        if list(raw_names) != list(self.card.raw_feature_names):
             raise MpiLidarError(f"{source} has columns {list(raw_names)} but the model expects "
-                                f"{self.card['raw_feature_names']}; the data and model do not match")
+                                f"{list(self.card.raw_feature_names)}; the data and model do not match")
 
     @property
     def geometric(self) -> bool:
         """Whether the model needs the geometric inputs (coupling, d_AB) of every pixel."""
-        return self.spec.geometric
+        return self.card.geometric
 
     def predict_depth(self, raw: NDArray, geometry: NDArray | None = None) -> NDArray[np.float64]:
         """Corrected depth [m] for raw measurements (n, 2F) in this process (XGBoost inplace_predict).
@@ -84,9 +264,7 @@ class CorrectionModel:
         ``geometry`` (n, 2): geometric coupling [1] and d_AB [m] per row, required by a geometric model
         (:attr:`geometric`) and ignored by the others.
         """
-        spec = self.spec
-        prediction = self.booster.inplace_predict(spec.transform(raw, geometry))
-        return np.asarray(spec.depth(raw, prediction.astype(np.float64)))
+        return booster_depth(self.booster, self.spec, raw, geometry)
 
     def predict_depth_dask(self, client: object, raw: da.Array, geometry: da.Array | None = None) -> da.Array:
         """Corrected depth [m] for a dask array of raw measurements, predicted on the cluster's workers."""
@@ -101,35 +279,37 @@ def _mhz(frequencies_hz: tuple[float, ...] | list[float]) -> str:
     return ", ".join(f"{f / 1e6:g}" for f in frequencies_hz) + " MHz"
 
 
-def save_model(out_dir: str | Path, booster: xgb.Booster, card: dict[str, object]) -> Path:
+def save_model(out_dir: str | Path, booster: xgb.Booster, card: ModelCard) -> Path:
     """Write model.ubj and card.json into a new directory, atomically (built beside it, then renamed).
 
-    An existing directory is never overwritten: choose a new ``out_dir`` or remove the old one.
+    The saved booster carries the card's feature names (predictions are unchanged); the card written records
+    the SHA-256 of the model file and this environment's package versions. An existing directory is never
+    overwritten: choose a new ``out_dir`` or remove the old one.
     """
     out_dir = Path(out_dir)
+    if booster.num_features() != len(card.feature_names):
+        raise MpiLidarError(f"the booster has {booster.num_features()} inputs but its card lists "
+                            f"{len(card.feature_names)} features; not saving {out_dir}")
     with atomic_path(out_dir, what="model directory") as staging:
         staging.mkdir()
-        booster.save_model(str(staging / MODEL_FILE))
-        full_card = {"schema": MODEL_SCHEMA, **card, "model_sha256": file_sha256(staging / MODEL_FILE),
-                     "versions": package_versions()}
-        (staging / CARD_FILE).write_text(json.dumps(full_card, indent=2, sort_keys=True) + "\n")
+        named = booster.copy()
+        named.feature_names = list(card.feature_names)
+        named.save_model(str(staging / MODEL_FILE))
+        written = card.model_copy(update={"model_sha256": file_sha256(staging / MODEL_FILE),
+                                          "versions": package_versions()})
+        (staging / CARD_FILE).write_text(written.to_json())
     return out_dir
 
 
 def load_model(model_dir: str | Path) -> CorrectionModel:
-    """Load a model directory after checking its card: schema, file hash and feature count."""
+    """Load a model directory after checking its card: keys and types, schema, file hash and features."""
     model_dir = Path(model_dir)
     card_path, model_path = model_dir / CARD_FILE, model_dir / MODEL_FILE
     if not card_path.is_file() or not model_path.is_file():
         raise MpiLidarError(f"{model_dir} is not a model directory (needs {MODEL_FILE} and {CARD_FILE}); "
                             "train one with 'mpi-lidar train'")
-    try:
-        card = json.loads(card_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise MpiLidarError(f"{card_path} is not valid JSON ({exc}); the model directory is damaged") from None
-    if card.get("schema") != MODEL_SCHEMA:
-        raise MpiLidarError(f"{card_path} has schema {card.get('schema')!r}, expected {MODEL_SCHEMA!r}")
-    if card.get("model_sha256") != file_sha256(model_path):
+    card = read_card(card_path)
+    if card.model_sha256 != file_sha256(model_path):
         raise MpiLidarError(f"{model_path} does not match the hash in its card; the model directory is damaged")
     booster = xgb.Booster()
     try:
@@ -139,8 +319,11 @@ def load_model(model_dir: str | Path) -> CorrectionModel:
     except UnicodeDecodeError:  # XGBoost echoes the file's first bytes; a pickle's are not UTF-8
         raise MpiLidarError(f"{model_path} is not a readable XGBoost model (not UBJSON; a pickle is never "
                             "loaded)") from None
-    model = CorrectionModel(booster=booster, card=card)
-    if booster.num_features() != len(card["feature_names"]) or card["feature_names"] != model.spec.names:
-        raise MpiLidarError(f"{card_path} lists features {card['feature_names']} that do not match its model "
-                            f"({booster.num_features()} inputs) or its feature set {card['feature_set']!r}")
-    return model
+    names = list(card.feature_names)
+    booster_names = booster.feature_names  # None for models saved before names were stored
+    spec = card.spec
+    if (booster.num_features() != len(names) or names != spec.names or list(card.raw_feature_names) != spec.raw_names
+            or (booster_names is not None and list(booster_names) != names)):
+        raise MpiLidarError(f"{card_path} lists features {names} that do not match its model "
+                            f"({booster.num_features()} inputs) or its feature set {card.feature_set!r}")
+    return CorrectionModel(booster=booster, card=card)

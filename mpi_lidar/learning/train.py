@@ -1,12 +1,15 @@
-"""Training XGBoost through its Dask interface on the stored train split, read lazily from Zarr.
+"""Training XGBoost: through its Dask interface on the stored train split, read lazily from Zarr
+(:func:`train_dask`), or in this process on arrays in memory (:func:`train_arrays`, for benchmarks).
 
-Early stopping watches a validation set carved from the train split (every tenth train row; rows are
-independent draws, so any fixed subset is an unbiased sample). The test split is never seen here.
+Both take their parameters from :func:`xgb_params` and early-stop on a validation set of every tenth row
+(of the train split; rows are independent draws, so any fixed subset is an unbiased sample), and both
+return the booster trimmed to its best iteration. The test split is never seen here.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,7 +22,17 @@ from numpy.typing import NDArray
 
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import GEOMETRY_ERROR_MODEL, FeatureSpec, synthetic_geometry, synthetic_geometry_dask
-from mpi_lidar.learning.model import save_model
+from mpi_lidar.learning.model import (
+    MODEL_SCHEMA,
+    DatasetCard,
+    GeometryErrorCard,
+    MetricsCard,
+    ModelCard,
+    TrainingCard,
+    booster_sha256,
+    package_versions,
+    save_model,
+)
 from mpi_lidar.simulation import dataset
 
 VALIDATION_EVERY = 10
@@ -34,14 +47,63 @@ DEFAULT_ROUNDS = 2000
 DEFAULT_EARLY_STOPPING = 50
 
 
+def xgb_params(params: Mapping[str, object] | None = None, **overrides: object) -> dict[str, object]:
+    """The parameters XGBoost trains with: BASE_PARAMS (objective, tree method, metric), then ``params``
+    (DEFAULT_PARAMS when None), then ``overrides`` (e.g. ``nthread``). The card records this dict."""
+    return {**BASE_PARAMS, **(DEFAULT_PARAMS if params is None else params), **overrides}
+
+
 @dataclass(frozen=True)
 class TrainResult:
+    """A trained booster, trimmed to its best iteration, and how it was trained.
+
+    Without a validation set (no early stopping) ``validation_rows`` is 0 and ``validation_mae_m`` NaN.
+    """
+
     booster: xgb.Booster
     best_iteration: int
     validation_mae_m: float
     fit_rows: int
     validation_rows: int
     wall_s: float
+
+
+def _early_stopped(booster: xgb.Booster, history: dict[str, list[float]], fit_rows: int, validation_rows: int,
+                   started: float) -> TrainResult:
+    """The result of a run early-stopped on a validation set: the booster trimmed to its best iteration,
+    and the validation metric (the last, which early stopping watches) there."""
+    scores = history[next(reversed(history))]
+    best = booster.best_iteration if booster.best_iteration is not None else len(scores) - 1
+    return TrainResult(booster[: best + 1], int(best), float(scores[best]), fit_rows, validation_rows,
+                       time.perf_counter() - started)
+
+
+def train_arrays(
+    x: NDArray,
+    y: NDArray,
+    params: Mapping[str, object] | None = None,
+    num_boost_round: int = DEFAULT_ROUNDS,
+    early_stopping_rounds: int | None = DEFAULT_EARLY_STOPPING,
+    nthread: int = 1,
+) -> TrainResult:
+    """Train XGBoost in this process on model inputs ``x`` (n, k) and targets ``y`` (n,).
+
+    ``params`` as for :func:`xgb_params` (with ``nthread`` and seed 0). With ``early_stopping_rounds``, every
+    tenth row is held out to stop on and the booster is trimmed to its best iteration; with None, all rows
+    are fitted for ``num_boost_round`` rounds. ``wall_s`` is the fit's wall time, data preparation included.
+    """
+    full = xgb_params(params, nthread=nthread, seed=0)
+    started = time.perf_counter()
+    if not early_stopping_rounds:
+        booster = xgb.train(full, xgb.QuantileDMatrix(x, y, nthread=nthread), num_boost_round, verbose_eval=False)
+        return TrainResult(booster, num_boost_round - 1, float("nan"), int(y.size), 0, time.perf_counter() - started)
+    hold = np.arange(y.size) % VALIDATION_EVERY == 0
+    dfit = xgb.QuantileDMatrix(x[~hold], y[~hold], nthread=nthread)
+    dval = xgb.QuantileDMatrix(x[hold], y[hold], ref=dfit, nthread=nthread)
+    history: dict[str, dict[str, list[float]]] = {}
+    booster = xgb.train(full, dfit, num_boost_round, evals=[(dval, "validation")], evals_result=history,
+                        early_stopping_rounds=early_stopping_rounds, verbose_eval=False)
+    return _early_stopped(booster, history["validation"], int((~hold).sum()), int(hold.sum()), started)
 
 
 def train_split_masks(split: da.Array) -> tuple[da.Array, da.Array]:
@@ -75,13 +137,10 @@ def train_dask(
     dtrain = dxgb.DaskQuantileDMatrix(client, x_fit, y_fit)
     dval = dxgb.DaskQuantileDMatrix(client, x_val, y_val, ref=dtrain)
     output = dxgb.train(
-        client, {**BASE_PARAMS, **(params or DEFAULT_PARAMS)}, dtrain, num_boost_round=num_boost_round,
+        client, xgb_params(params or None), dtrain, num_boost_round=num_boost_round,
         evals=[(dval, "validation")], early_stopping_rounds=early_stopping_rounds, verbose_eval=False,
     )
-    booster: xgb.Booster = output["booster"]
-    history = output["history"]["validation"]["mae"]
-    best = booster.best_iteration if booster.best_iteration is not None else len(history) - 1
-    return TrainResult(booster, int(best), float(history[best]), fit_rows, val_rows, time.perf_counter() - started)
+    return _early_stopped(output["booster"], output["history"]["validation"], fit_rows, val_rows, started)
 
 
 def training_geometry_lazy(spec: FeatureSpec, lazy: dataset.LazyDataset) -> da.Array | None:
@@ -112,27 +171,38 @@ def check_dataset_matches(spec: FeatureSpec, info: dataset.DatasetInfo) -> None:
                             f"{spec.raw_names}; use a dataset simulated at the model's frequencies")
 
 
-def model_card(spec: FeatureSpec, info: dataset.DatasetInfo, params: dict[str, object],
-               result: TrainResult, workers: int) -> dict[str, object]:
-    """Everything a correction run needs to know about the model, and how it was made."""
-    return {
-        "frequencies_hz": list(spec.frequencies_hz),
-        "raw_feature_names": spec.raw_names,
-        "feature_set": spec.feature_set,
-        "feature_names": spec.names,
-        "geometric": spec.geometric,
-        **({"geometry_error_model": dict(GEOMETRY_ERROR_MODEL)} if spec.geometric else {}),
-        "target_mode": spec.target_mode,
-        "residual_reference": spec.residual_reference,
-        "dataset": {"path": info.path, "config_sha256": info.config_sha256, "samples": info.samples,
-                    "prior": info.config.prior.model_dump(mode="json"),
-                    "simulator": info.config.simulator.model_dump(mode="json")},
-        "params": {**BASE_PARAMS, **params},
-        "num_boost_round": result.best_iteration + 1,
-        "metrics": {"validation_mae_m": result.validation_mae_m},
-        "training": {"fit_rows": result.fit_rows, "validation_rows": result.validation_rows,
-                     "wall_s": round(result.wall_s, 3), "dask_workers": workers},
-    }
+def model_card(spec: FeatureSpec, dataset_card: DatasetCard, params: Mapping[str, object] | None,
+               result: TrainResult, workers: int) -> ModelCard:
+    """Everything a correction run needs to know about the model, and how it was made.
+
+    ``params`` as given to the training (see :func:`xgb_params`); ``workers`` the Dask workers (0 in process).
+    The model hash and package versions are those of ``result.booster`` here; :func:`save_model` records the
+    written file's.
+    """
+    return ModelCard(
+        schema=MODEL_SCHEMA,
+        frequencies_hz=spec.frequencies_hz,
+        raw_feature_names=spec.raw_names,
+        feature_set=spec.feature_set,
+        feature_names=spec.names,
+        geometric=spec.geometric,
+        geometry_error_model=GeometryErrorCard(**GEOMETRY_ERROR_MODEL) if spec.geometric else None,
+        target_mode=spec.target_mode,
+        residual_reference=spec.residual_reference,
+        dataset=dataset_card,
+        params=xgb_params(params),
+        num_boost_round=result.best_iteration + 1,
+        metrics=MetricsCard(validation_mae_m=result.validation_mae_m),
+        training=TrainingCard(fit_rows=result.fit_rows, validation_rows=result.validation_rows,
+                              wall_s=round(result.wall_s, 3), dask_workers=workers),
+        versions=package_versions(),
+        model_sha256=booster_sha256(result.booster),
+    )
+
+
+def dataset_card(info: dataset.DatasetInfo) -> DatasetCard:
+    """The card's description of a stored dataset."""
+    return DatasetCard.from_config(info.config, path=info.path, sha256=info.config_sha256, samples=info.samples)
 
 
 def train_and_save(
@@ -145,7 +215,6 @@ def train_and_save(
         raise MpiLidarError(f"model directory {out_dir} already exists; choose another --out or remove it")
     params = dict(params or DEFAULT_PARAMS)
     result = train_dask(client, data_path, spec, params, **train_options)
-    best = result.booster[: result.best_iteration + 1]
-    info = dataset.dataset_info(data_path)
-    card = model_card(spec, info, params, result, len(client.scheduler_info()["workers"]))
-    return save_model(out_dir, best, card), result
+    card = model_card(spec, dataset_card(dataset.dataset_info(data_path)), params, result,
+                      len(client.scheduler_info()["workers"]))
+    return save_model(out_dir, result.booster, card), result

@@ -31,7 +31,7 @@ from sqlalchemy.engine import make_url
 
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSpec
-from mpi_lidar.learning.train import BASE_PARAMS, check_dataset_matches, training_geometry
+from mpi_lidar.learning.train import check_dataset_matches, training_geometry, xgb_params
 from mpi_lidar.redact import MASK, SECRET_KEYS, redact
 from mpi_lidar.simulation import dataset
 
@@ -161,7 +161,7 @@ def _tuning_data(data_path: str, spec: FeatureSpec, rows: int, seed: int) -> tup
 def objective(trial: optuna.Trial, settings: TuneSettings) -> float:
     """Validation MAE [m] of XGBoost with the trial's parameters, early-stopped and pruned."""
     dfit, dval = _tuning_data(settings.data_path, settings.spec, settings.tune_rows, settings.subsample_seed)
-    params = {**BASE_PARAMS, **suggest_params(trial), "nthread": 1, "verbosity": 0}
+    params = xgb_params(suggest_params(trial), nthread=1, verbosity=0)
     evals_result: dict[str, dict[str, list[float]]] = {}
     booster = xgb.train(
         params, dfit, num_boost_round=settings.num_boost_round, evals=[(dval, "validation")],

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mpi_lidar.timing import whole_cycle_bins  # lives below config; also reached as demod.whole_cycle_bins
+
 TAP_SHIFTS_RAD = np.array([0.0, 0.5, 1.0, 1.5]) * np.pi
 
 
@@ -31,16 +33,6 @@ def integration_bins(integration_time_s: float, bin_s: float, frequency_hz: floa
         return k
     period = whole_cycle_bins(frequency_hz, bin_s)
     return max(period, round(k / period) * period)
-
-
-def whole_cycle_bins(frequency_hz: float, bin_s: float, max_bins: int = 1_000_000) -> int:
-    """Fewest bins that span a whole number of cycles (exactly, or to 1e-9 cycles)."""
-    cycles_per_bin = frequency_hz * bin_s
-    for bins in range(1, max_bins + 1):
-        cycles = cycles_per_bin * bins
-        if abs(cycles - round(cycles)) < 1e-9 and round(cycles) >= 1:
-            return bins
-    raise ValueError(f"{frequency_hz:g} Hz has no whole-cycle window of bins of {bin_s:g} s")
 
 
 def bin_times(bins: int, bin_s: float) -> NDArray[np.float64]:

@@ -1,13 +1,15 @@
 """Two-path inverse solvers: from depth and amplitude at equally spaced frequencies back to (d_AS, d_AB).
 
-At frequency f_k the measured correlation is the phasor z_k = A_k exp(-i phi_k), with A_k the amplitude
-(eq 6) and phi_k = 4 pi f_k d_k / c the phase (eq 5, 7). The two-path model (eq 11-15) says
+At frequency f_k the measured correlation is the phasor z_k = A_k exp(+i phi_k), with A_k the amplitude
+(eq 6) and phi_k = 4 pi f_k d_k / c the phase (eq 5, 7), in the sign convention of
+:mod:`mpi_lidar.physics.transport` (:func:`~mpi_lidar.physics.transport.path_phasor`). The two-path model
+(eq 11-15) says
 
-    z_k = Gamma_D exp(-i w_k d_AS) + Gamma_M exp(-i w_k (d_AS + d_AB)),    w_k = 4 pi f_k / c,
+    z_k = Gamma_D exp(+i w_k d_AS) + Gamma_M exp(+i w_k (d_AS + d_AB)),    w_k = 4 pi f_k / c,
 
 with Gamma_D, Gamma_M independent of frequency (eq 12-13). When the frequencies are equally spaced,
 f_k = f_1 + k * df (12.5, 18.75, 25, 31.25 MHz: df = 6.25 MHz), z_k is a sum of two exponentials in k,
-c_D u^k + c_M v^k with poles u = exp(-i 4 pi df d_AS / c) and v = exp(-i 4 pi df (d_AS + d_AB) / c):
+c_D u^k + c_M v^k with poles u = exp(+i 4 pi df d_AS / c) and v = exp(+i 4 pi df (d_AS + d_AB) / c):
 Prony's method recovers the poles from a 2-term linear recurrence, then the amplitudes by least squares.
 
 The multipath phase offset w_k d_AB is at most ~0.2 rad here, so the two poles lie within ~0.04 rad of each
@@ -34,9 +36,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.physics.transport import path_phasor, phasor
 
-SPEED_OF_LIGHT_M_PER_S = 3.0e8
 DEFAULT_MAX_OFFSET_M = 0.15
 DEFAULT_MAX_RATIO = 1.0
 
@@ -85,27 +88,27 @@ def frequency_step(frequencies_hz: ArrayLike, rtol: float = 1e-9) -> float:
     return float(steps[0])
 
 
-def measured_phasors(raw: ArrayLike, frequencies_hz: ArrayLike, c: float = SPEED_OF_LIGHT_M_PER_S):
-    """z_k = A_k exp(-i 4 pi f_k d_k / c) from raw rows (n, 2F) [m, V^2], eq 5-7 inverted. [V^2]"""
+def measured_phasors(raw: ArrayLike, frequencies_hz: ArrayLike, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S):
+    """z_k = A_k exp(+i 4 pi f_k d_k / c) from raw rows (n, 2F) [m, V^2], eq 5-7 inverted. [V^2]"""
     raw = np.asarray(raw, dtype=np.float64)
     freqs = np.asarray(frequencies_hz, dtype=np.float64)
     f = freqs.size
     if raw.ndim != 2 or raw.shape[1] != 2 * f:
         raise MpiLidarError(f"expected raw measurements of shape (n, {2 * f}), got {raw.shape}")
     depth, amplitude = raw[:, :f], raw[:, f:]
-    return amplitude * np.exp(-1j * 4 * np.pi * freqs[None, :] * depth / c)
+    return path_phasor(amplitude, depth, freqs[None, :], c)
 
 
 def model_phasors(direct_depth_m: ArrayLike, path_offset_m: ArrayLike, direct_amplitude: ArrayLike,
                   multipath_amplitude: ArrayLike, frequencies_hz: ArrayLike,
-                  c: float = SPEED_OF_LIGHT_M_PER_S) -> NDArray[np.complex128]:
-    """Two-path phasors Gamma_D e^{-i w d_AS} + Gamma_M e^{-i w (d_AS + d_AB)}, shape (n, F), eq 11-15. [V^2]"""
+                  c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> NDArray[np.complex128]:
+    """Two-path phasors Gamma_D e^{+i w d_AS} + Gamma_M e^{+i w (d_AS + d_AB)}, shape (n, F), eq 11-15. [V^2]"""
     w = 4 * np.pi * np.asarray(frequencies_hz, dtype=np.float64)[None, :] / c
     d = np.asarray(direct_depth_m, dtype=np.float64)[:, None]
     e = np.asarray(path_offset_m, dtype=np.float64)[:, None]
     gd = np.asarray(direct_amplitude, dtype=np.float64)[:, None]
     gm = np.asarray(multipath_amplitude, dtype=np.float64)[:, None]
-    return np.exp(-1j * w * d) * (gd + gm * np.exp(-1j * w * e))
+    return phasor(1.0, w * d) * (gd + phasor(gm, w * e))
 
 
 def _valid_rows(raw: NDArray[np.float64], f: int) -> NDArray[np.bool_]:
@@ -113,7 +116,7 @@ def _valid_rows(raw: NDArray[np.float64], f: int) -> NDArray[np.bool_]:
 
 
 def unwrapped_weighted_depth(raw: ArrayLike, frequencies_hz: ArrayLike,
-                             c: float = SPEED_OF_LIGHT_M_PER_S) -> NDArray[np.float64]:
+                             c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> NDArray[np.float64]:
     """Single-path depth of equally spaced frequencies, unambiguous to c / (2 df) (24 m here). [m]
 
     The phase step between neighbouring frequencies, arg sum_k z_{k+1} conj(z_k), gives a coarse depth
@@ -156,8 +159,8 @@ def _cost(z: NDArray[np.complex128], model: NDArray[np.complex128]) -> NDArray[n
 
 
 def _path_from_pole(pole: NDArray[np.complex128], step_hz: float, c: float) -> NDArray[np.float64]:
-    """Path length from a pole u = exp(-i 4 pi df d / c), in [0, c / 2 df). [m]"""
-    return np.mod(-np.angle(pole), 2 * np.pi) * c / (4 * np.pi * step_hz)
+    """Path length from a pole u = exp(+i 4 pi df d / c), in [0, c / 2 df). [m]"""
+    return np.mod(np.angle(pole), 2 * np.pi) * c / (4 * np.pi * step_hz)
 
 
 def _unwrap_near(phase_path_m: NDArray[np.float64], period_m: float | NDArray[np.float64], near_m: NDArray[np.float64]):
@@ -186,7 +189,7 @@ def _rows(raw: ArrayLike, frequencies_hz: ArrayLike, c: float) -> tuple[NDArray,
 
 
 def prony_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, *, max_offset_m: float = DEFAULT_MAX_OFFSET_M,
-                   max_ratio: float = DEFAULT_MAX_RATIO, c: float = SPEED_OF_LIGHT_M_PER_S) -> TwoPathFit:
+                   max_ratio: float = DEFAULT_MAX_RATIO, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> TwoPathFit:
     """Closed-form two-path fit (Prony / matrix pencil with two poles), vectorised over rows.
 
     The phasors z_0..z_{F-1} of equally spaced frequencies obey z_{k+2} + a1 z_{k+1} + a0 z_k = 0 for two
@@ -267,12 +270,12 @@ def _lm_solve(z: NDArray[np.complex128], w: NDArray[np.float64], start: NDArray[
 
     def residual_and_jacobian(p: NDArray[np.float64], rows: NDArray[np.intp]):
         d, e, g, r = (p[:, i : i + 1] for i in range(4))
-        ed = np.exp(-1j * w * d) / scale[rows]
-        ee = np.exp(-1j * w * e)
+        ed = phasor(1.0, w * d) / scale[rows]
+        ee = phasor(1.0, w * e)
         model = ed * (g + g * r * ee)
         res = model - zs[rows]
         rr = np.concatenate([res.real, res.imag], axis=1)
-        cols = [-1j * w * model, -1j * w * ed * g * r * ee, ed * (1 + r * ee), ed * g * ee]
+        cols = [1j * w * model, 1j * w * ed * g * r * ee, ed * (1 + r * ee), ed * g * ee]
         jac = np.stack([np.concatenate([col.real, col.imag], axis=1) for col in cols], axis=-1)
         return rr, jac
 
@@ -314,10 +317,10 @@ def _lm_solve(z: NDArray[np.complex128], w: NDArray[np.float64], start: NDArray[
 
 def least_squares_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, start: TwoPathFit | None = None, *,
                            max_offset_m: float = DEFAULT_MAX_OFFSET_M, max_ratio: float = DEFAULT_MAX_RATIO,
-                           iterations: int = 200, c: float = SPEED_OF_LIGHT_M_PER_S) -> TwoPathFit:
+                           iterations: int = 200, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> TwoPathFit:
     """Bounded nonlinear least-squares two-path fit of the phasors, vectorised over rows.
 
-    Minimises sum_k |Gamma_D e^{-i w_k d_AS} (1 + r e^{-i w_k d_AB}) - z_k|^2 (eq 11-15; the phasor noise
+    Minimises sum_k |Gamma_D e^{+i w_k d_AS} (1 + r e^{+i w_k d_AB}) - z_k|^2 (eq 11-15; the phasor noise
     has about the same variance at every frequency) over d_AS, 0 <= d_AB <= max_offset_m, Gamma_D >= 0 and
     0 <= r = Gamma_M / Gamma_D <= max_ratio, by a batched projected Levenberg-Marquardt iteration from several
     starts (``start``, by default the Prony fit where it succeeded, and a small grid of (d_AB, r) around the
@@ -362,7 +365,7 @@ def least_squares_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, start: Two
             wt = w[0, -1]
             bias = np.arctan2(r * np.sin(wt * grid[:, 1]), 1 + r * np.cos(wt * grid[:, 1])) / wt
             grid[:, 0] = single[:, 0] - bias
-            grid[:, 2] = single[:, 2] / np.abs(1 + r * np.exp(-1j * wt * grid[:, 1]))
+            grid[:, 2] = single[:, 2] / np.abs(1 + phasor(r, wt * grid[:, 1]))
             starts.append(grid)
     for p0 in starts:
         p, cost, conv = _lm_solve(zv, w, p0.copy(), lower, upper, iterations)

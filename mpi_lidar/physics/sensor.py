@@ -18,10 +18,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
+from mpi_lidar.constants import ELECTRON_VOLT_J
 from mpi_lidar.physics import demod
-from mpi_lidar.physics.transport import two_path_phasors
-
-ELECTRON_VOLT_J = 1.602176634e-19
+from mpi_lidar.physics.transport import phasor, two_path_phasors
 
 
 def photon_energy(planck_j_s: float, c: float, wavelength_m: float) -> float:
@@ -236,13 +235,14 @@ class SensorModel(ABC):
         )
         r_d = received_voltage_amplitude(gamma_d, s.modulation_contrast, s.demodulation_amplitude_v)
         r_m = received_voltage_amplitude(gamma_m, s.modulation_contrast, s.demodulation_amplitude_v)
-        return self.waveforms_from_phasors(r_d + r_m, r_d * np.exp(1j * phi_d) + r_m * np.exp(1j * phi_m))
+        return self.waveforms_from_phasors(r_d + r_m, phasor(r_d, phi_d) + phasor(r_m, phi_m))
 
     def waveforms_from_phasors(self, dc_v: ArrayLike, phasor_v: ArrayLike) -> list[PhotonWaveform]:
         """Photon waveforms of any sum of paths, given per sample and frequency (n, F).
 
         A sum of paths R_k (1 + alpha cos(w t - phi_k)) has the constant part sum R_k = ``dc_v`` and the
-        oscillating part alpha Re(sum R_k e^{j phi_k} e^{-j w t}), with ``phasor_v`` = sum R_k e^{j phi_k}.
+        oscillating part alpha Re(sum R_k e^{j phi_k} e^{-j w t}), with ``phasor_v`` = sum R_k e^{j phi_k}
+        (the sign convention of :mod:`mpi_lidar.physics.transport`).
 
         Parameters
         ----------

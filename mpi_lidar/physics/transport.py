@@ -2,6 +2,17 @@
 
 The beam hits point A; the direct path returns A -> S, the multipath returns A -> B -> A -> S. Both reach
 the detector as phasors of the cross correlation at each modulation frequency.
+
+Phasor sign convention (the package's only one): a path of one-way length d, which the light travels
+twice, reaches the detector at modulation frequency f as the phasor
+
+    amplitude * exp(+1j * 4 pi f d / c) = amplitude * exp(+1j * phi),    phi = round-trip phase (eq 14, 15),
+
+built by :func:`path_phasor` (or :func:`phasor` from a phase). The received signal of a sum of paths is
+sum_k R_k (1 + alpha cos(w t - phi_k)), whose oscillating part is alpha Re(sum_k R_k e^{+j phi_k} e^{-j w t}),
+and the 4-tap demodulation (eq 5) returns arg(sum_k R_k e^{+j phi_k}) as the phase: a single path's
+phasor angle is its phase delay, and its depth is c angle / (4 pi f). Everything that forms phasors (the
+simulators, the scene renderer, the two-path inverse solvers) follows this convention.
 """
 
 from __future__ import annotations
@@ -49,10 +60,45 @@ def round_trip_phase(frequency_hz: ArrayLike, path_m: ArrayLike, c: float) -> ND
     return 4 * np.pi * np.asarray(frequency_hz, dtype=np.float64) * np.asarray(path_m, dtype=np.float64) / c
 
 
+def phasor(amplitude: ArrayLike, phase_rad: ArrayLike) -> NDArray[np.complex128]:
+    """The phasor amplitude * exp(+1j * phase) of a path whose round-trip phase is known (the convention).
+
+    Parameters
+    ----------
+    amplitude : Amplitude of the path (of the cross correlation [V^2], or of the received voltage [V]).
+    phase_rad : Round-trip phase delay of the path, see :func:`round_trip_phase`. [rad]
+
+    Returns
+    -------
+    Complex phasor, shape of the broadcast arguments, in the unit of ``amplitude``.
+    """
+    return np.asarray(amplitude, dtype=np.float64) * np.exp(1j * np.asarray(phase_rad, dtype=np.float64))
+
+
+def path_phasor(amplitude: ArrayLike, depth_m: ArrayLike, frequency_hz: ArrayLike, c: float
+                ) -> NDArray[np.complex128]:
+    """The phasor amplitude * exp(+1j * 4 pi f d / c) of a path of one-way length d (the convention).
+
+    Parameters
+    ----------
+    amplitude : Amplitude of the path (of the cross correlation [V^2], or of the received voltage [V]).
+    depth_m : One-way length d of the path; the light travels it twice. [m]
+    frequency_hz : Modulation frequency f, broadcast against ``depth_m``. [Hz]
+    c : Speed of light. [m/s]
+
+    Returns
+    -------
+    Complex phasor, shape of the broadcast arguments, in the unit of ``amplitude``.
+    """
+    return phasor(amplitude, round_trip_phase(frequency_hz, depth_m, c))
+
+
 def two_path_phasors(
     theta: NDArray[np.float64], frequencies_hz: ArrayLike, gamma_r: float, c: float, multipath: bool = True
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Direct and multipath amplitudes and phases for each sample and frequency, eq 12-15.
+
+    The phasors of the two paths are :func:`phasor` (gamma_d, phi_d) and :func:`phasor` (gamma_m, phi_m).
 
     Parameters
     ----------

@@ -6,6 +6,7 @@ import html
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import matplotlib
 
@@ -14,11 +15,27 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from mpi_lidar.learning.evaluate import Evaluation
+from mpi_lidar.learning.model import ModelCard
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.atomic import atomic_path
 
 
-def generation_markdown(summary: dataset.DatasetSummary, run: dataset.GenerationReport, workers: str) -> str:
+class GenerationRun(Protocol):
+    """What a generation run reports (:class:`mpi_lidar.workflows.generate.GenerationReport`, a layer above)."""
+
+    @property
+    def chunks_written(self) -> int: ...
+    @property
+    def chunks_skipped(self) -> int: ...
+    @property
+    def rows_written(self) -> int: ...
+    @property
+    def wall_s(self) -> float: ...
+    @property
+    def rows_per_s(self) -> float: ...
+
+
+def generation_markdown(summary: dataset.DatasetSummary, run: GenerationRun, workers: str) -> str:
     """The dataset-generation summary: raw errors per frequency, then wall time and throughput."""
     lines = [
         summary.to_markdown(),
@@ -160,16 +177,16 @@ def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> plt
     return fig
 
 
-def _geometric_note(model_card: dict[str, object]) -> list[str]:
+def _geometric_note(model_card: ModelCard) -> list[str]:
     """Says that a geometric model's split figures rest on synthetic geometry estimates, not on scans."""
-    if not model_card.get("geometric", False):
+    if not model_card.geometric:
         return []
     return ["The model takes geometric inputs (coupling, d_AB). Dataset rows have no scan, so their inputs are "
             "synthetic estimates drawn from each row's true parameters with the error measured on rendered "
             "scenes (docs/scenes.md): the corrected figures hold where real scans match that error."]
 
 
-def evaluation_report(evaluation: Evaluation, model_card: dict[str, object]) -> tuple[Report, dict[str, plt.Figure]]:
+def evaluation_report(evaluation: Evaluation, model_card: ModelCard) -> tuple[Report, dict[str, plt.Figure]]:
     """Report of a model on a dataset split: the metrics table and the error histogram before/after."""
     table = Table(
         ("estimate", "rows", "MAE [mm]", "RMSE [mm]", "max abs error [mm]", "bias [mm]"),
@@ -183,10 +200,11 @@ def evaluation_report(evaluation: Evaluation, model_card: dict[str, object]) -> 
     report = Report(
         title=f"Evaluation on the {evaluation.split} split",
         blocks=[f"Dataset `{evaluation.data_path}`; model trained on dataset "
-                f"{model_card['dataset']['config_sha256'][:12]} with the {model_card['feature_set']} feature set "
-                f"and the {model_card['target_mode']} target.", *_geometric_note(model_card), table,
+                f"{model_card.dataset.config_sha256[:12]} with the {model_card.feature_set} feature set "
+                f"and the {model_card.target_mode} target.", *_geometric_note(model_card), table,
                 Path("error_hist.png")],
-        data={**evaluation.as_dict(), "model": {k: model_card.get(k, False) for k in (
-            "feature_set", "target_mode", "geometric", "params")}},
+        data={**evaluation.as_dict(), "model": {
+            "feature_set": model_card.feature_set, "target_mode": model_card.target_mode,
+            "geometric": model_card.geometric, "params": dict(model_card.params)}},
     )
     return report, {"error_hist.png": figure}

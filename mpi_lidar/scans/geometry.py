@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_coupling, pair_geometry
 from mpi_lidar.storage.atomic import write_bytes
 
 
@@ -67,9 +68,8 @@ def read_ply_points(path: str | Path) -> NDArray[np.float32]:
 
 # --- multipath potential -----------------------------------------------------------------------------------
 
-# Effective receiver footprint A_fp [m^2] of the A -> B -> A coupling: pi (12 mm)^2 times the gain that
-# calibrates the scene simulator's Lambertian boards to the paper's Fig. 7 (see mpi_lidar.simulation.scenes).
-DEFAULT_FOOTPRINT_AREA_M2 = 90.0 * np.pi * 0.012**2
+# The effective receiver footprint A_fp [m^2] of the A -> B -> A coupling, 90 pi (12 mm)^2, is defined with
+# its kernel in mpi_lidar.physics.coupling (DEFAULT_FOOTPRINT_AREA_M2, imported above).
 DEFAULT_BLOCK_M = 0.03
 DEFAULT_MAX_RANGE_M = 0.5
 DEFAULT_MIN_COS = 0.1
@@ -177,9 +177,9 @@ def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAU
     make fake partners. For each pair of blocks A, B closer than ``max_range_m`` [m] that face each other
     (cos_A, cos_B > ``min_cos``, and each centre further from the other's plane than three times the
     two fits' residual RMS, so noisy planes of one surface never face each other), B couples to A with
-    the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i) (mpi_lidar.simulation.scenes,
-    module docstring; r clamped below by the block size, the sum capped at 1). A plane, a convex surface
-    or open sky has no facing pair: zero everywhere. Block values are interpolated bilinearly to pixels.
+    the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i) (the one kernel of
+    :mod:`mpi_lidar.physics.coupling`; r clamped below by the block size, the sum capped at 1). A plane, a
+    convex surface or open sky has no facing pair: zero everywhere. Block values are interpolated bilinearly to pixels.
     Occlusion between A and B is ignored, and surfaces outside the scan's field of view are not known.
     """
     from scipy.ndimage import map_coordinates
@@ -210,17 +210,8 @@ def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAU
         pairs = cKDTree(c).query_pairs(max_range_m, output_type="ndarray")
         if pairs.size:
             i, j = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
-            offset = c[j] - c[i]
-            dist = np.linalg.norm(offset, axis=1)
-            direction = offset / np.maximum(dist, 1e-12)[:, None]
-            cos_a = np.einsum("ni,ni->n", direction, n[i])
-            cos_b = -np.einsum("ni,ni->n", direction, n[j])
-            # Each centre must stand clear of the other's plane by more than the fits' noise can explain.
-            margin = 3.0 * (noise[i] + noise[j])
-            facing = (cos_a > min_cos) & (cos_b > min_cos) & (cos_a * dist > margin) & (cos_b * dist > margin)
-            r_eff = np.maximum(dist, np.sqrt(np.maximum(a_blk[j], a_blk[i])))
-            kappa = np.where(facing, (cos_a * cos_b) ** 2 * a_blk[j] * footprint_area_m2
-                             / (np.pi**2 * r_eff**4 * cos_blk[i]), 0.0)
+            kappa, dist = _pair_coupling(c[i], n[i], cos_blk[i], a_blk[i], c[j], n[j], a_blk[j],
+                                         noise[i] + noise[j], footprint_area_m2, min_cos)
             coupling_blocks[index] = np.bincount(i, kappa, minlength=index.size)
             weighted_r[index] = np.bincount(i, kappa * dist, minlength=index.size)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -240,6 +231,24 @@ def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAU
     missing = ~np.isfinite(d)
     coupling[missing], bias[missing], d_ab[missing] = 0.0, 0.0, np.nan
     return MultipathPotential(coupling, d_ab, bias, b)
+
+
+def _pair_coupling(centre_a: NDArray, normal_a: NDArray, cos_i: NDArray, area_a: NDArray, centre_b: NDArray,
+                   normal_b: NDArray, area_b: NDArray, noise_m: NDArray, footprint_area_m2: float, min_cos: float
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """kappa_B of block B at block A for pairs of fitted planes (P,), and their distance (P,) [m].
+
+    The kernel is :func:`mpi_lidar.physics.coupling.footprint_coupling`; here a pair faces when both cosines
+    exceed ``min_cos`` and each centre stands clear of the other's plane by more than three times
+    ``noise_m`` (the two fits' summed residual RMS) [m]; r is clamped below by the larger block's side.
+    Centres (P, 3) [m], unit normals (P, 3), incidence cosines at A (P,) and block areas (P,) [m^2].
+    """
+    dist, cos_a, cos_b = pair_geometry(centre_a, normal_a, centre_b, normal_b)
+    # Each centre must stand clear of the other's plane by more than the fits' noise can explain.
+    margin = 3.0 * noise_m
+    facing = (cos_a > min_cos) & (cos_b > min_cos) & (cos_a * dist > margin) & (cos_b * dist > margin)
+    r_eff = np.maximum(dist, np.sqrt(np.maximum(area_b, area_a)))
+    return np.where(facing, footprint_coupling(cos_a, cos_b, area_b, r_eff, cos_i, footprint_area_m2), 0.0), dist
 
 
 def _pixel_solid_angle(rays: NDArray) -> NDArray[np.float64]:

@@ -23,6 +23,7 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
+from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import demod
 from mpi_lidar.storage.atomic import atomic_path
@@ -184,7 +185,7 @@ def store_fingerprints(group: zarr.Group) -> dict[str, list[str]]:
     return {name: array_fingerprints(group[name][...], group[name].chunks) for name in sorted(group.array_keys())}
 
 
-def read_scan(path: str | Path, c: float = 3.0e8) -> Scan:
+def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> Scan:
     """Read and validate a scan store; depth/amplitude are demodulated from taps when only taps are stored."""
     path = Path(path)
     if not path.exists():
@@ -244,7 +245,7 @@ def _check_declared_sizes(path: Path, group: zarr.Group, members: set[str]) -> N
 
 
 def import_arrays(
-    name: str, frequencies_hz: tuple[float, ...], arrays: dict[str, NDArray], c: float = 3.0e8
+    name: str, frequencies_hz: tuple[float, ...], arrays: dict[str, NDArray], c: float = TABLE_SPEED_OF_LIGHT_M_PER_S
 ) -> Scan:
     """A scan from plain arrays (e.g. an ``.npz`` from another tool): depth+amplitude or taps, plus extras."""
     known = {"depth", "amplitude", *OPTIONAL_ARRAYS}

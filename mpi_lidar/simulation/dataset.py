@@ -3,7 +3,7 @@
 A dataset is generated chunk by chunk. Chunk i draws its rows from a generator seeded by (seed, i), so
 the bytes of a chunk never depend on which process writes it or in which order. Each chunk writes its own
 row range of every array, then marks itself complete in ``chunk_done``: a chunk whose mark is set is
-complete, and a re-run skips it.
+complete, and a re-run skips it. The loop over the chunks is :func:`mpi_lidar.workflows.generate.generate`.
 
 Layout (Zarr v3, one group): ``features`` float32 (n, 2F) = [depth per frequency, amplitude per frequency];
 ``target`` float64 (n,) true d_AS [m]; ``theta`` float64 (n, 6) scene parameters; ``split`` uint8 (n,)
@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -24,7 +23,6 @@ from pathlib import Path
 import dask.array as da
 import numpy as np
 import zarr
-from distributed import Client, as_completed
 from numpy.typing import NDArray
 
 from mpi_lidar import __version__
@@ -41,7 +39,6 @@ DATA_ARRAYS = ("features", "target", "theta", "split")
 ARRAYS = (*DATA_ARRAYS, "chunk_done", "chunk_sha256")
 # Stream of the seed tree reserved for summary statistics, apart from the chunk streams (seed, i).
 SUMMARY_STREAM = (1, 0)
-CHUNK_RETRIES = 2
 
 
 def frequency_labels(frequencies_hz: tuple[float, ...]) -> list[str]:
@@ -99,17 +96,23 @@ def cached_sensor(config: Config) -> SensorModel:
     return make_sensor(config)
 
 
+def simulate_rows(config: Config, n: int, rng: np.random.Generator) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+    """n rows drawn from the configured prior and measured by its sensor, from ``rng``: the features (n, 2F)
+    (depths then amplitudes, float32) and theta (n, 6); the true depth d_AS is theta's first column. [m, V^2]"""
+    theta = sample_theta(config.prior, n, rng)
+    depth, amplitude = cached_sensor(config).measure(theta, rng)
+    return np.concatenate([depth, amplitude], axis=1).astype(np.float32), theta
+
+
 def simulate_chunk(config: Config, index: int) -> Chunk:
     """Draw, simulate and split chunk ``index`` of the configured plan; a pure function of both."""
     plan = SamplingPlan.from_config(config)
     rows = plan.rows(index)
     n = rows.stop - rows.start
     rng = seeded_rng(plan.seed, index)
-    theta = sample_theta(config.prior, n, rng)
-    depth, amplitude = cached_sensor(config).measure(theta, rng)
+    features, theta = simulate_rows(config, n, rng)
     split = np.zeros(n, dtype=np.uint8)
     split[rng.permutation(n)[: round(n * config.dataset.test_fraction)]] = SPLIT_CODES["test"]
-    features = np.concatenate([depth, amplitude], axis=1).astype(np.float32)
     return Chunk(features=features, target=theta[:, 0].copy(), theta=theta, split=split)
 
 
@@ -270,59 +273,6 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
             for name in DATA_ARRAYS])
     group["chunk_done"][index] = 1
     return True
-
-
-@dataclass(frozen=True)
-class GenerationReport:
-    """What one generation run did."""
-
-    chunks_written: int
-    chunks_skipped: int
-    rows_written: int
-    wall_s: float
-
-    @property
-    def rows_per_s(self) -> float:
-        return self.rows_written / self.wall_s if self.wall_s > 0 else 0.0
-
-
-def generate(
-    path: str | Path,
-    config: Config,
-    client: Client | None = None,
-    on_chunk: Callable[[int], None] | None = None,
-) -> GenerationReport:
-    """Generate the dataset, resuming an interrupted store; one task per incomplete chunk.
-
-    With a Dask ``client`` each chunk is a task that writes straight into its own region of the store
-    (nothing is gathered on the client; a failed task is retried, and a lost worker's tasks are rerun by
-    the scheduler). Without one, the chunks run in this process. Both write identical bytes.
-    """
-    started = time.perf_counter()
-    group = create_store(path, config)
-    plan = SamplingPlan.from_config(config)
-    todo = incomplete_chunks(group)
-    try:
-        for index in _run_chunks(str(path), config, todo, client):
-            if on_chunk is not None:
-                on_chunk(index)
-    except OSError as exc:
-        raise StoreError(f"writing dataset {path} failed: {exc.strerror or exc}; free space or fix "
-                         "permissions, then run again: finished chunks are kept and skipped") from None
-    return GenerationReport(len(todo), plan.chunks - len(todo), plan.rows_in(todo), time.perf_counter() - started)
-
-
-def _run_chunks(path: str, config: Config, todo: list[int], client: Client | None) -> Iterator[int]:
-    if client is None:
-        for index in todo:
-            write_chunk(path, config, index)
-            yield index
-        return
-    futures = {client.submit(write_chunk, path, config, index, retries=CHUNK_RETRIES, pure=False): index
-               for index in todo}
-    for future in as_completed(futures):
-        future.result()
-        yield futures[future]
 
 
 # --- readers ----------------------------------------------------------------------------------------------

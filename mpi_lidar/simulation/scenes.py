@@ -2,26 +2,19 @@
 
 For each scan direction the first surface hit is A. The direct path (eq 12, 14) returns from A with
 Gamma_D = Gamma_R a cos_i / d_AS^2 for a Lambertian surface of albedo a hit at incidence cos_i. The
-multipath A -> B -> A (eq 13, 15) is integrated over small patches B of the other surfaces: A scatters a
-fraction a cos_A cos_B dA_B / (pi r^2) of its light onto the patch, the patch returns b cos_B cos_A A_fp /
-(pi r^2) of that onto the receiver footprint A_fp around A, and A scatters it to the sensor like the direct
-light, which itself carried a cos_i. So each patch adds
+multipath A -> B -> A (eq 13, 15) is integrated over small patches B of the other surfaces; each patch adds
 
-    Gamma_M,B = Gamma_D a b (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i),  phase 4 pi f (d_AS + r) / c,
+    Gamma_M,B = Gamma_D a b kappa_B,   kappa_B = (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i),
+    phase 4 pi f (d_AS + r) / c,
 
-which is the paper's reciprocal prior with coupling kappa = b (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i)
-summed over B (ratio Gamma_M / Gamma_D = a kappa b). Only patches facing A (cos_A, cos_B > 0) count; r is
-clamped below by the patch spacing (the finite beam smooths the 1/r^4 singularity at a corner line);
-occlusion between A and B is ignored, which is exact for the corners and walls here and approximate for
-the multi-object scene. A planar or convex surface never sees itself. The summed coupling is capped at
-kappa = 1 (A cannot get back more than all its light through B), which binds only next to a corner line.
-
-Calibration. With Lambertian boards and a 12 mm footprint radius this integral gives a 90-degree corner a
-ratio Gamma_M / Gamma_D of about 3.8e-6 m^2 / a^2 at a distance a from the edge (closed form:
-a b A_fp 0.1309 / (pi^2 a^2 cos_i)), some 50 times less multipath than the paper measured on its cornered
-board (Fig. 7: 5.0 mm raw MAE, 2.4 cm at most). Real boards are not Lambertian and the receiver's field of
-view is not given, so the coupling is scaled by ``coupling_gain``, calibrated to Fig. 7: at 90 the cornered
-board shows a raw 31.25 MHz MAE near 5 mm on its reference mask and about 2.4 cm at the corner.
+the kernel of :mod:`mpi_lidar.physics.coupling` (its derivation, and the calibration of the effective
+footprint A_fp = ``coupling_gain`` pi r_fp^2 to the paper's Fig. 7, are given there). Summed over B this is
+the paper's reciprocal prior with coupling kappa (ratio Gamma_M / Gamma_D = a kappa b). Only patches facing
+A (cos_A, cos_B > 0) count; r is clamped below by the patch spacing (the finite beam smooths the 1/r^4
+singularity at a corner line); occlusion between A and B is ignored, which is exact for the corners and
+walls here and approximate for the multi-object scene. A planar or convex surface never sees itself. The
+summed coupling is capped at kappa = 1 (A cannot get back more than all its light through B), which binds
+only next to a corner line.
 """
 
 from __future__ import annotations
@@ -36,12 +29,18 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
 from mpi_lidar.physics import demod, make_sensor
+from mpi_lidar.physics.coupling import (
+    DEFAULT_COUPLING_GAIN,
+    DEFAULT_FOOTPRINT_RADIUS_M,
+    footprint_area,
+    footprint_coupling,
+    pair_geometry,
+)
 from mpi_lidar.physics.sensor import received_voltage_amplitude
+from mpi_lidar.physics.transport import path_phasor
 from mpi_lidar.scans.scan import Scan, grid_rays, write_scan
 
-DEFAULT_FOOTPRINT_RADIUS_M = 0.012
 DEFAULT_PATCH_SPACING_M = 0.02
-DEFAULT_COUPLING_GAIN = 90.0
 PIXEL_BLOCK = 512
 
 
@@ -265,6 +264,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     ratio-weighted mean A-B distance [m] (NaN without multipath).
     """
     s = config.sensor
+    c = s.speed_of_light_m_per_s
     freqs = np.asarray(config.frequencies_hz)
     rays = grid_rays(scene.azimuth_rad, scene.elevation_rad).reshape(-1, 3)
     d_as, which = first_hits(scene)
@@ -273,7 +273,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     patches = [s_.patches(patch_spacing_m) for s_ in scene.surfaces]
     true_kappa = np.zeros(rays.shape[0])
     true_d_ab = np.full(rays.shape[0], np.nan)
-    footprint_area = coupling_gain * np.pi * footprint_radius_m**2
+    effective_footprint = footprint_area(footprint_radius_m, coupling_gain)
     for index, surface in enumerate(scene.surfaces):
         pixels = np.flatnonzero(which == index)
         for start in range(0, pixels.size, PIXEL_BLOCK):
@@ -283,7 +283,6 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
             normals = np.where((normals * rays[block]).sum(1, keepdims=True) > 0, -normals, normals)
             cos_i = -(normals * rays[block]).sum(1)
             gamma_d = s.gamma_r_v2 * surface.albedo * cos_i / d_as[block] ** 2  # eq 12
-            direct_phase = 4 * np.pi * freqs[None, :] * d_as[block, None] / s.speed_of_light_m_per_s  # eq 14
             multipath = np.zeros((block.size, freqs.size), dtype=np.complex128)
             multipath_dc = np.zeros(block.size)
             kappa = np.zeros(block.size)
@@ -292,8 +291,8 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
                 if other == index:
                     continue  # planar and convex surfaces do not see themselves
                 ratio, r = _patch_coupling(points, normals, cos_i, surface.albedo, scene.surfaces[other],
-                                           centres, patch_normals, areas, footprint_area, patch_spacing_m)
-                wave = np.exp((4j * np.pi / s.speed_of_light_m_per_s) * r[:, :, None] * freqs[None, None, :])
+                                           centres, patch_normals, areas, effective_footprint, patch_spacing_m)
+                wave = path_phasor(1.0, r[:, :, None], freqs[None, None, :], c)  # eq 15: d_AS + r
                 multipath += np.einsum("nm,nmf->nf", ratio, wave)  # eq 13, 15: one term per patch
                 multipath_dc += ratio.sum(1)
                 kappa += ratio.sum(1) / (surface.albedo * scene.surfaces[other].albedo)
@@ -303,7 +302,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
             true_kappa[block] = kappa * scale
             with np.errstate(invalid="ignore", divide="ignore"):
                 true_d_ab[block] = np.where(multipath_dc > 0, ratio_r / multipath_dc, np.nan)
-            direct = gamma_d[:, None] * np.exp(1j * direct_phase)
+            direct = path_phasor(gamma_d[:, None], d_as[block, None], freqs[None, :], c)  # eq 12, 14
             phasor[block] = direct * (1 + scale[:, None] * multipath)
             dc[block] = gamma_d[:, None] * (1 + scale * multipath_dc)[:, None]
     if coupling_out is not None:
@@ -313,18 +312,18 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
 
 def _patch_coupling(points, normals, cos_i, albedo_a, other: Surface, centres, patch_normals, areas,
                     footprint_area: float, min_r: float) -> tuple[NDArray, NDArray]:
-    """Gamma_M,B / Gamma_D (n, M) and the A-B distance (n, M) [m] for every patch of another surface."""
-    offset = centres[None, :, :] - points[:, None, :]
-    r = np.linalg.norm(offset, axis=-1)
-    direction = offset / np.maximum(r, 1e-12)[..., None]
-    cos_a = np.einsum("nmk,nk->nm", direction, normals)
-    cos_b = -np.einsum("nmk,mk->nm", direction, patch_normals)
+    """Gamma_M,B / Gamma_D (n, M) and the A-B distance (n, M) [m] for every patch of another surface.
+
+    The kernel is :func:`mpi_lidar.physics.coupling.footprint_coupling`; here pairs face each other when both
+    cosines are positive, r is clamped below by ``min_r`` (the patch spacing) and cos_i by 1e-3.
+    """
+    r, cos_a, cos_b = pair_geometry(points[:, None, :], normals[:, None, :], centres[None, :, :],
+                                    patch_normals[None, :, :])
     if other.planar:
         cos_b = np.abs(cos_b)  # either side of a board faces A if A is in front of it
     facing = (cos_a > 0) & (cos_b > 0)
-    r_eff = np.maximum(r, min_r)
-    ratio = albedo_a * other.albedo * (cos_a * cos_b) ** 2 * areas[None, :] * footprint_area
-    ratio = ratio / (np.pi**2 * r_eff**4 * np.maximum(cos_i, 1e-3)[:, None])
+    ratio = footprint_coupling(cos_a, cos_b, areas[None, :], np.maximum(r, min_r), np.maximum(cos_i, 1e-3)[:, None],
+                               footprint_area, reflectance=albedo_a * other.albedo)
     return np.where(facing, ratio, 0.0), r
 
 
@@ -452,6 +451,7 @@ def scan_from_transient(name: str, histogram: NDArray, bin_s: float, config: Con
     """
     h = np.asarray(histogram, dtype=np.float64)
     times = np.arange(h.shape[0]) * bin_s
+    # e^{+j 2 pi f t} with t = 2 d / c: the phasor convention of mpi_lidar.physics.transport
     kernel = np.exp(2j * np.pi * np.outer(config.frequencies_hz, times))  # (F, T)
     phasor = np.tensordot(kernel, h, axes=(1, 0))  # (F, H, W)
     dc = np.broadcast_to(h.sum(0), phasor.shape)

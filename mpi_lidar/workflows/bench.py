@@ -22,15 +22,18 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
+from mpi_lidar.correction.correct import in_depth_range
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec, weighted_depth
-from mpi_lidar.simulation.dataset import cached_sensor, seeded_rng
-from mpi_lidar.simulation.sampling import sample_theta
+from mpi_lidar.learning.model import booster_depth
+from mpi_lidar.learning.train import DEFAULT_PARAMS, TrainResult, train_arrays
+from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
 
 # Seed streams of the benchmark (under the configured dataset seed): train and test never share one.
 TRAIN_STREAM, TEST_STREAM = 101, 202
+# Trees x depth; the other parameters are DEFAULT_PARAMS (learning rate 0.1).
 XGB_SIZES: tuple[tuple[int, int], ...] = ((50, 4), (200, 6), (500, 8), (1000, 8))
-XGB_LEARNING_RATE = 0.1
 NOISE_SCALES: tuple[float, ...] = (1.0, 0.3, 0.1, 0.01)
 
 
@@ -48,6 +51,10 @@ class Sample:
     def head(self, n: int) -> Sample:
         return Sample(self.raw[:n], self.target[:n], self.theta[:n])
 
+    def inputs(self, spec: FeatureSpec) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+        """The model inputs and the training target of these rows under ``spec``."""
+        return spec.transform(self.raw), spec.target(self.raw, self.target)
+
 
 def simulate(config: Config, n: int, stream: int, noise_scale: float | None = None,
              d_as_m: tuple[float, float] | None = None) -> Sample:
@@ -60,38 +67,14 @@ def simulate(config: Config, n: int, stream: int, noise_scale: float | None = No
         config = config.replace(simulator={"noise_scale": noise_scale})
     if d_as_m is not None:
         config = config.replace(prior={"d_as_m": d_as_m})
-    rng = seeded_rng(config.dataset.seed, stream)
-    theta = sample_theta(config.prior, n, rng)
-    depth, amplitude = cached_sensor(config).measure(theta, rng)
-    raw = np.concatenate([depth, amplitude], axis=1).astype(np.float32)
-    return Sample(raw, theta[:, 0].copy(), theta)
-
-
-def fit_xgboost(x: NDArray, y: NDArray, params: dict[str, object], rounds: int,
-                early_stopping: int | None = None, nthread: int = 1) -> tuple[xgb.Booster, float]:
-    """Train XGBoost in this process; with ``early_stopping``, every tenth row is held out to stop on.
-
-    Returns the booster (trimmed to its best iteration when early-stopped) and the fit wall time [s].
-    """
-    from mpi_lidar.learning.train import BASE_PARAMS
-
-    full = {**BASE_PARAMS, "nthread": nthread, "seed": 0, **params}
-    started = time.perf_counter()
-    if early_stopping:
-        hold = np.arange(y.size) % 10 == 0
-        dfit = xgb.QuantileDMatrix(x[~hold], y[~hold], nthread=nthread)
-        dval = xgb.QuantileDMatrix(x[hold], y[hold], ref=dfit, nthread=nthread)
-        booster = xgb.train(full, dfit, rounds, evals=[(dval, "validation")],
-                            early_stopping_rounds=early_stopping, verbose_eval=False)
-        booster = booster[: booster.best_iteration + 1]
-    else:
-        booster = xgb.train(full, xgb.QuantileDMatrix(x, y, nthread=nthread), rounds, verbose_eval=False)
-    return booster, time.perf_counter() - started
+    features, theta = simulate_rows(config, n, seeded_rng(config.dataset.seed, stream))
+    return Sample(features, theta[:, 0].copy(), theta)
 
 
 def mae(estimate: NDArray, truth: NDArray) -> float:
-    """Mean absolute error over all rows (a non-finite estimate makes it non-finite). [m]"""
-    return float(np.mean(np.abs(np.asarray(estimate, dtype=np.float64) - truth)))
+    """Mean absolute error over all rows (:func:`error_metrics`); NaN if any estimate is not finite. [m]"""
+    metrics = error_metrics(estimate, truth)
+    return metrics.mae_m if metrics.non_finite == 0 else float("nan")
 
 
 def pareto_front(error: Sequence[float], cost: Sequence[float]) -> NDArray[np.bool_]:
@@ -144,19 +127,14 @@ def _sklearn(build: Callable[[None, int], object], spec: FeatureSpec, max_rows: 
     return fit
 
 
-def xgboost_method(spec: FeatureSpec, trees: int, depth: int, learning_rate: float = XGB_LEARNING_RATE,
-                   nthread: int = 1) -> Callable[[Sample], Predictor]:
-    """XGBoost with a fixed number of trees of a fixed depth (no early stopping: the size is the point)."""
-    from mpi_lidar.learning.train import DEFAULT_PARAMS
-
-    params = {**DEFAULT_PARAMS, "max_depth": depth, "learning_rate": learning_rate}
+def xgboost_method(spec: FeatureSpec, trees: int, depth: int, nthread: int = 1) -> Callable[[Sample], Predictor]:
+    """XGBoost (DEFAULT_PARAMS) with a fixed number of trees of a fixed depth (no early stopping: the size is
+    the point)."""
+    params = {**DEFAULT_PARAMS, "max_depth": depth}
 
     def fit(train: Sample) -> Predictor:
-        booster, _ = fit_xgboost(spec.transform(train.raw), spec.target(train.raw, train.target), params, trees,
-                                 nthread=nthread)
-        booster.set_param({"nthread": nthread})
-        return lambda raw: np.asarray(spec.depth(raw, booster.inplace_predict(spec.transform(raw))
-                                                 .astype(np.float64)))
+        booster = train_arrays(*train.inputs(spec), params, trees, early_stopping_rounds=None, nthread=nthread).booster
+        return lambda raw: booster_depth(booster, spec, raw)
     return fit
 
 
@@ -241,10 +219,11 @@ def score(method: Method, predict: Predictor, train_s: float, train: Sample, tes
     trained = method.family not in ("no model", "physics")
     rows = test.head(method.max_test_rows) if method.max_test_rows else test
     estimate, rows_per_s = _throughput(predict, rows.raw)
-    error = np.asarray(estimate, dtype=np.float64) - rows.target
+    errors = error_metrics(estimate, rows.target)
+    finite = errors.non_finite == 0  # a method that fails on some rows scores NaN, not its successes alone
     return BenchRow(method.name, method.family, len(train) if trained else 0, len(rows),
                     train_s if trained else 0.0, rows_per_s,
-                    1e3 * float(np.abs(error).mean()), 1e3 * float(np.sqrt((error**2).mean())))
+                    1e3 * errors.mae_m if finite else float("nan"), 1e3 * errors.rmse_m if finite else float("nan"))
 
 
 def with_pareto(rows: list[BenchRow]) -> list[BenchRow]:
@@ -259,17 +238,10 @@ def with_pareto(rows: list[BenchRow]) -> list[BenchRow]:
 # --- accuracy curves and the out-of-range check ------------------------------------------------------------
 
 
-def reference_xgboost(spec: FeatureSpec, train: Sample, nthread: int = 1) -> tuple[xgb.Booster, float]:
-    """XGBoost with the project's DEFAULT_PARAMS, early-stopped on every tenth train row (as ``train`` does)."""
-    from mpi_lidar.learning.train import DEFAULT_EARLY_STOPPING, DEFAULT_PARAMS, DEFAULT_ROUNDS
-
-    return fit_xgboost(spec.transform(train.raw), spec.target(train.raw, train.target), dict(DEFAULT_PARAMS),
-                       DEFAULT_ROUNDS, early_stopping=DEFAULT_EARLY_STOPPING, nthread=nthread)
-
-
-def booster_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray) -> NDArray[np.float64]:
-    """Corrected depth [m] of raw rows (n, 2F) by a booster trained on ``spec``."""
-    return np.asarray(spec.depth(raw, booster.inplace_predict(spec.transform(raw)).astype(np.float64)))
+def reference_xgboost(spec: FeatureSpec, train: Sample) -> TrainResult:
+    """The reference XGBoost: the project's training (:func:`mpi_lidar.learning.train.train_arrays`) with its
+    defaults, DEFAULT_PARAMS early-stopped on every tenth train row, in this process on one thread."""
+    return train_arrays(*train.inputs(spec))
 
 
 @dataclass(frozen=True)
@@ -287,10 +259,10 @@ class CurvePoint:
 
 
 def curve_point(curve: str, spec: FeatureSpec, train: Sample, test: Sample, noise_scale: float,
-                booster: tuple[xgb.Booster, float] | None = None) -> CurvePoint:
-    booster, train_s = booster or reference_xgboost(spec, train)
-    freqs = spec.frequencies_hz
-    return CurvePoint(curve, noise_scale, len(train), booster.num_boosted_rounds(), train_s,
+                fitted: TrainResult | None = None) -> CurvePoint:
+    fitted = fitted or reference_xgboost(spec, train)
+    booster, freqs = fitted.booster, spec.frequencies_hz
+    return CurvePoint(curve, noise_scale, len(train), booster.num_boosted_rounds(), fitted.wall_s,
                       1e3 * mae(top_depth(freqs)(test.raw), test.target),
                       1e3 * mae(weighted_depth(test.raw, freqs), test.target),
                       1e3 * mae(booster_depth(booster, spec, test.raw), test.target))
@@ -307,17 +279,10 @@ def range_guarded_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray, d
     positive tolerance lets rows from beyond the range be corrected wrongly: at +2 cm the MAE of a d_AS
     2.4-3.0 m set rises about 1.5% above the raw depth's, at 0 it stays equal (docs/tradeoff.md).
     """
-    from mpi_lidar.correction import in_model_range
-    from mpi_lidar.learning.model import CorrectionModel
-
-    options = CorrectionOptions(range_tolerance_m=tolerance_m)
-    model = CorrectionModel(booster, {"frequencies_hz": list(spec.frequencies_hz), "feature_set": spec.feature_set,
-                                      "target_mode": spec.target_mode, "raw_feature_names": spec.raw_names,
-                                      "dataset": {"prior": {"d_as_m": list(d_as_m)}}})
     depth = top_depth(spec.frequencies_hz)(raw)
-    inside = in_model_range(depth, model, options)
+    inside = in_depth_range(depth, d_as_m, CorrectionOptions(range_tolerance_m=tolerance_m))
     if inside.any():
-        depth[inside] = model.predict_depth(raw[inside])
+        depth[inside] = booster_depth(booster, spec, raw[inside])
     return depth
 
 
@@ -412,7 +377,7 @@ def run_bench(plan: BenchPlan, config: Config | None = None, spec: FeatureSpec |
         noise.append(curve_point("noise", spec, simulate(config, plan.rows, TRAIN_STREAM, noise_scale=scale),
                                  simulate(config, plan.test_rows, TEST_STREAM, noise_scale=scale), scale))
     step("out of range")
-    booster = (full or reference_xgboost(spec, train))[0]
+    booster = (full or reference_xgboost(spec, train)).booster
     far = simulate(config, plan.out_of_range_rows, TEST_STREAM + 1, d_as_m=plan.out_of_range_d_as_m)
     guarded = range_guarded_depth(booster, spec, far.raw, config.prior.d_as_m)
     tolerant = range_guarded_depth(booster, spec, far.raw, config.prior.d_as_m,
@@ -527,10 +492,10 @@ def write_bench(result: BenchResult, out_dir: str | Path, machine: str = "") -> 
              f"(separate seed streams). Learners and XGBoost use the '{result.feature_set}' feature set and the "
              f"'{result.target_mode}' target. Training time is the fit's wall time in this process; throughput is "
              "one process predicting the test rows (the gate's own cost included). XGBoost sizes are trees x depth "
-             f"at learning rate {XGB_LEARNING_RATE:g}, no early stopping, one thread; '+ gate' corrects only the rows "
-             "the consistency gate flags and keeps the raw depth elsewhere. The least-squares solver is timed and "
-             f"scored on the first {p.solver_rows:,} test rows. A point is on a Pareto front when no other "
-             "method has both a lower-or-equal MAE and a lower-or-equal time (one of them strictly lower). "
+             f"at learning rate {DEFAULT_PARAMS['learning_rate']:g}, no early stopping, one thread; '+ gate' corrects "
+             "only the rows the consistency gate flags and keeps the raw depth elsewhere. The least-squares solver "
+             f"is timed and scored on the first {p.solver_rows:,} test rows. A point is on a Pareto front when no "
+             "other method has both a lower-or-equal MAE and a lower-or-equal time (one of them strictly lower). "
              f"{machine}Total wall time {result.wall_s:.0f} s.")
     report = Report(
         title="Run time against error",

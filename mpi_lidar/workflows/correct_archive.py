@@ -3,8 +3,9 @@
 Per scan the outputs go into ``<out>/<scan name>/`` (``corrected.zarr``, report files, point clouds),
 built under a staging name and renamed into place (:mod:`mpi_lidar.storage.atomic`), so a scan's outputs
 are all there or not at all. A scan already corrected by the same model with the same options (same content
-hashes) is skipped. The loop runs in this process or as one task per scan on a Dask client, the same for
-the command line and the Prefect flow.
+hashes) is skipped. The loop runs on an executor (:mod:`mpi_lidar.workflows.executor`): in this process, as
+one Dask task per scan, or as one Prefect task per scan in the flow; the command line, the pipeline and the
+Prefect flow all call :func:`correct_archive`.
 """
 
 from __future__ import annotations
@@ -12,11 +13,12 @@ from __future__ import annotations
 import glob
 import re
 import time
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
 import zarr
-from distributed import Client, as_completed
+from distributed import Client
 
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, correct_scan, make_gate
 from mpi_lidar.errors import MpiLidarError
@@ -24,6 +26,7 @@ from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.reporting.scan_report import scan_metrics, write_scan_outputs
 from mpi_lidar.scans.scan import SCAN_SUFFIX, read_scan
 from mpi_lidar.storage.atomic import remove_interrupted_staging
+from mpi_lidar.workflows.executor import Executor, as_executor
 
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
@@ -72,7 +75,7 @@ def _process_scan(source: str, model_dir: Path, out_dir: Path, options: Correcti
     name = safe_scan_name(scan.name)
     target = out_dir / name
     model = _cached_model(str(model_dir))
-    scan_sha, model_sha, options_sha = scan.content_sha256(), model.card["model_sha256"], options.sha256()
+    scan_sha, model_sha, options_sha = scan.content_sha256(), model.card.model_sha256, options.sha256()
     if _already_done(target, scan_sha, model_sha, options_sha):
         return ScanOutcome(source, name, ScanStatus.SKIPPED, "already corrected with this model and options",
                            output=str(target), seconds=time.perf_counter() - started)
@@ -107,8 +110,15 @@ def expand_archive(inputs: list[str]) -> list[str]:
 
 
 def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
-                    client: Client | None = None, on_scan=None) -> list[ScanOutcome]:
-    """Correct every scan, one task per scan on Dask (or in this process); a bad scan fails alone."""
+                    executor: Executor | Client | None = None, on_scan: Callable[[ScanOutcome], None] | None = None,
+                    *, client: Client | None = None) -> list[ScanOutcome]:
+    """Correct every scan, one call of :func:`process_scan` per scan on ``executor``; a bad scan fails alone.
+
+    The executor runs the scans in this process (None), as Dask tasks (an executor or a ``client``, the same)
+    or as the correction flow's Prefect tasks. Before any scan, a model that cannot be loaded or a gate that
+    cannot be made fails the batch with one line, and staging directories an interrupted run left in
+    ``out_dir`` are removed. ``on_scan`` sees each outcome as it finishes; the outcomes come back by source.
+    """
     load_model(model_dir)  # a broken model fails the whole batch at once, with one clear line
     make_gate(options)
     out_dir = Path(out_dir)
@@ -118,16 +128,11 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
         raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
     sources = expand_archive(inputs)
     remove_interrupted_staging(out_dir)
+    calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options}
+             for source in sources]
     outcomes: list[ScanOutcome] = []
-    if client is None:
-        for source in sources:
-            outcomes.append(process_scan(source, model_dir, out_dir, options))
-            if on_scan:
-                on_scan(outcomes[-1])
-    else:
-        futures = [client.submit(process_scan, s, str(model_dir), str(out_dir), options, pure=False) for s in sources]
-        for future in as_completed(futures):
-            outcomes.append(future.result())
-            if on_scan:
-                on_scan(outcomes[-1])
+    for _call, outcome in as_executor(executor if executor is not None else client).map(process_scan, calls):
+        outcomes.append(outcome)
+        if on_scan:
+            on_scan(outcome)
     return sorted(outcomes, key=lambda o: o.source)

@@ -1,4 +1,7 @@
-"""The main job: generate a dataset, tune, train and evaluate, into one run directory, on one cluster.
+"""The main job: generate a dataset, tune, train and evaluate, into one run directory.
+
+:func:`run_pipeline` is its one definition, for the command line (:class:`ClusterSteps`, on one Dask cluster)
+and for the Prefect flow (``flows.pipeline``, whose steps are subflows and tasks that publish artifacts).
 
 Layout of ``out_dir``: ``dataset.zarr``, ``optuna.db`` (the study), ``model/``, ``report/``, then the demo
 scenes rendered into ``scenes/`` and corrected into ``corrected/``. Every step is resumable: a complete
@@ -8,8 +11,8 @@ and the study's best parameters is reused, existing scene scans are kept and cor
 
 from __future__ import annotations
 
-import json
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,19 +25,23 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.evaluate import Evaluation, evaluate_model
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
-from mpi_lidar.learning.model import CARD_FILE, load_model
-from mpi_lidar.learning.train import BASE_PARAMS, train_and_save
-from mpi_lidar.reporting.report import evaluation_report, write_report
+from mpi_lidar.learning.model import CARD_FILE, load_model, read_card
+from mpi_lidar.learning.train import train_and_save, xgb_params
+from mpi_lidar.reporting.report import Report, evaluation_report, write_report
 from mpi_lidar.reporting.scan_report import write_batch_report
 from mpi_lidar.scans.scan import SCAN_SUFFIX
 from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.scenes import DEMO_SCENES, render_scenes
 from mpi_lidar.workflows.correct_archive import correct_archive
+from mpi_lidar.workflows.executor import DaskExecutor
+from mpi_lidar.workflows.generate import GenerationReport, generate
+
+STUDY = "xgboost"  # the pipeline's study in its storage
 
 
 @dataclass(frozen=True)
 class PipelineResult:
-    dataset: dataset.GenerationReport
+    dataset: GenerationReport
     tuning: tune.TuneReport
     model_dir: Path
     model_reused: bool
@@ -43,38 +50,108 @@ class PipelineResult:
     scans: list[ScanOutcome]
 
 
+class PipelineSteps(ABC):
+    """How each step of the main job runs. :func:`run_pipeline` decides what runs, with what, in which order.
+
+    :class:`ClusterSteps` runs the steps on one Dask cluster (the command line); the Prefect flow
+    (``flows.pipeline``) runs each as a subflow or task that also publishes its artifacts.
+    """
+
+    @abstractmethod
+    def generate(self, data: Path, config: Config) -> GenerationReport:
+        """Generate (or resume) the dataset store ``data`` of ``config``."""
+
+    @abstractmethod
+    def tune(self, storage: str, study: str, settings: tune.TuneSettings, trials: int) -> tune.TuneReport:
+        """Run the study to ``trials`` finished trials."""
+
+    @abstractmethod
+    def train(self, data: Path, model_dir: Path, spec: FeatureSpec, params: dict[str, object], storage: str,
+              study: str) -> None:
+        """Train the final model into ``model_dir`` with ``params``, the best of ``study`` in ``storage``."""
+
+    @abstractmethod
+    def evaluate(self, data: Path, model_dir: Path, report_dir: Path) -> Evaluation:
+        """Evaluate the model on the test split and write the report into ``report_dir``."""
+
+    def demo_scans(self, scene_dir: Path, config: Config) -> list[Path]:
+        """The demo scenes as scans (:func:`demo_scans`)."""
+        return demo_scans(scene_dir, config)
+
+    @abstractmethod
+    def correct(self, scans: list[Path], model_dir: Path, out_dir: Path,
+                options: CorrectionOptions) -> list[ScanOutcome]:
+        """Correct the scans into ``out_dir`` and write the batch summary there."""
+
+
+class ClusterSteps(PipelineSteps):
+    """Every step on one Dask client: chunks, trials, training and scans are its tasks."""
+
+    def __init__(self, client: Client) -> None:
+        self.client = client
+        self.executor = DaskExecutor(client)
+
+    def generate(self, data: Path, config: Config) -> GenerationReport:
+        return generate(data, config, self.executor)
+
+    def tune(self, storage: str, study: str, settings: tune.TuneSettings, trials: int) -> tune.TuneReport:
+        return tune.tune(self.client, storage, study, settings, trials)
+
+    def train(self, data: Path, model_dir: Path, spec: FeatureSpec, params: dict[str, object], storage: str,
+              study: str) -> None:
+        train_and_save(self.client, data, model_dir, spec, params)
+
+    def evaluate(self, data: Path, model_dir: Path, report_dir: Path) -> Evaluation:
+        return evaluate_to_report(data, model_dir, report_dir)[0]
+
+    def correct(self, scans: list[Path], model_dir: Path, out_dir: Path,
+                options: CorrectionOptions) -> list[ScanOutcome]:
+        started = time.perf_counter()
+        outcomes = correct_archive([str(p) for p in scans], model_dir, out_dir, options, self.executor)
+        write_batch_report(outcomes, time.perf_counter() - started, out_dir)
+        return outcomes
+
+
 def run_pipeline(
-    client: Client, out_dir: str | Path, config: Config, trials: int, tune_rows: int,
+    steps: PipelineSteps, out_dir: str | Path, config: Config, trials: int, tune_rows: int,
     echo: Callable[[str], None] = print,
 ) -> PipelineResult:
+    """The main job into ``out_dir``, each step run by ``steps``; every step resumes what a previous run left.
+
+    A model directory whose card does not match the dataset, the study's best parameters and the inputs is
+    refused (:class:`MpiLidarError`), never overwritten nor silently reused.
+    """
     out_dir = Path(out_dir)
     data, model_dir, report_dir = out_dir / "dataset.zarr", out_dir / "model", out_dir / "report"
-    generation = dataset.generate(data, config, client)
+    generation = steps.generate(data, config)
     echo(f"dataset {data}: {generation.chunks_written} chunks written, {generation.chunks_skipped} already there")
 
     spec = FeatureSpec(config.frequencies_hz, DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, DEFAULT_GEOMETRIC)
     storage = tune.default_storage(data)
     settings = tune.TuneSettings(str(data), spec, tune_rows=min(tune_rows, config.dataset.samples))
-    tuning = tune.tune(client, storage, "xgboost", settings, trials)
-    echo(f"study 'xgboost': {tuning.trials_run} trials run, best validation MAE {1e3 * tuning.best_value_m:.3f} mm")
+    tuning = steps.tune(storage, STUDY, settings, trials)
+    echo(f"study '{STUDY}': {tuning.trials_run} trials run, best validation MAE {1e3 * tuning.best_value_m:.3f} mm")
 
-    params = tune.best_params(tune.load_existing_study(storage, "xgboost"))
+    params = tune.best_params(tune.load_existing_study(storage, STUDY))
     reused = _matching_model(model_dir, data, params, spec)
     if not reused:
-        train_and_save(client, data, model_dir, spec, params)
+        steps.train(data, model_dir, spec, params, storage, STUDY)
     echo(f"model {model_dir}: {'reused' if reused else 'trained'}")
 
+    evaluation = steps.evaluate(data, model_dir, report_dir)
+    scans = steps.demo_scans(out_dir / "scenes", config)
+    outcomes = steps.correct(scans, model_dir, out_dir / "corrected", CorrectionOptions())
+    return PipelineResult(generation, tuning, model_dir, reused, evaluation, report_dir, outcomes)
+
+
+def evaluate_to_report(data: str | Path, model_dir: str | Path, report_dir: str | Path,
+                       split: str = "test") -> tuple[Evaluation, Report]:
+    """Evaluate the model on a dataset split and write the report (metrics table, error histogram)."""
     model = load_model(model_dir)
-    evaluation = evaluate_model(model, data)
+    evaluation = evaluate_model(model, data, split)
     report, figures = evaluation_report(evaluation, model.card)
     write_report(report, report_dir, figures)
-
-    scans = demo_scans(out_dir / "scenes", config)
-    started = time.perf_counter()
-    outcomes = correct_archive([str(p) for p in scans], model_dir, out_dir / "corrected", CorrectionOptions(),
-                               client)
-    write_batch_report(outcomes, time.perf_counter() - started, out_dir / "corrected")
-    return PipelineResult(generation, tuning, model_dir, reused, evaluation, report_dir, outcomes)
+    return evaluation, report
 
 
 def demo_scans(scene_dir: Path, config: Config) -> list[Path]:
@@ -90,10 +167,9 @@ def _matching_model(model_dir: Path, data: Path, params: dict[str, object], spec
     if not model_dir.exists():
         return False
     card_path = model_dir / CARD_FILE
-    card = json.loads(card_path.read_text()) if card_path.is_file() else {}
-    same_data = card.get("dataset", {}).get("config_sha256") == dataset.dataset_info(data).config_sha256
-    same_inputs = card.get("feature_names") == spec.names
-    if same_data and same_inputs and card.get("params") == {**BASE_PARAMS, **params}:
+    card = read_card(card_path) if card_path.is_file() else None
+    if (card is not None and card.dataset.config_sha256 == dataset.dataset_info(data).config_sha256
+            and list(card.feature_names) == spec.names and card.params == xgb_params(params or None)):
         return True
     raise MpiLidarError(f"{model_dir} holds another model (other data, parameters or inputs); move it away to "
                         "retrain")

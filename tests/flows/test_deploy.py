@@ -13,7 +13,8 @@ from prefect.settings import PREFECT_API_URL, temporary_settings
 from flows import deploy
 from flows.deploy import build_deployments, on_demand_deployments
 from flows.regenerate import regenerate_dataset_flow
-from mpi_lidar.cli import EXIT_USER_ERROR
+from mpi_lidar import cli
+from mpi_lidar.errors import EXIT_USER_ERROR
 
 REPO = Path(__file__).resolve().parents[2]
 ENTRYPOINT = "flows/regenerate.py:regenerate_dataset_flow"
@@ -52,7 +53,7 @@ def test_main__refuses_to_serve_without_a_server(
     monkeypatch.setattr(deploy, "serve", no_serve)
     with temporary_settings(updates={PREFECT_API_URL: None}), pytest.raises(SystemExit) as exit_info:
         deploy.main(["--root", "runs/nightly"])
-    assert exit_info.value.code == EXIT_USER_ERROR
+    assert exit_info.value.code == EXIT_USER_ERROR == cli.EXIT_USER_ERROR
     assert "PREFECT_API_URL" in capsys.readouterr().err
 
 
@@ -101,3 +102,18 @@ def test_prefect_yaml__every_entrypoint_loads(monkeypatch: pytest.MonkeyPatch) -
     for spec in prefect_yaml_deployments():
         flow = load_flow_from_entrypoint(spec["entrypoint"])
         assert set(spec["parameters"]) <= set(inspect.signature(flow.fn).parameters), spec["name"]
+
+
+def test_on_demand_deployments__correction_schema_has_every_correct_option(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every option of `mpi-lidar correct` can be set on the correction deployment when it is triggered."""
+    monkeypatch.chdir(REPO)
+    correction = {d.name: d for d in on_demand_deployments()}["correct-archive"]
+    schema = correction._parameter_openapi_schema
+    properties = schema.properties
+    assert {"scans", "model", "out", "gate", "min_bias_mm", "footprint_area_m2", "workers", "scheduler"} <= set(
+        properties)
+    assert set(schema.required) == {"scans", "model", "out"}
+    assert properties["gate"]["enum"] == ["geometry", "all", "consistency"]
+    assert properties["gate"]["default"] == "geometry" and properties["min_bias_mm"].get("default") is None
+    cli_options = {param.name for param in cli.correct.params}
+    assert cli_options - {"model_dir", "out_dir"} <= set(properties)

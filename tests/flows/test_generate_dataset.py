@@ -12,6 +12,7 @@ from flows import generate_dataset
 from flows.generate_dataset import SUMMARY_ARTIFACT_KEY, generate_dataset_flow, histogram_path
 from mpi_lidar.config import config_sha256, resolve_config
 from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.generate import generate
 from tests.flows.helpers import CHUNKS, SAMPLES, artifacts, chunk_task_runs, wait_for
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -29,7 +30,7 @@ def test_generate_dataset_flow__store_equals_in_process_generation(
 ) -> None:
     config = resolve_config(config_file, "quick")
     reference = tmp_path / "reference.zarr"
-    dataset.generate(reference, config)
+    generate(reference, config)
     flow_store, library_store = zarr.open_group(generated["path"], mode="r"), zarr.open_group(reference, mode="r")
     for name in ("features", "target", "theta", "split"):
         ours, theirs = flow_store[name][:], library_store[name][:]

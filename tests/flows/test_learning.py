@@ -38,7 +38,7 @@ def test_train_and_evaluate_flows__model_from_the_study_and_its_report(tuned, sm
                        scheduler=dask_scheduler, return_state=True)
     model = load_model(state.result()["model_dir"])
     best = optuna.load_study(study_name="flows", storage=storage).best_params
-    assert {k: model.card["params"][k] for k in best} == best
+    assert {k: model.card.params[k] for k in best} == best
     [card] = artifacts(str(state.state_details.flow_run_id), CARD_ARTIFACT_KEY)
     assert "target_mode" in card.data
 

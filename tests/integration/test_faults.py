@@ -26,8 +26,8 @@ from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.scans.scan import write_scan
-from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.correct_archive import correct_archive
+from mpi_lidar.workflows.generate import generate
 from tests.integration.conftest import (
     BIN,
     REPO,
@@ -74,10 +74,10 @@ def kill_one_worker_once(client: Client) -> tuple[threading.Event, object]:
 def test_generate__worker_process_killed_completes_identically(tmp_path: Path, dask_cluster: DaskCluster) -> None:
     config = Config().replace(dataset={"samples": 1_600, "chunk_rows": 200, "seed": 9},
                               simulator={"fidelity": "waveform"})
-    dataset.generate(tmp_path / "reference.zarr", config)
+    generate(tmp_path / "reference.zarr", config)
     with Client(dask_cluster.address) as client:
         killed, kill = kill_one_worker_once(client)
-        report = dataset.generate(tmp_path / "killed.zarr", config, client, on_chunk=kill)
+        report = generate(tmp_path / "killed.zarr", config, client, on_chunk=kill)
     dask_cluster.wait_for_workers(2)
     assert killed.is_set() and report.chunks_written == 8
     for name in ("features", "target", "theta", "split"):

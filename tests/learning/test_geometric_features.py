@@ -120,9 +120,10 @@ def test_geometry_inputs__no_partner_gives_zeros():
 @pytest.mark.slow
 def test_train_and_save__card_records_the_geometric_option(models):
     card = load_model(models[True]).card
-    assert card["geometric"] is True and card["feature_names"][-2:] == list(GEOMETRIC_NAMES)
-    assert card["geometry_error_model"] == GEOMETRY_ERROR_MODEL
-    assert load_model(models[False]).card["geometric"] is False
+    assert card.geometric is True and card.feature_names[-2:] == GEOMETRIC_NAMES
+    assert card.geometry_error_model.model_dump() == GEOMETRY_ERROR_MODEL
+    pixelwise = load_model(models[False]).card
+    assert pixelwise.geometric is False and pixelwise.geometry_error_model is None
 
 
 @pytest.mark.slow

@@ -11,9 +11,10 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import evaluate_model
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.model import load_model, save_model
-from mpi_lidar.learning.train import train_and_save
+from mpi_lidar.learning.train import BASE_PARAMS, DEFAULT_PARAMS, train_and_save, train_arrays, xgb_params
 from mpi_lidar.reporting.report import evaluation_report, write_report
 from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.generate import generate
 
 FREQS = Config().frequencies_hz
 FAST = {"max_depth": 6, "learning_rate": 0.3, "subsample": 1.0, "colsample_bytree": 1.0, "min_child_weight": 1.0,
@@ -33,17 +34,26 @@ def trained(tmp_path_factory, cluster_client, small_dataset):
 
 
 def test_train_and_save__card_describes_model_and_data(trained, small_dataset):
-    card = json.loads((trained["residual"] / "card.json").read_text())
+    model = load_model(trained["residual"])
+    card = model.card
     info = dataset.dataset_info(small_dataset)
-    assert card["frequencies_hz"] == list(FREQS)
-    assert card["raw_feature_names"] == list(info.feature_names)
-    assert card["target_mode"] == "residual" and card["residual_reference"] == "depth_31.25MHz"
-    assert card["dataset"]["config_sha256"] == info.config_sha256
-    assert card["params"]["max_depth"] == 6
-    assert 0 < card["metrics"]["validation_mae_m"] < 0.02
-    assert card["training"]["fit_rows"] + card["training"]["validation_rows"] == 6_400
-    assert {"xgboost-cpu", "numpy", "mpi-lidar"} <= set(card["versions"])
+    assert card.frequencies_hz == FREQS
+    assert card.raw_feature_names == info.feature_names
+    assert card.target_mode == "residual" and card.residual_reference == "depth_31.25MHz"
+    assert card.dataset.config_sha256 == info.config_sha256 and card.dataset.samples == 8_000
+    assert card.dataset.prior.d_as_m == Config().prior.d_as_m
+    assert card.params == {**BASE_PARAMS, **FAST}
+    assert 0 < card.metrics.validation_mae_m < 0.02
+    assert card.training.fit_rows + card.training.validation_rows == 6_400
+    assert card.num_boost_round == model.booster.num_boosted_rounds()
+    assert {"xgboost-cpu", "numpy", "mpi-lidar"} <= set(card.versions)
+    assert model.booster.feature_names == list(card.feature_names)  # stored in the booster too
     assert (trained["residual"] / "model.ubj").read_bytes()[:1] == b"{"  # UBJSON, not a pickle
+    # the file keeps the keys cards have always had
+    assert set(json.loads((trained["residual"] / "card.json").read_text())) == {
+        "schema", "frequencies_hz", "raw_feature_names", "feature_set", "feature_names", "geometric", "target_mode",
+        "residual_reference", "dataset", "params", "num_boost_round", "metrics", "training", "versions",
+        "model_sha256"}
 
 
 @pytest.mark.parametrize("target", ["absolute", "residual"])
@@ -83,7 +93,7 @@ def test_save_model__existing_directory_is_not_overwritten(trained):
     model = load_model(trained["absolute"])
     before = (trained["absolute"] / "card.json").read_text()
     with pytest.raises(MpiLidarError, match="already exists"):
-        save_model(trained["absolute"], model.booster, {})
+        save_model(trained["absolute"], model.booster, model.card)
     assert (trained["absolute"] / "card.json").read_text() == before
 
 
@@ -121,7 +131,7 @@ def test_check_compatible__other_frequencies_are_refused_in_one_line(trained):
 
 def test_train_and_save__dataset_without_train_rows_is_refused(tmp_path, cluster_client):
     path = tmp_path / "all_test.zarr"
-    dataset.generate(path, Config().replace(dataset={"samples": 1, "chunk_rows": 1, "test_fraction": 0.6}))
+    generate(path, Config().replace(dataset={"samples": 1, "chunk_rows": 1, "test_fraction": 0.6}))
     with pytest.raises(MpiLidarError, match="no train rows"):
         train_and_save(cluster_client, path, tmp_path / "m", FeatureSpec(FREQS), FAST)
     assert not (tmp_path / "m").exists()
@@ -142,3 +152,26 @@ def test_write_report__files_written_and_foreign_directory_refused(trained, smal
     with pytest.raises(MpiLidarError, match="not an mpi-lidar report"):
         write_report(report, foreign, figures)
     assert (foreign / "notes.txt").read_text() == "keep"
+
+
+def test_train_arrays__early_stopping_trims_to_the_best_iteration():
+    x = np.random.default_rng(0).uniform(size=(2_000, 2))
+    y = x[:, 0] * 2.0
+    result = train_arrays(x, y, {"max_depth": 3, "learning_rate": 0.3}, 500, early_stopping_rounds=5)
+    assert result.booster.num_boosted_rounds() == result.best_iteration + 1 < 500
+    assert result.fit_rows == 1_800 and result.validation_rows == 200 and result.wall_s > 0
+    assert 0 < result.validation_mae_m < 0.02
+    assert np.abs(result.booster.inplace_predict(x) - y).mean() < 0.02
+
+
+def test_train_arrays__without_early_stopping_fits_every_row_for_every_round():
+    x = np.random.default_rng(1).uniform(size=(500, 3))
+    result = train_arrays(x, x.sum(axis=1), {"max_depth": 2}, 7, early_stopping_rounds=None)
+    assert result.booster.num_boosted_rounds() == 7 and result.best_iteration == 6
+    assert result.fit_rows == 500 and result.validation_rows == 0 and np.isnan(result.validation_mae_m)
+
+
+def test_xgb_params__base_then_params_or_defaults_then_overrides():
+    assert xgb_params() == {**BASE_PARAMS, **DEFAULT_PARAMS}
+    assert xgb_params({"max_depth": 3}, nthread=1) == {**BASE_PARAMS, "max_depth": 3, "nthread": 1}
+    assert xgb_params({"objective": "reg:squarederror"})["objective"] == "reg:squarederror"

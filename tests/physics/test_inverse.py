@@ -19,7 +19,7 @@ from mpi_lidar.physics.inverse import (
     prony_two_path,
 )
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.physics.transport import two_path_phase_bias, two_path_phasors
+from mpi_lidar.physics.transport import path_phasor, two_path_phase_bias, two_path_phasors
 
 FREQS = np.array(PAPER_FREQUENCIES_HZ)
 C = 3.0e8
@@ -87,6 +87,19 @@ def test_least_squares_two_path__flat_valley_from_single_path_start():
     assert np.all(np.isfinite(fit.direct_depth_m))
     assert np.median(fit.cost) < 1e-10
     assert np.abs(fit.direct_depth_m - theta[:, 0]).max() > 1e-4
+
+
+def test_measured_phasors__follow_the_transport_sign_convention():
+    """z_k = A_k exp(+i 4 pi f_k d_k / c): the phasor of the forward model (transport.path_phasor), whose angle
+    is the demodulated phase."""
+    theta = random_two_path(20, seed=4)
+    raw = closed_form_raw(theta)
+    gamma_d, phi_d, gamma_m, phi_m = two_path_phasors(theta, FREQS, GAMMA_R, C)
+    z = inverse.measured_phasors(raw, FREQS)
+    np.testing.assert_allclose(z, gamma_d * np.exp(1j * phi_d) + gamma_m * np.exp(1j * phi_m), rtol=1e-12)
+    np.testing.assert_array_equal(z, path_phasor(raw[:, 4:], raw[:, :4], FREQS, C))
+    # +phi, not -phi: at 12.5 MHz phi_d is 0.7-1.3 rad and the multipath moves it by less than 0.2 rad
+    assert np.all(np.abs(np.angle(z[:, 0]) - phi_d[:, 0]) < 0.2)
 
 
 def test_model_phasors__reproduce_measured_phasors():
@@ -186,7 +199,7 @@ def test_least_squares_two_path__cost_no_worse_than_scipy_trust_region():
         scale = np.abs(z[i]).mean()
 
         def residual(p, i=i, scale=scale):
-            m = np.exp(-1j * w * p[0]) * p[2] * (1 + p[3] * np.exp(-1j * w * p[1]))
+            m = np.exp(1j * w * p[0]) * p[2] * (1 + p[3] * np.exp(1j * w * p[1]))
             r = (m - z[i]) / scale
             return np.concatenate([r.real, r.imag])
 

@@ -1,4 +1,4 @@
-"""Detector chain (paper eq 16-30), calibration constants that make Table I self-consistent, and the noiseless sensor."""
+"""Detector chain (paper eq 16-30), the calibration that makes Table I self-consistent, and the noiseless sensor."""
 
 from __future__ import annotations
 

@@ -8,10 +8,13 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from mpi_lidar.config import Config
-from mpi_lidar.physics import make_sensor
+from mpi_lidar.physics import demod, make_sensor
+from mpi_lidar.physics.sensor import received_voltage_amplitude
 from mpi_lidar.physics.transport import (
     direct_amplitude,
     multipath_amplitude,
+    path_phasor,
+    phasor,
     round_trip_phase,
     two_path_phase_bias,
     two_path_phasors,
@@ -38,6 +41,31 @@ def test_round_trip_phase__half_range_is_pi():
     # at 31.25 MHz the unambiguous range is c / 2f = 4.8 m: d = 2.4 m is exactly phi = pi
     assert round_trip_phase(31.25e6, 2.4, C) == pytest.approx(np.pi, rel=1e-15)
     np.testing.assert_allclose(round_trip_phase(FREQS, C / (2 * FREQS), C), 2 * np.pi, rtol=1e-15)
+
+
+def test_path_phasor__positive_exponent_of_the_round_trip_phase():
+    depth = np.array([[0.3], [1.7], [2.4]])
+    got = path_phasor(0.5, depth, FREQS, C)
+    np.testing.assert_array_equal(got, 0.5 * np.exp(1j * round_trip_phase(FREQS, depth, C)))
+    np.testing.assert_array_equal(got, phasor(0.5, round_trip_phase(FREQS, depth, C)))
+    assert got.shape == (3, 4)
+    # at 31.25 MHz, 1.2 m is a quarter of the 4.8 m range: +90 degrees
+    assert path_phasor(2.0, 1.2, 31.25e6, C) == pytest.approx(2j, abs=1e-15)
+
+
+def test_path_phasor__is_what_the_demodulation_reads_back(noiseless):
+    """The sign convention matches eq 5-7: the taps of a path's phasor demodulate to the path's own depth
+    (the conjugate would give the range minus the depth)."""
+    config = noiseless(whole_cycles=True)
+    s = config.sensor
+    depth = np.array([0.4, 1.1, 1.9, 2.35])
+    gamma = 0.05
+    to_volts = received_voltage_amplitude(1.0, s.modulation_contrast, s.demodulation_amplitude_v)
+    z = path_phasor(gamma * to_volts, depth[:, None], FREQS[None, :], s.speed_of_light_m_per_s)
+    taps = make_sensor(config).taps_from_phasors(np.full(z.shape, gamma * to_volts), z, np.random.default_rng(0))
+    got, amplitude = demod.depth_and_amplitude(taps, FREQS, s.speed_of_light_m_per_s)
+    np.testing.assert_allclose(got, np.broadcast_to(depth[:, None], got.shape), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(amplitude, gamma, rtol=1e-9)
 
 
 def test_two_path_phasors__shapes_and_closed_forms(rng):

@@ -5,11 +5,18 @@ import pytest
 
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, validity_flags
-from mpi_lidar.scans.geometry import DEFAULT_FOOTPRINT_AREA_M2, fit_block_planes, multipath_potential, point_cloud
+from mpi_lidar.scans.geometry import (
+    DEFAULT_FOOTPRINT_AREA_M2,
+    _pair_coupling,
+    fit_block_planes,
+    multipath_potential,
+    point_cloud,
+)
 from mpi_lidar.scans.scan import grid_rays
 from mpi_lidar.simulation.scenes import (
     Rectangle,
     Scene,
+    _patch_coupling,
     corner,
     cylinder_scene,
     first_hits,
@@ -108,6 +115,36 @@ def test_multipath_potential__corner_grows_towards_the_edge_and_agrees_with_the_
     where = (true > 0.01) & (true < 0.9)
     ratio = potential.coupling[where] / true[where]
     assert 0.6 < np.median(ratio) < 1.3, "the render's coupling, estimated from its own noisy depth"
+
+
+def test_coupling__renderer_and_gate_evaluate_the_same_kernel():
+    """The renderer's per-patch coupling and the gate's per-block coupling are one kernel
+    (mpi_lidar.physics.coupling): for the same pairs of points, normals, areas and incidence they agree, and
+    both equal the closed form (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i) where no clamp binds."""
+    rng = np.random.default_rng(0)
+    n = 40
+    a_points = rng.uniform(-0.2, 0.2, (n, 3)) + np.array([0.0, 0.0, 2.0])
+    a_normals = np.tile([0.0, 0.0, -1.0], (n, 1))
+    b_point = np.array([0.0, 0.35, 1.8])
+    b_normal = np.array([0.0, -1.0, 0.0])  # a small patch above the points A, facing down
+    b_area = 1e-4
+    cos_i = rng.uniform(0.5, 1.0, n)
+    footprint = DEFAULT_FOOTPRINT_AREA_M2
+    patch = Rectangle(tuple(b_point), (0.005, 0.0, 0.0), (0.0, 0.0, 0.01), albedo=1.0)
+    np.testing.assert_allclose(patch.patches(0.01)[1][0], b_normal)  # its one patch faces down
+    rendered, r = _patch_coupling(a_points, a_normals, cos_i, 1.0, patch, b_point[None], b_normal[None],
+                                  np.array([b_area]), footprint, 1e-3)
+    gated, dist = _pair_coupling(a_points, a_normals, cos_i, np.full(n, 1e-6), np.tile(b_point, (n, 1)),
+                                 np.tile(b_normal, (n, 1)), np.full(n, b_area), np.zeros(n), footprint, 0.0)
+    np.testing.assert_allclose(rendered[:, 0], gated, rtol=1e-14)
+    np.testing.assert_array_equal(r[:, 0], dist)
+    offset = b_point - a_points
+    distance = np.linalg.norm(offset, axis=1)
+    cos_a = offset @ [0.0, 0.0, -1.0] / distance
+    cos_b = -offset @ b_normal / distance
+    expected = (cos_a * cos_b) ** 2 * b_area * 90 * np.pi * 0.012**2 / (np.pi**2 * distance**4 * cos_i)
+    assert (cos_a > 0).all() and (cos_b > 0).all() and (expected > 0).all()
+    np.testing.assert_allclose(gated, expected, rtol=1e-12)
 
 
 def test_fit_block_planes__ignores_a_depth_edge_inside_the_block():

@@ -17,6 +17,7 @@ from distributed import Client, LocalCluster
 from mpi_lidar.config import Config
 from mpi_lidar.errors import StoreError
 from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.generate import generate
 
 ARRAY_NAMES = ("features", "target", "theta", "split")
 
@@ -47,23 +48,23 @@ def two_worker_client():
 @pytest.fixture(scope="module")
 def reference_store(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("reference") / "in_process.zarr"
-    dataset.generate(path, small_config())
+    generate(path, small_config())
     return path
 
 
 def test_generate__one_and_two_workers_write_identical_bytes(tmp_path, reference_store, two_worker_client):
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         with Client(cluster) as one_worker:
-            dataset.generate(tmp_path / "one.zarr", small_config(), one_worker)
-    dataset.generate(tmp_path / "two.zarr", small_config(), two_worker_client)
+            generate(tmp_path / "one.zarr", small_config(), one_worker)
+    generate(tmp_path / "two.zarr", small_config(), two_worker_client)
     assert_same_bytes(tmp_path / "one.zarr", tmp_path / "two.zarr")
     assert_same_bytes(tmp_path / "two.zarr", reference_store)
 
 
 def test_generate__rerun_skips_complete_chunks(tmp_path):
     path = tmp_path / "d.zarr"
-    first = dataset.generate(path, small_config())
-    second = dataset.generate(path, small_config())
+    first = generate(path, small_config())
+    second = generate(path, small_config())
     assert (first.chunks_written, first.chunks_skipped) == (8, 0)
     assert (second.chunks_written, second.chunks_skipped) == (0, 8)
 
@@ -74,7 +75,7 @@ def test_generate__partial_store_resumes_to_identical_bytes(tmp_path, reference_
     dataset.create_store(path, config)
     for index in (0, 3, 5):
         dataset.write_chunk(path, config, index)
-    report = dataset.generate(path, config)
+    report = generate(path, config)
     assert report.chunks_written == 5
     assert_same_bytes(path, reference_store)
 
@@ -86,14 +87,14 @@ def test_generate__unmarked_chunk_with_garbage_is_rewritten(tmp_path, reference_
     dataset.create_store(path, config)
     group = zarr.open_group(str(path), mode="r+")
     group["features"][0:500] = np.full((500, 8), 99.0, dtype=np.float32)
-    dataset.generate(path, config)
+    generate(path, config)
     assert_same_bytes(path, reference_store)
 
 
 def test_generate__worker_killed_mid_run_completes_identically(tmp_path):
     config = small_config(samples=2_400, chunk_rows=200, fidelity="waveform")
     reference = tmp_path / "reference.zarr"
-    dataset.generate(reference, config)
+    generate(reference, config)
     path = tmp_path / "killed.zarr"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         with Client(cluster) as client:
@@ -105,7 +106,7 @@ def test_generate__worker_killed_mid_run_completes_identically(tmp_path):
                     killed.set()
                     os.kill(victim_pid, signal.SIGKILL)
 
-            report = dataset.generate(path, config, client, on_chunk=kill_one_worker)
+            report = generate(path, config, client, on_chunk=kill_one_worker)
     assert killed.is_set()
     assert report.chunks_written == 12
     assert dataset.is_complete(path)

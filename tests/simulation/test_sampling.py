@@ -15,6 +15,7 @@ from mpi_lidar.physics.demod import depth_and_amplitude
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.sampling import SCHEMES, THETA_NAMES, sample_theta
+from mpi_lidar.workflows.generate import generate
 
 N = 20_000
 KS_ALPHA = 1e-3
@@ -172,7 +173,7 @@ def test_simulate_chunk__independent_of_other_chunks():
 @pytest.fixture(scope="module")
 def default_store(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("prior") / "default.zarr"
-    dataset.generate(path, Config())  # 20,000 rows, the quick preset
+    generate(path, Config())  # 20,000 rows, the quick preset
     return path
 
 

@@ -78,8 +78,9 @@ def test_light_transport__one_patch_matches_the_two_path_closed_form():
     board = Rectangle((0.0, 0.0, 2.0), (0.5, 0.0, 0.0), (0.0, 0.5, 0.0), albedo=0.8)
     patch = Rectangle((0.0, 0.3, 1.9), (0.01, 0.0, 0.0), (0.0, 0.0, 0.01), albedo=0.9)  # faces down/up
     scene = Scene("patch", (board, patch), np.array([0.0]), np.array([0.0]))
+    truth: dict[str, np.ndarray] = {}
     phasor, dc = light_transport(scene, NOISELESS, footprint_radius_m=0.012, patch_spacing_m=0.05,
-                                 coupling_gain=90.0)
+                                 coupling_gain=90.0, coupling_out=truth)
     a_point, b_point = np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.3, 1.9])
     r = np.linalg.norm(b_point - a_point)
     cos_a = (b_point - a_point) @ [0, 0, -1] / r
@@ -90,6 +91,9 @@ def test_light_transport__one_patch_matches_the_two_path_closed_form():
     np.testing.assert_allclose(np.angle(np.exp(1j * phase_bias)), expected, rtol=1e-9, atol=1e-12)
     gamma_d = 0.1794 * 0.8 / 4.0
     np.testing.assert_allclose(dc[0], gamma_d * (1 + ratio), rtol=1e-12)
+    # the reported coupling is the white-surface kappa of the kernel, its distance the patch's
+    np.testing.assert_allclose(truth["coupling"], ratio / (0.8 * 0.9), rtol=1e-12)
+    np.testing.assert_allclose(truth["d_ab_m"], r, rtol=1e-12)
 
 
 def test_first_hits__sky_pixels_have_no_surface():

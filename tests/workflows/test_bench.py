@@ -15,7 +15,6 @@ from mpi_lidar.workflows.bench import (
     TEST_STREAM,
     TRAIN_STREAM,
     BenchRow,
-    fit_xgboost,
     gated,
     mae,
     pareto_front,
@@ -46,7 +45,7 @@ def spec() -> FeatureSpec:
 @pytest.fixture(scope="module")
 def small_model(spec):
     train = simulate(CONFIG, 6_000, TRAIN_STREAM)
-    return reference_xgboost(spec, train)[0]
+    return reference_xgboost(spec, train).booster
 
 
 def test_pareto_front__matches_a_brute_force_check_with_ties():
@@ -88,12 +87,22 @@ def test_simulate__noise_scale_and_range_override():
     assert (quiet.raw[:, 3] - quiet.target).min() > -1e-3
 
 
-def test_fit_xgboost__early_stopping_trims_to_the_best_iteration():
-    x = np.random.default_rng(0).uniform(size=(2_000, 2))
-    y = x[:, 0] * 2.0
-    booster, seconds = fit_xgboost(x, y, {"max_depth": 3, "learning_rate": 0.3}, 500, early_stopping=5)
-    assert booster.num_boosted_rounds() < 500 and seconds > 0
-    assert np.abs(booster.inplace_predict(x) - y).mean() < 0.02
+def test_mae__is_error_metrics_mae_and_nan_when_an_estimate_is_not_finite():
+    truth = np.array([1.0, 2.0, 3.0])
+    assert mae(np.array([1.5, 2.0, 2.0]), truth) == pytest.approx(0.5)
+    assert np.isnan(mae(np.array([1.5, np.nan, 2.0]), truth))
+
+
+def test_reference_xgboost__the_projects_training_with_its_defaults(spec):
+    from mpi_lidar.learning.train import DEFAULT_EARLY_STOPPING, train_arrays
+
+    train = simulate(CONFIG, 1_500, TRAIN_STREAM)
+    ours = reference_xgboost(spec, train)
+    again = train_arrays(spec.transform(train.raw), spec.target(train.raw, train.target))
+    assert ours.booster.num_boosted_rounds() == again.booster.num_boosted_rounds() == ours.best_iteration + 1
+    assert ours.validation_rows == 150 and ours.best_iteration + DEFAULT_EARLY_STOPPING < 2_000
+    np.testing.assert_array_equal(ours.booster.inplace_predict(spec.transform(train.raw)),
+                                  again.booster.inplace_predict(spec.transform(train.raw)))
 
 
 def test_range_guarded_depth__raw_outside_the_prior_range_model_inside(small_model, spec):
