@@ -20,6 +20,7 @@ from pydantic import (
     ConfigDict,
     Field,
     SerializerFunctionWrapHandler,
+    StrictBool,
     ValidationError,
     field_validator,
     model_serializer,
@@ -37,6 +38,13 @@ from mpi_lidar.timing import whole_cycle_bins
 
 PAPER_FREQUENCIES_HZ = (12.5e6, 18.75e6, 25e6, 31.25e6)
 PAPER_SAMPLES = 1_338_670
+
+# Bounds that keep a configuration within what one machine can hold; a value past them is a typo or a unit
+# mistake, and is refused before anything is allocated or written.
+MAX_SAMPLES = 1_000_000_000
+MAX_CHUNK_ROWS = 10_000_000
+MAX_CHUNKS = 1_000_000
+MAX_BINS = 1_000_000  # time bins per integration window: the waveform simulator holds rows x bins values
 
 NonNegative = Annotated[float, Field(ge=0)]
 Positive = Annotated[float, Field(gt=0)]
@@ -81,6 +89,10 @@ class SensorConfig(_Frozen):
     def _integration_spans_bins(self) -> SensorConfig:
         if self.integration_time_s < 2 * self.transit_time_s:
             raise ValueError("integration_time_s must span at least two transit-time bins")
+        bins = self.integration_time_s / self.transit_time_s
+        if bins > MAX_BINS:
+            raise ValueError(f"integration_time_s / transit_time_s is {bins:.3g} time bins, more than {MAX_BINS:,}; "
+                             "check the units of both (seconds)")
         return self
 
 
@@ -141,20 +153,20 @@ class SimulatorConfig(_Frozen):
     """Simulator fidelity and the noise terms the paper leaves open (all default 0)."""
 
     fidelity: Literal["moment", "waveform"] = "moment"
-    noise_scale: NonNegative = 1.0
-    round_photons: bool = True
-    whole_cycles: bool = False
-    background_mean_electrons: NonNegative = 0.0
-    background_std_electrons: NonNegative = 0.0
-    tia_noise_mean_electrons: float = 0.0
-    random_noise_std_v: NonNegative = 0.0
+    noise_scale: Annotated[float, Field(ge=0, le=100)] = 1.0
+    round_photons: StrictBool = True
+    whole_cycles: StrictBool = False
+    background_mean_electrons: Annotated[float, Field(ge=0, le=1e9)] = 0.0
+    background_std_electrons: Annotated[float, Field(ge=0, le=1e9)] = 0.0
+    tia_noise_mean_electrons: Annotated[float, Field(ge=-1e9, le=1e9)] = 0.0
+    random_noise_std_v: Annotated[float, Field(ge=0, le=100)] = 0.0
 
 
 class DatasetConfig(_Frozen):
     """The sampling plan: how many rows, in chunks of how many, from which seed, and the test share."""
 
-    samples: Annotated[int, Field(ge=1)] = 20_000
-    chunk_rows: Annotated[int, Field(ge=1)] = 5_000
+    samples: Annotated[int, Field(ge=1, le=MAX_SAMPLES)] = 20_000
+    chunk_rows: Annotated[int, Field(ge=1, le=MAX_CHUNK_ROWS)] = 5_000
     seed: Annotated[int, Field(ge=0)] = 20260101
     test_fraction: Annotated[float, Field(gt=0, lt=1)] = 0.2
 
@@ -165,6 +177,10 @@ class DatasetConfig(_Frozen):
                 f"chunk_rows ({self.chunk_rows}) is larger than samples ({self.samples}); "
                 "lower chunk_rows or raise samples"
             )
+        chunks = -(-self.samples // self.chunk_rows)
+        if chunks > MAX_CHUNKS:
+            raise ValueError(f"{self.samples:,} samples in chunks of {self.chunk_rows:,} rows make {chunks:,} chunks, "
+                             f"more than {MAX_CHUNKS:,}; raise chunk_rows")
         return self
 
 
@@ -263,6 +279,10 @@ def load_config(path: str | Path, base: Config | None = None) -> Config:
         data = tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"config file {path} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"config file {path} is a directory; give the path of a TOML file") from None
+    except OSError as exc:
+        raise ConfigError(f"config file {path} cannot be read: {exc.strerror or exc}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
     return validate_overrides(data, base or Config(), source=str(path))

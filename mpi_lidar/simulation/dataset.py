@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
@@ -172,10 +173,22 @@ def create_store(path: str | Path, config: Config) -> zarr.Group:
         group = open_store(path)
         _check_same_config(path, group, config)
         return zarr.open_group(store=str(path), mode="r+")
+    _check_free_space(path, config)
     # Here path is absent or an empty directory, which the new store may replace.
     with atomic_path(path, replace=True, what="dataset store", error=StoreError) as staging:
         _build_layout(staging, config)
     return zarr.open_group(store=str(path), mode="r+")
+
+
+def _check_free_space(path: Path, config: Config) -> None:
+    """Refuse a store the disk cannot hold, before creating anything (uncompressed size: noise barely compresses)."""
+    row_bytes = 2 * len(config.frequencies_hz) * 4 + 8 + len(THETA_NAMES) * 8 + 1
+    needed = config.dataset.samples * row_bytes
+    existing = next((p for p in (path, *path.parents) if p.exists()), Path("."))
+    free = shutil.disk_usage(existing).free
+    if needed > free:
+        raise StoreError(f"dataset store {path} needs about {needed / 2**30:.1f} GiB for {config.dataset.samples:,} "
+                         f"rows and {existing} has {free / 2**30:.1f} GiB free; lower samples or choose another --out")
 
 
 def _is_empty_dir(path: Path) -> bool:
