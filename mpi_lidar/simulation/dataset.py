@@ -249,7 +249,13 @@ def store_config(group: zarr.Group) -> Config:
 
 
 def completed_chunks(group: zarr.Group) -> NDArray[np.bool_]:
-    return group["chunk_done"][:].astype(bool)
+    return _read_whole(group, "chunk_done").astype(bool)
+
+
+def _read_whole(group: zarr.Group, name: str) -> NDArray:
+    """A small bookkeeping array, read at once; damage to it is one :class:`IntegrityError` naming it."""
+    array = group[name]
+    return read_chunk(array, (slice(None),) * array.ndim, str(getattr(group.store, "root", group.store)), name, "(any)")
 
 
 def incomplete_chunks(group: zarr.Group) -> list[int]:
@@ -368,7 +374,7 @@ def read_lazy(path: str | Path) -> LazyDataset:
 
 def chunk_fingerprints(group: zarr.Group) -> NDArray[np.uint8] | None:
     """The fingerprints (chunks, arrays, 32) recorded by :func:`write_chunk`; None for older stores."""
-    return group["chunk_sha256"][:] if "chunk_sha256" in group else None
+    return _read_whole(group, "chunk_sha256") if "chunk_sha256" in group else None
 
 
 def _verified_lazy(path: str | Path, array: zarr.Array, k: int, fingerprints: NDArray | None) -> da.Array:

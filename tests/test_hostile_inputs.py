@@ -1,0 +1,290 @@
+"""Hostile inputs: every reader of a user's file answers with one clear error, or with valid data.
+
+Hypothesis drives the readers of configurations, dataset stores, scan stores, .npz imports and model cards
+with malformed input. Each reader either returns a valid object or raises an :class:`MpiLidarError` (one
+line: what, where, what to do); no other exception type may escape. Where a command reads the file, the
+command exits 2 with one ``error:`` line and writes nothing. ``HOSTILE_EXAMPLES`` inputs per reader, and
+the number of readers, give the count docs/operations.md quotes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from mpi_lidar import cli
+from mpi_lidar.config import Config, load_config
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning.features import FeatureSpec
+from mpi_lidar.learning.model import CARD_FILE, DatasetCard, load_model, save_model
+from mpi_lidar.learning.train import model_card, train_arrays
+from mpi_lidar.scans.scan import load_npz, read_scan, write_scan
+from mpi_lidar.simulation import dataset
+from mpi_lidar.workflows.verify import verify_store
+from tests.scan_factory import two_path_scan
+
+HOSTILE_EXAMPLES = 60
+hostile = settings(max_examples=HOSTILE_EXAMPLES, deadline=None, derandomize=True,
+                   suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow,
+                                          HealthCheck.data_too_large])
+
+SCALARS = st.one_of(
+    st.integers(min_value=-(2**70), max_value=2**70), st.floats(allow_nan=True, allow_infinity=True),
+    st.booleans(), st.text(max_size=12), st.none(),
+)
+JSON_VALUES = st.recursive(SCALARS, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(
+    st.text(max_size=8), inner, max_size=4), max_leaves=8)
+
+
+def call_main(monkeypatch, capsys, *args: str | Path) -> tuple[int, str, str]:
+    monkeypatch.setattr(sys, "argv", ["mpi-lidar", *map(str, args)])
+    with pytest.raises(SystemExit) as info:
+        cli.main()
+    captured = capsys.readouterr()
+    return info.value.code, captured.out, captured.err
+
+
+def assert_one_error_line(stderr: str) -> None:
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), stderr
+    assert "Traceback" not in stderr
+
+
+# --- configurations ----------------------------------------------------------------------------------------
+
+FIELDS = {
+    "": ["frequencies_hz"],
+    "sensor": ["gamma_r_v2", "transit_time_s", "integration_time_s", "avalanche_gain", "temperature_k"],
+    "prior": ["scheme", "d_as_m", "d_ab_m", "albedo", "no_multipath_fraction"],
+    "simulator": ["fidelity", "noise_scale", "round_photons", "whole_cycles", "tia_noise_mean_electrons"],
+    "dataset": ["samples", "chunk_rows", "seed", "test_fraction"],
+}
+
+
+def toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) else repr(value)
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    return json.dumps(str(value))
+
+
+TOML_SCALARS = st.one_of(st.integers(min_value=-(2**62), max_value=2**62), st.floats(), st.booleans(),
+                         st.text(max_size=10))
+TOML_VALUES = st.one_of(TOML_SCALARS, st.lists(TOML_SCALARS, max_size=5))
+
+
+@st.composite
+def hostile_toml(draw) -> str:
+    lines = []
+    for section, names in FIELDS.items():
+        chosen = draw(st.lists(st.sampled_from([*names, "bogus_field"]), unique=True, max_size=3))
+        if not chosen:
+            continue
+        if section:
+            lines.append(f"[{section}]")
+        lines += [f"{name} = {toml_value(draw(TOML_VALUES))}" for name in chosen]
+    if draw(st.booleans()):
+        lines.append(draw(st.text(max_size=20)))  # trailing junk: often not TOML at all
+    return "\n".join(lines) + "\n"
+
+
+@hostile
+@given(text=hostile_toml())
+def test_config_reader__hostile_toml(tmp_path_factory, monkeypatch, capsys, text):
+    work = tmp_path_factory.mktemp("config")
+    path = work / "hostile.toml"
+    path.write_text(text)
+    try:
+        load_config(path)
+    except MpiLidarError as exc:
+        assert "\n" not in str(exc)
+        out = work / "d.zarr"
+        code, _, stderr = call_main(monkeypatch, capsys, "simulate", "--out", out, "--config", path,
+                                         "--samples", 50, "--workers", 0)
+        assert code == 2
+        assert_one_error_line(stderr)
+        assert sorted(p.name for p in work.iterdir()) == ["hostile.toml"]
+
+
+# --- .npz imports ------------------------------------------------------------------------------------------
+
+DTYPES = st.sampled_from(["float32", "float64", "int16", "uint8", "bool", "complex64"])
+NPZ_NAMES = st.sampled_from(["depth", "amplitude", "taps", "frequencies_hz", "reference_mask", "reference_depth",
+                             "azimuth_rad", "elevation_rad", "unknown"])
+
+
+@st.composite
+def hostile_npz(draw) -> dict[str, np.ndarray]:
+    arrays = {}
+    for name in draw(st.lists(NPZ_NAMES, unique=True, min_size=1, max_size=5)):
+        shape = tuple(draw(st.lists(st.integers(0, 5), max_size=4)))
+        values = draw(st.sampled_from([0.0, 1.0, np.nan, -1.0, 2.0e6]))
+        with np.errstate(invalid="ignore"):
+            arrays[name] = np.full(shape, values).astype(draw(DTYPES))
+    return arrays
+
+
+@hostile
+@given(arrays=hostile_npz())
+def test_npz_reader__hostile_archives(tmp_path_factory, monkeypatch, capsys, arrays):
+    work = tmp_path_factory.mktemp("npz")
+    path = work / "frame.npz"
+    np.savez(path, **arrays)
+    try:
+        load_npz(path, (12.5e6, 18.75e6, 25e6, 31.25e6))
+    except MpiLidarError as exc:
+        assert "\n" not in str(exc)
+        code, _, stderr = call_main(monkeypatch, capsys, "import-scan", path, "--out", work / "f.scan.zarr",
+                                         "--frequencies", "12.5e6,18.75e6,25e6,31.25e6")
+        assert code == 2
+        assert_one_error_line(stderr)
+        assert sorted(p.name for p in work.iterdir()) == ["frame.npz"]
+
+
+# --- scan stores -------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def scan_store(tmp_path_factory) -> Path:
+    return write_scan(two_path_scan("frame", height=6, width=5), tmp_path_factory.mktemp("scan") / "f.scan.zarr")
+
+
+MUTATIONS = st.sampled_from(["attr", "array", "chunk", "metadata", "delete"])
+SCAN_ARRAYS = st.sampled_from(["depth", "amplitude", "reference_mask", "reference_depth", "azimuth_rad"])
+
+
+def _mutate_store(store: Path, draw, arrays) -> None:
+    kind = draw(MUTATIONS)
+    group = zarr.open_group(store=str(store), mode="r+")
+    if kind == "attr":
+        group.attrs[draw(st.sampled_from(["frequencies_hz", "name", "schema", "chunk_sha256", "scene",
+                                          "samples", "chunk_rows", "config"]))] = draw(JSON_VALUES)
+    elif kind == "array":
+        name = draw(arrays)
+        del group[name]
+        shape = tuple(draw(st.lists(st.integers(0, 6), max_size=4)))
+        group.create_array(name, data=np.zeros(shape, dtype=draw(DTYPES)))
+    elif kind == "chunk":
+        files = sorted(p for p in (store / draw(arrays)).rglob("*") if p.is_file() and p.name != "zarr.json")
+        if files:
+            target = files[draw(st.integers(0, len(files) - 1))]
+            target.write_bytes(draw(st.binary(max_size=64)))
+    elif kind == "metadata":
+        meta = store / draw(arrays) / "zarr.json"
+        if meta.exists():
+            meta.write_text(draw(st.text(max_size=40)))
+    else:
+        shutil.rmtree(store / draw(arrays), ignore_errors=True)
+
+
+@hostile
+@given(data=st.data())
+def test_scan_reader__hostile_stores(tmp_path_factory, scan_store, data):
+    copy = tmp_path_factory.mktemp("scan") / "f.scan.zarr"
+    shutil.copytree(scan_store, copy)
+    _mutate_store(copy, data.draw, SCAN_ARRAYS)
+    for read in (read_scan, verify_store):
+        try:
+            read(copy)
+        except MpiLidarError as exc:
+            assert "\n" not in str(exc)
+
+
+# --- dataset stores ----------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def dataset_store(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("dataset") / "d.zarr"
+    config = Config().replace(dataset={"samples": 400, "chunk_rows": 200, "seed": 1})
+    dataset.create_store(path, config)
+    for index in range(2):
+        dataset.write_chunk(path, config, index)
+    return path
+
+
+@hostile
+@given(data=st.data())
+def test_dataset_reader__hostile_stores(tmp_path_factory, dataset_store, data):
+    copy = tmp_path_factory.mktemp("dataset") / "d.zarr"
+    shutil.copytree(dataset_store, copy)
+    _mutate_store(copy, data.draw, st.sampled_from(["features", "target", "theta", "split", "chunk_done",
+                                                    "chunk_sha256"]))
+    for read in (dataset.dataset_info, lambda p: dataset.read_subsample(p, "test"), verify_store,
+                 lambda p: dataset.read_lazy(p).features.sum().compute()):
+        try:
+            read(copy)
+        except MpiLidarError as exc:
+            assert "\n" not in str(exc)
+
+
+# --- model cards -------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory) -> Path:
+    config = Config()
+    spec = FeatureSpec(config.frequencies_hz, "raw", "residual")
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(1.4, 2.4, (500, 1))
+    raw = np.hstack([depth + rng.normal(0, 0.01, (500, 4)), rng.uniform(0.01, 1, (500, 4))]).astype(np.float32)
+    fitted = train_arrays(spec.transform(raw), spec.target(raw, depth[:, 0]), {"max_depth": 2}, 5, None)
+    card = model_card(spec, DatasetCard.from_config(config, path="in memory"), {"max_depth": 2}, fitted, workers=0)
+    return save_model(tmp_path_factory.mktemp("model") / "model", fitted.booster, card)
+
+
+def _paths(value: object, prefix: tuple = ()) -> list[tuple]:
+    found = [prefix] if prefix else []
+    if isinstance(value, dict):
+        for key, inner in value.items():
+            found += _paths(inner, (*prefix, key))
+    return found
+
+
+@hostile
+@given(data=st.data())
+def test_card_reader__hostile_cards(tmp_path_factory, monkeypatch, capsys, model_dir, small_dataset, data):
+    copy = tmp_path_factory.mktemp("card") / "model"
+    shutil.copytree(model_dir, copy)
+    card = json.loads((copy / CARD_FILE).read_text())
+    how = data.draw(st.sampled_from(["delete", "replace", "truncate", "whole"]))
+    if how == "whole":
+        text = json.dumps(data.draw(JSON_VALUES))
+    elif how == "truncate":
+        full = json.dumps(card)
+        text = full[: data.draw(st.integers(0, len(full) - 1))]
+    else:
+        path = data.draw(st.sampled_from(_paths(card)))
+        holder = card
+        for key in path[:-1]:
+            holder = holder[key]
+        if how == "delete":
+            del holder[path[-1]]
+        else:
+            holder[path[-1]] = data.draw(JSON_VALUES)
+        text = json.dumps(card)
+    (copy / CARD_FILE).write_text(text)
+    try:
+        load_model(copy)
+    except MpiLidarError as exc:
+        assert "\n" not in str(exc)
+        report = copy.parent / "report"
+        code, _, stderr = call_main(monkeypatch, capsys, "evaluate", "--data", small_dataset, "--model", copy,
+                                         "--report", report)
+        assert code == 2
+        assert_one_error_line(stderr)
+        assert not report.exists()
