@@ -186,10 +186,11 @@ def load_params(path: Path) -> dict[str, object]:
 @click.option("--split", type=click.Choice(["test", "train"]), default="test", show_default=True)
 def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
     """Evaluate a model on a dataset split: metrics table, error histogram, report files."""
+    from mpi_lidar.reporting.report import Table
     from mpi_lidar.workflows.pipeline import evaluate_to_report
 
     _, report = evaluate_to_report(data, model_dir, report_dir, split)
-    click.echo(report.blocks[1].markdown())
+    click.echo(next(block for block in report.blocks if isinstance(block, Table)).markdown())  # the metrics
     click.echo(f"\nreport written to {report_dir}")
 
 
