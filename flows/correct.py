@@ -6,8 +6,9 @@ The library does the work: :func:`mpi_lidar.workflows.correct_archive.correct_ar
 scan's outputs atomically, and turns a bad scan into a 'failed' outcome with its reason) on a
 :class:`flows.runtime.PrefectExecutor`, so each scan is a run of :data:`correct_scan_task`. This flow adds
 the tasks, the batch summary and the artifacts of it and of every scan's metrics. A scan already corrected
-with the same model and options is skipped. The flow ends Failed when any scan failed, after all the others
-were corrected and the summary was written, so nothing is lost and nothing failed silently.
+with the same model and options is skipped (its numbers read back from its outputs). The flow ends Failed
+when any scan failed, or has a status named in ``fail_on`` (degraded, unchanged), after all the others were
+corrected and the summary was written, so nothing is lost and nothing failed silently.
 """
 
 from __future__ import annotations
@@ -24,10 +25,11 @@ from flows.runtime import PrefectExecutor, dask_task_runner, shared_api
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.scan_report import batch_report, write_batch_report
-from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
+from mpi_lidar.workflows.correct_archive import batch_failure, correct_archive, process_scan
 
 SUMMARY_ARTIFACT_KEY = "correction-summary"
 Gate = Literal["geometry", "all", "consistency"]  # mpi_lidar.correction.GATES, as a parameter schema enum
+FailOn = Literal["degraded", "unchanged", "failed"]  # mpi_lidar.workflows.correct_archive.FAIL_ON
 
 # One scan: the library's process_scan itself (validity mask, gate, inference, outputs), as a task run named
 # after its source. A bad scan returns a 'failed' outcome, so the one retry is for infrastructure failures.
@@ -77,19 +79,24 @@ def correct_and_publish(scans: list[str], model: str, out: str, options: Correct
 
 @flow(name="correct-archive")
 def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "geometry",
-                         min_bias_mm: float | None = None, footprint_area_m2: float | None = None, workers: int = 2,
-                         scheduler: str | None = None) -> dict[str, object]:
+                         min_bias_mm: float | None = None, footprint_area_m2: float | None = None,
+                         max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
+                         workers: int = 2, scheduler: str | None = None) -> dict[str, object]:
     """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
 
-    The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm] and ``footprint_area_m2``
-    [m^2] (None keeps the default), ``workers`` (0: in the flow's process) and ``scheduler``.
+    The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
+    [m^2] and ``max_invalid_share`` (None keeps the default), ``fail_on`` (statuses that end the flow Failed
+    after the summary is written; failed always does), ``workers`` (0: in the flow's process) and
+    ``scheduler``. Returns the flow run's id, the wall time and each source's status.
     """
-    options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2)
+    options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
+                                         max_invalid_share=max_invalid_share)
+    fail_on = list(fail_on or [])
+    batch_failure([], fail_on)  # an unknown status is refused before any scan runs
     outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler)
-    failed = [o for o in outcomes if o.status == "failed"]
     result = {"flow_run_id": str(flow_run.id), "wall_s": wall_s,
               "statuses": {o.source: o.status for o in outcomes}}
-    if failed:
-        reasons = "; ".join(f"{o.source}: {o.reason}" for o in failed)
-        raise MpiLidarError(f"{len(failed)} of {len(outcomes)} scans failed ({reasons})")
+    failure = batch_failure(outcomes, fail_on)
+    if failure:
+        raise MpiLidarError(failure)
     return result

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import os
 import sys
+import tempfile
+import traceback
 from pathlib import Path
 
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from mpi_lidar.config import PRESETS, resolve_config
-from mpi_lidar.errors import EXIT_USER_ERROR, MpiLidarError
+from mpi_lidar.errors import EXIT_FAILURE, EXIT_USER_ERROR, MpiLidarError
 from mpi_lidar.learning.features import (
     DEFAULT_FEATURE_SET,
     DEFAULT_GEOMETRIC,
@@ -18,10 +21,13 @@ from mpi_lidar.learning.features import (
     TARGET_MODES,
     FeatureSpec,
 )
+from mpi_lidar.redact import redact
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="mpi-lidar")
+@click.option("--debug", is_flag=True, expose_value=False,
+              help="Print the traceback of an unexpected error (it is always written to a log file).")
 def cli() -> None:
     """Multipath-interference suppression for AMCW coaxial scanning LiDAR."""
 
@@ -68,8 +74,9 @@ def simulate(
 def cluster_options(command):
     """--workers and --scheduler, shared by every command that runs on Dask."""
     command = click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")(command)
-    return click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
-                        help="Worker processes of the local Dask cluster (ignored with --scheduler).")(command)
+    return click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
+                        help="Worker processes of a local Dask cluster; 0 runs in this process (ignored with "
+                             "--scheduler).")(command)
 
 
 def model_options(command):
@@ -162,21 +169,21 @@ def load_params(path: Path) -> dict[str, object]:
     import json
     import tomllib
 
-    from mpi_lidar.learning.train import DEFAULT_PARAMS
+    from mpi_lidar.learning.train import check_params
 
     try:
         text = path.read_text()
         params = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
     except FileNotFoundError:
         raise MpiLidarError(f"parameter file {path} does not exist") from None
+    except IsADirectoryError:
+        raise MpiLidarError(f"parameter file {path} is a directory; give a JSON or TOML file") from None
     except (ValueError, UnicodeDecodeError) as exc:
-        raise MpiLidarError(f"parameter file {path} is not valid {path.suffix[1:] or 'JSON'}: {exc}") from None
-    if not isinstance(params, dict) or not all(isinstance(v, int | float | str) for v in params.values()):
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise MpiLidarError(f"parameter file {path} is not valid {path.suffix[1:] or 'JSON'}: {reason}") from None
+    if not isinstance(params, dict):
         raise MpiLidarError(f"parameter file {path} must hold one table of scalar parameters")
-    unknown = sorted(set(params) - set(DEFAULT_PARAMS))
-    if unknown:
-        raise MpiLidarError(f"parameter file {path}: unknown parameters {unknown}; known: {sorted(DEFAULT_PARAMS)}")
-    return params
+    return check_params(params, f"parameter file {path}")
 
 
 @cli.command()
@@ -228,27 +235,41 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output directory.")
 @click.option("--gate", type=click.Choice(["geometry", "all", "consistency"]), default="geometry", show_default=True,
               help="Which valid pixels get corrected: where the scan's geometry allows multipath (geometry; "
-                   "scans without geometry fall back to all), every valid pixel (all), or frequency disagreement.")
+                   "on scans without geometry a pixel-wise model corrects every valid pixel and a geometric model, "
+                   "the default, leaves them as measured: status unchanged), every valid pixel (all), or "
+                   "frequency disagreement (consistency).")
 @click.option("--min-bias-mm", type=click.FloatRange(min=0), default=None,
               help="Geometry gate: correct pixels whose expected multipath bias reaches this. [mm] "
                    "(default 4; 1 suits geometric models on weak multipath, see docs/scenes.md)")
 @click.option("--footprint-area-m2", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Effective receiver footprint of your sensor, which scales the geometric coupling. [m^2] "
                    "(default: the Fig. 7 calibration, 90 pi (12 mm)^2)")
+@click.option("--max-invalid-share", type=click.FloatRange(0, 1), default=None,
+              help="A scan with more invalid pixels (not finite, no return, saturated, inconsistent) than this "
+                   "share is 'degraded'. (default 0.5)")
+@click.option("--fail-on", "fail_on", type=click.Choice(["degraded", "unchanged", "failed"]), multiple=True,
+              help="Exit 1 (after writing the summary) when a scan has this status; repeatable. "
+                   "A failed scan always does.")
 @click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
               help="Worker processes of a local Dask cluster; 0 runs in this process.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
-            footprint_area_m2: float | None, workers: int, scheduler: str | None) -> None:
-    """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary."""
+            footprint_area_m2: float | None, max_invalid_share: float | None, fail_on: tuple[str, ...],
+            workers: int, scheduler: str | None) -> None:
+    """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
+
+    Each scan ends corrected, unchanged (no pixel corrected), degraded (too many invalid pixels), skipped
+    (already done) or failed. Exit 1 when a scan failed or has a --fail-on status; 2 on a user error.
+    """
     import time
 
     from mpi_lidar.correction import CorrectionOptions
     from mpi_lidar.reporting.scan_report import write_batch_report
-    from mpi_lidar.workflows.correct_archive import correct_archive
+    from mpi_lidar.workflows.correct_archive import correct_archive, failing_outcomes, failure_line
     from mpi_lidar.workflows.executor import InProcess, dask_executor
 
-    options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2)
+    options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
+                                         max_invalid_share=max_invalid_share)
     started = time.perf_counter()
     with _progress() as progress:
         task = progress.add_task("scans", total=None)
@@ -257,10 +278,10 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
                                        on_scan=lambda _outcome: progress.advance(task))
     summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
     click.echo(summary.joinpath("report.md").read_text())
-    failed = [o for o in outcomes if o.status == "failed"]
-    for outcome in failed:
-        click.echo(f"error: scan {outcome.source}: {outcome.reason}", err=True)
-    if failed:
+    failing = failing_outcomes(outcomes, fail_on)
+    for outcome in failing:
+        click.echo(f"error: {failure_line(outcome)}", err=True)
+    if failing:
         sys.exit(1)
 
 
@@ -350,26 +371,78 @@ def bench(out_dir: Path, rows: int | None, quick: bool, seed: int | None) -> Non
     click.echo(f"\nreport written to {out_dir} ({result.wall_s:.0f} s)")
 
 
+@cli.command()
+@click.argument("stores", nargs=-1, required=True, type=click.Path(path_type=Path))
+def verify(stores: tuple[Path, ...]) -> None:
+    """Check datasets, scans and corrected outputs chunk by chunk against the fingerprints written with them.
+
+    Prints one line per store; exits 1 if any store is damaged (a deleted, truncated or replaced chunk),
+    naming the array and chunk.
+
+    Example: mpi-lidar verify runs/quick/dataset.zarr runs/quick/scenes/*.scan.zarr runs/quick/corrected/*
+    """
+    from mpi_lidar.workflows.verify import verify_store
+
+    damaged = 0
+    for store in stores:
+        try:
+            result = verify_store(store)
+        except MpiLidarError as exc:
+            damaged += 1
+            click.echo(f"error: {redact(str(exc))}", err=True)
+            continue
+        note = "" if result.fingerprinted else " (written before fingerprints: only decoding checked)"
+        click.echo(f"ok {result.path}: {result.kind}, {result.chunks:,} chunks{note}")
+    if damaged:
+        sys.exit(EXIT_FAILURE)
+
+
 def _progress() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     transient=True, disable=not sys.stderr.isatty())
 
 
 def main() -> None:
+    """Run the command line; every error is one line on stderr.
+
+    A user error (bad input, a damaged store, an unreachable service) exits 2; anything unexpected exits 1 with
+    its traceback written to a log file (printed with ``--debug``). Secrets are masked in every line.
+    """
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    debug = "--debug" in sys.argv[1:]
+    if debug:
+        sys.argv.remove("--debug")
     try:
         cli.main(standalone_mode=False)
     except click.ClickException as exc:
         exc.show()
         sys.exit(EXIT_USER_ERROR)
-    except click.Abort:
+    except (click.Abort, KeyboardInterrupt):
         click.echo("aborted", err=True)
         sys.exit(130)
     except MpiLidarError as exc:
-        click.echo(f"error: {exc}", err=True)
+        click.echo(f"error: {redact(str(exc))}", err=True)
+        if debug:
+            traceback.print_exc()
         sys.exit(EXIT_USER_ERROR)
+    except Exception as exc:  # a bug or an environment problem: one line, the traceback in a file
+        log = _write_traceback()
+        reason = redact(str(exc).strip().splitlines()[0]) if str(exc).strip() else ""
+        click.echo(f"error: unexpected {type(exc).__name__}: {reason} (traceback in {log}; rerun with --debug "
+                   "to print it)", err=True)
+        if debug:
+            click.echo(redact(traceback.format_exc()), err=True)
+        sys.exit(EXIT_FAILURE)
+
+
+def _write_traceback() -> Path:
+    """The current exception's traceback, secrets masked, in a per-user log file; its path."""
+    log = Path(tempfile.gettempdir()) / f"mpi-lidar-{os.getuid()}" / "last-error.log"
+    log.parent.mkdir(parents=True, exist_ok=True)
+    log.write_text(redact(traceback.format_exc()))
+    return log
 
 
 if __name__ == "__main__":

@@ -1,8 +1,9 @@
-"""The one exception type the CLI turns into a single error line and exit code 2."""
+"""The exception types the CLI turns into a single error line, and the exit codes."""
 
 from __future__ import annotations
 
 EXIT_USER_ERROR = 2  # the exit code of a user error, for the command line and python -m flows.deploy
+EXIT_FAILURE = 1  # something failed that is not the input's fault (a scan of a batch, a damaged store, a bug)
 
 
 class MpiLidarError(Exception):

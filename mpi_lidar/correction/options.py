@@ -32,12 +32,23 @@ class Flag(IntEnum):
 INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
 
 class ScanStatus(StrEnum):
-    """How one scan of a batch ended."""
+    """How one scan of a batch ended (:func:`mpi_lidar.correction.outcome.scan_status` decides the first three).
+
+    corrected: pixels were corrected. unchanged: valid outputs, but no pixel was corrected (a flat wall under
+    the geometry gate, every pixel gated out, or a scan without geometry under a geometric model). degraded:
+    the share of invalid pixels (not finite, no return, saturated, inconsistent) is above
+    ``CorrectionOptions.max_invalid_share``, whether or not pixels were corrected (a sensor with another gain,
+    a fogged window). skipped: already corrected with the same model and options. failed: no outputs.
+    """
 
     CORRECTED = "corrected"
-    SKIPPED = "skipped"  # already corrected with the same model and options
+    UNCHANGED = "unchanged"
+    DEGRADED = "degraded"
+    SKIPPED = "skipped"
     FAILED = "failed"
 
+
+STATUS_ONLY_OPTIONS = frozenset({"max_invalid_share"})  # options that never change a pixel: not hashed
 
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
@@ -63,20 +74,31 @@ class CorrectionOptions(BaseModel):
     partner_range_m: Positive = geometry.DEFAULT_MAX_RANGE_M
     footprint_area_m2: Positive = geometry.DEFAULT_FOOTPRINT_AREA_M2
     tile_pixels: Annotated[int, Field(ge=1)] = 262_144
+    # Above this share of invalid pixels a scan is 'degraded', not 'corrected': past half the map the
+    # outputs describe the sensor setup (gain, saturation level, range) more than the scene, and a batch
+    # should say so rather than report success. It only names how a scan ended, never changes a pixel.
+    max_invalid_share: Annotated[float, Field(ge=0, le=1)] = 0.5
 
     def sha256(self) -> str:
-        return hashlib.sha256(json.dumps(self.model_dump(), sort_keys=True).encode()).hexdigest()
+        """Identity of what the options do to the pixels: part of a corrected scan's identity.
+
+        Fields that only classify the outcome (``max_invalid_share``) are left out, always: changing them
+        must not re-correct a scan, and outputs written before they existed keep their hash.
+        """
+        pixels = self.model_dump(exclude=STATUS_ONLY_OPTIONS)
+        return hashlib.sha256(json.dumps(pixels, sort_keys=True).encode()).hexdigest()
 
     @classmethod
     def from_cli(cls, gate: str = "geometry", min_bias_mm: float | None = None,
-                 footprint_area_m2: float | None = None) -> CorrectionOptions:
+                 footprint_area_m2: float | None = None,
+                 max_invalid_share: float | None = None) -> CorrectionOptions:
         """The options of ``mpi-lidar correct`` and of the correction flow, in their units; None keeps a default.
 
         ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000).
         Out-of-range values are refused with one line.
         """
         overrides = {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
-                     "footprint_area_m2": footprint_area_m2}
+                     "footprint_area_m2": footprint_area_m2, "max_invalid_share": max_invalid_share}
         try:
             return cls(gate=gate, **{k: v for k, v in overrides.items() if v is not None})
         except ValidationError as exc:

@@ -43,7 +43,27 @@ DEFAULT_PARAMS: dict[str, object] = {
     "max_depth": 8, "learning_rate": 0.1, "subsample": 0.8, "colsample_bytree": 1.0,
     "min_child_weight": 1.0, "reg_lambda": 1.0, "gamma": 0.0,
 }
+# What a parameter file may set, and the values XGBoost accepts for each (checked before any work starts).
+PARAM_BOUNDS: dict[str, tuple[type, float, float]] = {
+    "max_depth": (int, 0, 64), "learning_rate": (float, 1e-6, 1.0), "subsample": (float, 1e-6, 1.0),
+    "colsample_bytree": (float, 1e-6, 1.0), "min_child_weight": (float, 0.0, 1e6), "reg_lambda": (float, 0.0, 1e6),
+    "gamma": (float, 0.0, 1e6),
+}
 DEFAULT_ROUNDS = 2000
+
+
+def check_params(params: Mapping[str, object], source: str) -> dict[str, object]:
+    """Parameters within :data:`PARAM_BOUNDS`; one :class:`MpiLidarError` naming ``source`` otherwise."""
+    unknown = sorted(set(params) - set(PARAM_BOUNDS))
+    if unknown:
+        raise MpiLidarError(f"{source}: unknown parameters {unknown}; known: {sorted(PARAM_BOUNDS)}")
+    for name, value in params.items():
+        kind, low, high = PARAM_BOUNDS[name]
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if not number or (kind is int and value != int(value)) or not low <= value <= high:
+            raise MpiLidarError(f"{source}: {name} = {value!r} must be {'an integer' if kind is int else 'a number'} "
+                                f"in [{low:g}, {high:g}]")
+    return dict(params)
 DEFAULT_EARLY_STOPPING = 50
 
 

@@ -87,8 +87,8 @@ def masked(url: str) -> str:
     """The storage URL with any password replaced by ***, for messages and logs."""
     try:
         return redact(make_url(url).render_as_string(hide_password=True))
-    except sqlalchemy.exc.ArgumentError:
-        return "<unparseable storage URL>"
+    except (sqlalchemy.exc.ArgumentError, ValueError):  # ValueError: a port that is not a number
+        return redact(url)
 
 
 def _storage(url: str) -> optuna.storages.RDBStorage:
@@ -106,7 +106,7 @@ def _storage(url: str) -> optuna.storages.RDBStorage:
 def _strip_password(text: str, url: str) -> str:
     try:
         parsed = make_url(url)
-    except sqlalchemy.exc.ArgumentError:
+    except (sqlalchemy.exc.ArgumentError, ValueError):
         return redact(text)
     secrets = [parsed.password, *(v for k, v in parsed.query.items() if k.lower() in SECRET_KEYS)]
     for secret in secrets:
@@ -115,8 +115,20 @@ def _strip_password(text: str, url: str) -> str:
     return redact(text)
 
 
+MAX_STUDY_NAME = 512  # Optuna's column width for study names
+
+
+def check_study_name(name: str) -> str:
+    """A study name every storage accepts: 1 to 512 printable characters."""
+    if not name or len(name) > MAX_STUDY_NAME or not name.isprintable():
+        raise MpiLidarError(f"study name {name[:40]!r}{'...' if len(name) > 40 else ''} must be 1 to "
+                            f"{MAX_STUDY_NAME} printable characters; choose another --study")
+    return name
+
+
 def open_study(storage_url: str, study_name: str, settings: TuneSettings) -> optuna.Study:
     """Create the study (or load it) and check that it was made for the same search space and data."""
+    check_study_name(study_name)
     info = dataset.dataset_info(settings.data_path)
     check_dataset_matches(settings.spec, info)
     study = optuna.create_study(
@@ -255,6 +267,7 @@ def tune_report(study: optuna.Study, trials_run: int, wall_s: float) -> TuneRepo
 
 
 def load_existing_study(storage_url: str, study_name: str) -> optuna.Study:
+    check_study_name(study_name)
     try:
         return optuna.load_study(study_name=study_name, storage=_storage(storage_url))
     except KeyError:

@@ -19,6 +19,7 @@ from mpi_lidar.correction import (
     ScanOutcome,
     ScanStatus,
 )
+from mpi_lidar.correction.outcome import invalid_share
 from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.reporting.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
 from mpi_lidar.scans import geometry
@@ -221,33 +222,46 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
 
 
 def batch_report(outcomes: list[ScanOutcome], wall_s: float) -> Report:
-    """One table over the batch: status, gated-out share, MAE before/after on the whole map and the mask.
+    """One table over the batch: per scan its name, status, gated-out and invalid shares, MAE before/after on
+    the whole map and the mask, notes and source path; above it a line counting every status.
 
     Gated out: valid pixels left as measured because the gate found no need (no multipath potential, or
-    not needed by a pixel-wise gate), as a share of all pixels.
+    not needed by a pixel-wise gate), as a share of all pixels. Invalid: pixels flagged not finite, no
+    return, saturated or inconsistent, as a share of all pixels. A skipped scan shows the numbers of its
+    existing outputs, and its notes say the status those earned.
     """
     rows = []
     for o in outcomes:
         total = max(sum(o.counts.values()), 1)
         gated = sum(o.counts.get(name, 0) for name in GATED_OUT)
         not_needed = f"{100 * gated / total:.1f} %" if o.counts else ""
+        invalid = f"{100 * invalid_share(o.counts):.1f} %" if o.counts else ""
         whole, masked = o.metrics.get("whole map", {}), o.metrics.get("masked region", {})
-        rows.append((o.name, o.status, not_needed, _mm(whole, "raw_mae_m"), _mm(whole, "corrected_mae_m"),
-                     _mm(masked, "raw_mae_m"), _mm(masked, "corrected_mae_m"), f"{o.seconds:.2f}",
-                     o.reason or "; ".join(o.notes)))
-    table = Table(("scan", "status", "gated out", "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]",
-                   "masked corrected MAE [mm]", "seconds", "notes"), tuple(rows))
-    failed = sum(o.status == ScanStatus.FAILED for o in outcomes)
-    corrected = sum(o.status == ScanStatus.CORRECTED for o in outcomes)
-    summary = (f"{len(outcomes)} scans in {wall_s:.1f} s: {corrected} corrected, "
-               f"{sum(o.status == ScanStatus.SKIPPED for o in outcomes)} already done, {failed} failed.")
+        reason = f"{o.reason} ({o.kept_status})" if o.kept_status else o.reason
+        rows.append(tuple(_cell(c) for c in (
+            o.name, o.status, not_needed, invalid, _mm(whole, "raw_mae_m"), _mm(whole, "corrected_mae_m"),
+            _mm(masked, "raw_mae_m"), _mm(masked, "corrected_mae_m"), f"{o.seconds:.2f}",
+            "; ".join(n for n in (reason, *o.notes) if n), o.source)))
+    table = Table(("scan", "status", "gated out", "invalid", "raw MAE [mm]", "corrected MAE [mm]",
+                   "masked raw MAE [mm]", "masked corrected MAE [mm]", "seconds", "notes", "source"), tuple(rows))
+    labels = {ScanStatus.SKIPPED: "already done"}
+    counted = ", ".join(f"{sum(o.status == status for o in outcomes)} {labels.get(status, status.value)}"
+                        for status in ScanStatus)
+    summary = f"{len(outcomes)} scans in {wall_s:.1f} s: {counted}."
     return Report(title="Batch correction", blocks=[summary, table],
                   data={"wall_s": wall_s, "scans": [o.__dict__ for o in outcomes]})
 
 
+def _cell(text: object) -> str:
+    """One table cell: one line, and no ``|`` that would split a markdown row."""
+    return " ".join(str(text).splitlines()).replace("|", "\\|")
+
+
 def _mm(metrics: dict[str, float], key: str) -> str:
-    return f"{1e3 * metrics[key]:.3f}" if key in metrics else ""
+    value = metrics.get(key) if isinstance(metrics, dict) else None
+    return f"{1e3 * value:.3f}" if isinstance(value, int | float) else ""
 
 
 def write_batch_report(outcomes: list[ScanOutcome], wall_s: float, out_dir: str | Path) -> Path:
+    """The batch summary into ``<out_dir>/summary/`` (a name no scan's outputs take, see correct_archive)."""
     return write_report(batch_report(outcomes, wall_s), Path(out_dir) / "summary", {})

@@ -20,7 +20,8 @@ def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator[Clie
     Parameters
     ----------
     scheduler : Address of a running scheduler (``tcp://host:8786``); None starts a LocalCluster.
-    workers : Worker processes of the LocalCluster, one thread each (numpy does the inner parallelism).
+    workers : Worker processes of the LocalCluster, one thread each (numpy does the inner parallelism); 0 runs
+        one worker thread in this process (for libraries such as ``xgboost.dask`` that need a cluster).
     """
     if scheduler:
         try:
@@ -33,11 +34,13 @@ def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator[Clie
         with client:
             yield client
         return
-    if workers < 1:
-        raise MpiLidarError(f"--workers must be at least 1, got {workers}")
+    if workers < 0:
+        raise MpiLidarError(f"--workers must be 0 (this process) or more, got {workers}")
+    # Task errors reach the caller as exceptions and are reported once; the workers' own ERROR log lines
+    # about the same failure would only flood the terminal.
     with (
-        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                     silence_logs=logging.ERROR) as cluster,
+        LocalCluster(n_workers=max(workers, 1), threads_per_worker=1, processes=workers > 0, dashboard_address=":0",
+                     silence_logs=logging.CRITICAL) as cluster,
         Client(cluster) as client,
     ):
         yield client

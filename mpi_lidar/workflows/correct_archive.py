@@ -1,26 +1,42 @@
 """Batch correction of an archive: one scan's outputs written atomically, a bad scan failing alone.
 
-Per scan the outputs go into ``<out>/<scan name>/`` (``corrected.zarr``, report files, point clouds),
-built under a staging name and renamed into place (:mod:`mpi_lidar.storage.atomic`), so a scan's outputs
-are all there or not at all. A scan already corrected by the same model with the same options (same content
-hashes) is skipped. The loop runs on an executor (:mod:`mpi_lidar.workflows.executor`): in this process, as
-one Dask task per scan, or as one Prefect task per scan in the flow; the command line, the pipeline and the
-Prefect flow all call :func:`correct_archive`.
+Per scan the outputs (``corrected.zarr``, report files, point clouds) go into a directory named after the
+scan store's path relative to the common root of the batch's inputs (the deepest directory holding all their
+parent directories), with the ``.scan.zarr`` (or ``.zarr``) suffix removed: a directory of scans keeps their
+names (``scenes/cornered_board.scan.zarr`` -> ``<out>/cornered_board/``), an archive with one folder per day
+gets nested directories (``day1/frame.scan.zarr`` -> ``<out>/day1/frame/``). Every component must be a safe
+name (letters, digits, ``. _ -``, starting with a letter or digit), or that scan fails. ``<out>/summary/`` is
+the batch summary's: a scan (or folder) whose first component would be ``summary`` goes to ``summary.scan``
+instead (``summary.scan.zarr`` -> ``<out>/summary.scan/``), so neither overwrites the other. Two inputs
+mapping to one directory, or one inside another's, are refused before anything is written (the scan's own
+``name`` attribute no longer decides where its outputs go, but it must still be a safe name: it names the
+scan in every report). Each scan's directory is built under a staging name and renamed into place
+(:mod:`mpi_lidar.storage.atomic`), so a scan's outputs are all there or not at all.
+
+A scan already corrected by the same model with the same options (same content hashes) is skipped, and its
+counts, metrics and notes are read back from its ``metrics.json``. A written scan is ``corrected``,
+``unchanged`` (no pixel corrected) or ``degraded`` (more invalid pixels than ``max_invalid_share``), see
+:func:`mpi_lidar.correction.outcome.scan_status`. The loop runs on an executor
+(:mod:`mpi_lidar.workflows.executor`): in this process, as one Dask task per scan, or as one Prefect task per
+scan in the flow; the command line, the pipeline and the Prefect flow all call :func:`correct_archive`.
 """
 
 from __future__ import annotations
 
 import glob
+import json
+import os
 import re
 import time
 from collections.abc import Callable
 from functools import lru_cache
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import zarr
 from distributed import Client
 
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, correct_scan, make_gate
+from mpi_lidar.correction.outcome import invalid_share, scan_status
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.reporting.scan_report import scan_metrics, write_scan_outputs
@@ -28,15 +44,72 @@ from mpi_lidar.scans.scan import SCAN_SUFFIX, read_scan
 from mpi_lidar.storage.atomic import remove_interrupted_staging
 from mpi_lidar.workflows.executor import Executor, as_executor
 
-SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")  # fullmatch: "$" would let a final newline pass
+SUMMARY_NAME = "summary"  # <out>/summary/: the batch summary (mpi_lidar.reporting.scan_report)
+RESERVED_SUFFIX = ".scan"  # a scan whose output would be <out>/summary/ goes to <out>/summary.scan/ instead
+MAX_REASON_CHARS = 500
 
 
-def safe_scan_name(name: str) -> str:
-    """The scan's name as an output directory name; anything that could escape the output directory is refused."""
-    if not SAFE_NAME.match(name) or ".." in name:
-        raise MpiLidarError(f"scan name {name!r} is not a safe directory name (letters, digits, . _ -); "
-                            "rename the scan")
+def safe_scan_name(name: str, what: str = "scan name", fix: str = "rename the scan") -> str:
+    """``name`` as a directory name; anything that could escape the output directory is refused."""
+    if not isinstance(name, str) or not SAFE_NAME.fullmatch(name) or ".." in name:
+        raise MpiLidarError(f"{what} {name!r} is not a safe directory name (letters, digits, . _ -); {fix}")
     return name
+
+
+def _store_stem(name: str) -> str:
+    for suffix in (SCAN_SUFFIX, ".zarr"):
+        if name.endswith(suffix):
+            return name.removesuffix(suffix)
+    return name
+
+
+def scan_output_paths(sources: list[str]) -> dict[str, str]:
+    """Each source's output directory, relative to the output directory (POSIX, ``/``-separated).
+
+    The path of each store relative to the common root of all the sources' parent directories, suffix
+    removed, a first component ``summary`` renamed ``summary.scan`` (see the module docstring). The
+    components are not checked here (an unsafe one fails its scan alone, in :func:`process_scan`); two
+    sources mapping to one directory, or one into another's (compared without case, as a case-insensitive
+    file system would), are refused with one error naming both, before anything is written.
+    """
+    if not sources:
+        return {}
+    absolute = {source: Path(os.path.abspath(source)) for source in sources}
+    root = Path(os.path.commonpath([str(path.parent) for path in absolute.values()]))
+    outputs: dict[str, str] = {}
+    for source, path in absolute.items():
+        parts = list(path.relative_to(root).parts)
+        parts[-1] = _store_stem(parts[-1])
+        if parts[0].casefold() == SUMMARY_NAME:
+            parts[0] += RESERVED_SUFFIX
+        outputs[source] = "/".join(parts)
+    _refuse_collisions(outputs)
+    return outputs
+
+
+def _refuse_collisions(outputs: dict[str, str]) -> None:
+    owner: dict[str, str] = {}
+    for source, output in sorted(outputs.items()):
+        key = output.casefold()
+        if key in owner:
+            raise MpiLidarError(f"scans {owner[key]} and {source} would both write {output}/; "
+                                "correct them in separate batches or rename one")
+        owner[key] = source
+    for source, output in sorted(outputs.items()):
+        for parent in PurePosixPath(output.casefold()).parents:
+            if str(parent) in owner:
+                raise MpiLidarError(f"scan {source} would write {output}/ inside the outputs of "
+                                    f"{owner[str(parent)]} ({outputs[owner[str(parent)]]}/); correct them in "
+                                    "separate batches or move one")
+
+
+def _safe_output(out_dir: Path, output: str) -> Path:
+    """``out_dir`` joined with ``output`` after every component passed the safe-name rule."""
+    for part in output.split("/"):
+        safe_scan_name(part, "output directory component",
+                       f"rename that folder or scan store (output {output!r})")
+    return out_dir.joinpath(*output.split("/"))
 
 
 def _already_done(target: Path, scan_sha: str, model_sha: str, options_sha: str) -> bool:
@@ -48,18 +121,51 @@ def _already_done(target: Path, scan_sha: str, model_sha: str, options_sha: str)
         scan_sha, model_sha, options_sha)
 
 
-def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
-                 options: CorrectionOptions) -> ScanOutcome:
-    """Correct one scan and write its outputs; any failure becomes a 'failed' outcome with its reason."""
+def _existing_results(target: Path) -> dict[str, object] | None:
+    """Counts, metrics and notes of a scan's existing outputs (its ``metrics.json``); None if unreadable.
+
+    Outputs are written whole or not at all, so an unreadable ``metrics.json`` means they were damaged or
+    are not ours: the scan is then corrected again rather than skipped with no numbers.
+    """
+    try:
+        data = json.loads((target / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return None
+    counts, metrics, notes = (data.get(key) if isinstance(data, dict) else None
+                              for key in ("counts", "metrics", "notes"))
+    if not (isinstance(counts, dict) and all(isinstance(n, int) for n in counts.values())):
+        return None
+    return {"counts": {str(k): int(n) for k, n in counts.items()},
+            "metrics": metrics if isinstance(metrics, dict) else {},
+            "notes": tuple(str(n) for n in notes) if isinstance(notes, list) else ()}
+
+
+def _one_line(exc: Exception) -> str:
+    """An exception as one line: a library error's message, anything else ``TypeName: message``."""
+    lines = str(exc).strip().splitlines()
+    message = lines[0].strip() if lines else ""
+    if not isinstance(exc, MpiLidarError):
+        message = f"{type(exc).__name__}: {message}" if message else type(exc).__name__
+    return message if len(message) <= MAX_REASON_CHARS else message[:MAX_REASON_CHARS - 3] + "..."
+
+
+def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
+                 output: str | None = None) -> ScanOutcome:
+    """Correct one scan and write its outputs into ``out_dir/output``; any failure becomes a 'failed' outcome.
+
+    ``output`` is the scan's output directory relative to ``out_dir`` (:func:`scan_output_paths` of the
+    whole batch); None derives it from ``source`` alone (its store name without the suffix). Every
+    exception (any type: a damaged store, a bug, no memory) fails this scan alone with a one-line reason
+    (``TypeName: message`` for other than the library's own errors); KeyboardInterrupt and SystemExit stop it.
+    """
     started = time.perf_counter()
     source = str(source)
     try:
-        return _process_scan(source, Path(model_dir), Path(out_dir), options, started)
-    except MpiLidarError as exc:
-        return ScanOutcome(source, Path(source).name, ScanStatus.FAILED, str(exc),
-                           seconds=time.perf_counter() - started)
-    except (OSError, ValueError, KeyError) as exc:
-        return ScanOutcome(source, Path(source).name, ScanStatus.FAILED, f"{type(exc).__name__}: {exc}",
+        if output is None:
+            output = scan_output_paths([source])[source]
+        return _process_scan(source, Path(model_dir), _safe_output(Path(out_dir), output), options, started)
+    except Exception as exc:  # one bad scan, whatever went wrong, must not stop the batch
+        return ScanOutcome(source, Path(source).name, ScanStatus.FAILED, _one_line(exc),
                            seconds=time.perf_counter() - started)
 
 
@@ -68,24 +174,26 @@ def _cached_model(model_dir: str) -> CorrectionModel:
     return load_model(model_dir)
 
 
-def _process_scan(source: str, model_dir: Path, out_dir: Path, options: CorrectionOptions,
+def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
                   started: float) -> ScanOutcome:
-
     scan = read_scan(source)
-    name = safe_scan_name(scan.name)
-    target = out_dir / name
+    name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
     scan_sha, model_sha, options_sha = scan.content_sha256(), model.card.model_sha256, options.sha256()
-    if _already_done(target, scan_sha, model_sha, options_sha):
+    existing = _existing_results(target) if _already_done(target, scan_sha, model_sha, options_sha) else None
+    if existing is not None:
+        counts = existing["counts"]
         return ScanOutcome(source, name, ScanStatus.SKIPPED, "already corrected with this model and options",
-                           output=str(target), seconds=time.perf_counter() - started)
+                           output=str(target), counts=counts, metrics=existing["metrics"],
+                           seconds=time.perf_counter() - started, notes=existing["notes"],
+                           kept_status=scan_status(counts, options.max_invalid_share))
     correction = correct_scan(scan, model, options)
     metrics = scan_metrics(scan, correction)
     identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
     notes = write_scan_outputs(target, scan, correction, metrics, identity, options)
-    return ScanOutcome(source, name, ScanStatus.CORRECTED, output=str(target), counts=correction.counts(),
-                       metrics=metrics,
-                       seconds=time.perf_counter() - started, notes=tuple(notes))
+    counts = correction.counts()
+    return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share), output=str(target),
+                       counts=counts, metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes))
 
 # --- a batch ----------------------------------------------------------------------------------------------
 
@@ -115,24 +223,74 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     """Correct every scan, one call of :func:`process_scan` per scan on ``executor``; a bad scan fails alone.
 
     The executor runs the scans in this process (None), as Dask tasks (an executor or a ``client``, the same)
-    or as the correction flow's Prefect tasks. Before any scan, a model that cannot be loaded or a gate that
-    cannot be made fails the batch with one line, and staging directories an interrupted run left in
-    ``out_dir`` are removed. ``on_scan`` sees each outcome as it finishes; the outcomes come back by source.
+    or as the correction flow's Prefect tasks. Before any scan, and before anything is written, a model that
+    cannot be loaded, a gate that cannot be made or two scans that would write the same output directory
+    (:func:`scan_output_paths`) fail the batch with one line; then staging directories an interrupted run
+    left in ``out_dir`` (and in the folders of nested outputs) are removed. ``on_scan`` sees each outcome as
+    it finishes; the outcomes come back by source.
     """
     load_model(model_dir)  # a broken model fails the whole batch at once, with one clear line
     make_gate(options)
     out_dir = Path(out_dir)
+    sources = expand_archive(inputs)
+    outputs = scan_output_paths(sources)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
-    sources = expand_archive(inputs)
-    remove_interrupted_staging(out_dir)
-    calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options}
-             for source in sources]
+    for folder in sorted({PurePosixPath(output).parent for output in outputs.values()}):
+        if ".." not in folder.parts:
+            remove_interrupted_staging(out_dir.joinpath(*folder.parts))
+    calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options,
+              "output": outputs[source]} for source in sources]
     outcomes: list[ScanOutcome] = []
     for _call, outcome in as_executor(executor if executor is not None else client).map(process_scan, calls):
         outcomes.append(outcome)
         if on_scan:
             on_scan(outcome)
     return sorted(outcomes, key=lambda o: o.source)
+
+
+# --- which outcomes fail a batch --------------------------------------------------------------------------
+
+FAIL_ON = ("degraded", "unchanged", "failed")  # statuses --fail-on / fail_on may name; failed always fails
+
+
+def failing_outcomes(outcomes: list[ScanOutcome], fail_on: tuple[str, ...] | list[str] = ()) -> list[ScanOutcome]:
+    """The outcomes that fail the batch: every failed scan, and those whose status is in ``fail_on``.
+
+    A skipped scan counts with the status its existing outputs earned (:attr:`ScanOutcome.effective_status`),
+    so a re-run fails on a degraded scan as the first run did. Other names than :data:`FAIL_ON` are refused.
+    """
+    unknown = sorted(set(fail_on) - set(FAIL_ON))
+    if unknown:
+        raise MpiLidarError(f"fail_on takes {', '.join(FAIL_ON)}; not {', '.join(map(repr, unknown))}")
+    statuses = {ScanStatus.FAILED, *(ScanStatus(status) for status in fail_on)}
+    return [o for o in outcomes if o.effective_status in statuses]
+
+
+def failure_line(outcome: ScanOutcome) -> str:
+    """``scan <source>: <why>``, one line, for an outcome that fails the batch."""
+    return f"scan {outcome.source}: {_why(outcome)}"
+
+
+def _why(outcome: ScanOutcome) -> str:
+    if outcome.status == ScanStatus.FAILED:
+        why = outcome.reason
+    elif outcome.effective_status == ScanStatus.DEGRADED:
+        why = f"degraded: {100 * invalid_share(outcome.counts):.1f} % of its pixels are invalid"
+    else:
+        why = f"{outcome.effective_status}: no pixel was corrected"
+    if outcome.status == ScanStatus.SKIPPED:
+        why += " (existing outputs, already corrected with this model and options)"
+    return why
+
+
+def batch_failure(outcomes: list[ScanOutcome], fail_on: tuple[str, ...] | list[str] = ()) -> str | None:
+    """One line saying why the batch fails (``2 of 5 scans failed or degraded (...)``), or None if it does not."""
+    bad = failing_outcomes(outcomes, fail_on)
+    if not bad:
+        return None
+    statuses = " or ".join(dict.fromkeys(str(o.effective_status) for o in bad))
+    return f"{len(bad)} of {len(outcomes)} scans {statuses} ({'; '.join(f'{o.source}: {_why(o)}' for o in bad)})"
+
