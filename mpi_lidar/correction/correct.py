@@ -17,7 +17,9 @@ scan already corrected by the same model with the same options (same content has
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,7 +38,9 @@ class Correction:
     """A corrected scan: depth (H, W) [m] (NaN where invalid), flags (H, W), and what it cost.
 
     ``multipath_bias_m`` (H, W) is the geometry gate's expected multipath bias [m] (None for other gates
-    or without geometry); ``gate_s`` the time the gate took [s]; ``notes`` what the report must say.
+    or without geometry); ``gate_s`` the time the gate took [s]; ``notes`` what the report must say;
+    ``cpu_s`` the CPU seconds of this process (all threads) per stage: validity, gate, inference (the model's
+    features and its prediction) [s].
     """
 
     depth: NDArray[np.float32]
@@ -46,6 +50,7 @@ class Correction:
     gate_s: float = 0.0
     multipath_bias_m: NDArray[np.float32] | None = None
     notes: tuple[str, ...] = ()
+    cpu_s: dict[str, float] = field(default_factory=dict)
 
     def counts(self) -> dict[str, int]:
         values, counts = np.unique(self.flags, return_counts=True)
@@ -66,42 +71,91 @@ def in_depth_range(depth: NDArray, d_as_m: tuple[float, float], options: Correct
 
 def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
                  sensor: SensorConfig | None = None) -> Correction:
-    """Correct one scan in this process, pixel by pixel, in tiles of ``options.tile_pixels``."""
+    """Correct one scan in this process, in tiles of whole rows of about ``options.tile_pixels`` pixels.
+
+    Everything per pixel (validity mask, model range, a pixel-wise gate, geometric inputs, inference) runs
+    tile by tile, so its working memory is that of one tile whatever the scan's size; what the gate needs of
+    the whole scan (the geometry gate's planes and facing partners) is computed once between the two passes.
+    Every pixel gets exactly the value it gets from the whole scan at once (tests/correction/test_tiling.py).
+    """
     started = time.perf_counter()
+    clock = _StageClock()
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
     sensor = sensor or SensorConfig()
-    raw = scan.raw_pixels()
-    flags = validity_flags(raw, scan.frequencies_hz, options, sensor)
-    flags[(flags == Flag.NOT_NEEDED) & ~in_model_range(raw[:, len(scan.frequencies_hz) - 1], model, options)] = (
-        Flag.OUT_OF_RANGE)
-    gate_started = time.perf_counter()
-    gate = make_gate(options)
-    top = raw[:, len(scan.frequencies_hz) - 1]
-    usable = ~np.isin(flags, [int(f) for f in INVALID_FLAGS])
-    usable_depth = np.where(usable, top, np.nan)
-    candidates = gate.scan_candidates(scan, usable_depth)
-    notes: tuple[str, ...] = ()
-    potential = getattr(gate, "potential_", None)
-    if model.geometric and potential is None:
-        potential = geometry_gate(options).potential(scan, usable_depth)
-    if candidates is not None:
-        flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
-    elif gate.uses_geometry and not model.geometric:
-        notes = (NO_GEOMETRY_NOTE,)
-    valid = np.flatnonzero(flags == Flag.NOT_NEEDED)
-    needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
-    if model.geometric and potential is None:
-        needs, notes = needs[:0], (NO_GEOMETRY_INPUTS_NOTE,)
-    geometric_inputs = None if potential is None else geometry_inputs(potential.coupling, potential.d_ab_m)
-    gate_s = time.perf_counter() - gate_started
-    depth = usable_depth.copy()
-    inference_started = time.perf_counter()
-    for start in range(0, needs.size, options.tile_pixels):
-        tile = needs[start:start + options.tile_pixels]
-        depth[tile] = model.predict_depth(raw[tile], None if geometric_inputs is None else geometric_inputs[tile])
-    inference_s = time.perf_counter() - inference_started
-    flags[needs] = Flag.CORRECTED
+    f = len(scan.frequencies_hz)
     h, w = scan.shape
-    return Correction(depth.reshape(h, w).astype(np.float32), flags.reshape(h, w), inference_s,
-                      time.perf_counter() - started, gate_s,
-                      None if potential is None else potential.bias_m.astype(np.float32), notes)
+    tiles = row_tiles(h, w, options.tile_pixels)
+    flags = np.empty(h * w, dtype=np.uint8)
+    usable_depth = np.empty(h * w, dtype=np.float32)
+    invalid = [int(flag) for flag in INVALID_FLAGS]
+    for pixels, raw in _raw_tiles(scan, tiles):  # first pass: validity and model range, tile by tile
+        with clock("validity"):
+            tile_flags = validity_flags(raw, scan.frequencies_hz, options, sensor)
+            top = raw[:, f - 1]
+            tile_flags[(tile_flags == Flag.NOT_NEEDED) & ~in_model_range(top, model, options)] = Flag.OUT_OF_RANGE
+            flags[pixels] = tile_flags
+            usable_depth[pixels] = np.where(~np.isin(tile_flags, invalid), top, np.nan)
+    gate_started = time.perf_counter()
+    with clock("gate"):
+        gate = make_gate(options)
+        candidates = gate.scan_candidates(scan, usable_depth)
+        notes: tuple[str, ...] = ()
+        potential = getattr(gate, "potential_", None)
+        if model.geometric and potential is None:
+            potential = geometry_gate(options).potential(scan, usable_depth)
+        if candidates is not None:
+            flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
+            del candidates
+        elif gate.uses_geometry and not model.geometric:
+            notes = (NO_GEOMETRY_NOTE,)
+        predict = not (model.geometric and potential is None)
+        if not predict:
+            notes = (NO_GEOMETRY_INPUTS_NOTE,)
+    gate_s = time.perf_counter() - gate_started
+    depth = usable_depth
+    inference_s = 0.0
+    for pixels, raw in _raw_tiles(scan, tiles) if predict else ():  # second pass: the pixels that need it
+        gate_started = time.perf_counter()
+        with clock("gate"):
+            valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
+            needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
+            geometric = None if potential is None else geometry_inputs(
+                potential.coupling.reshape(-1)[pixels][needs], potential.d_ab_m.reshape(-1)[pixels][needs])
+        gate_s += time.perf_counter() - gate_started
+        inference_started = time.perf_counter()
+        with clock("inference"):
+            if needs.size:
+                depth[pixels.start + needs] = model.predict_depth(raw[needs], geometric)
+            flags[pixels.start + needs] = Flag.CORRECTED
+        inference_s += time.perf_counter() - inference_started
+    return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
+                      None if potential is None else potential.bias_m.astype(np.float32), notes, clock.seconds)
+
+
+def row_tiles(height: int, width: int, tile_pixels: int) -> list[slice]:
+    """Flat pixel ranges of whole rows, about ``tile_pixels`` each (at least one row)."""
+    rows = max(1, tile_pixels // max(width, 1))
+    return [slice(top * width, min(top + rows, height) * width) for top in range(0, height, rows)]
+
+
+def _raw_tiles(scan: Scan, tiles: list[slice]) -> Iterator[tuple[slice, NDArray[np.float32]]]:
+    """(pixels, raw measurements (n, 2F) of those pixels) per tile, built from the maps' rows as needed."""
+    w = scan.shape[1]
+    for pixels in tiles:
+        rows = slice(pixels.start // w, pixels.stop // w)
+        yield pixels, replace(scan, depth=scan.depth[:, rows], amplitude=scan.amplitude[:, rows]).raw_pixels()
+
+
+class _StageClock:
+    """CPU seconds of this process (every thread) per named stage, summed over tiles."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, stage: str) -> Iterator[None]:
+        started = time.process_time()
+        try:
+            yield
+        finally:
+            self.seconds[stage] = self.seconds.get(stage, 0.0) + time.process_time() - started
