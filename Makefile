@@ -24,7 +24,7 @@ bench: $(VENV)/.installed
 # uv installs exactly what uv.lock pins; it is bootstrapped into .venv with the interpreter's own pip.
 $(VENV)/.installed: pyproject.toml uv.lock
 	@test -x $(VENV)/bin/uv || { $(PYTHON) -m venv $(VENV) && $(VENV)/bin/python -m pip install -q "uv==$(UV_VERSION)"; }
-	$(VENV)/bin/uv sync --frozen --python $(VENV)/bin/python
+	$(VENV)/bin/uv sync --frozen --compile-bytecode --python $(VENV)/bin/python
 	@touch $@
 
 clean-venv:

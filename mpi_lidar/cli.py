@@ -7,21 +7,24 @@ import sys
 import tempfile
 import traceback
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from mpi_lidar.config import PRESETS, resolve_config
 from mpi_lidar.errors import EXIT_FAILURE, EXIT_USER_ERROR, MpiLidarError
-from mpi_lidar.learning.features import (
+from mpi_lidar.learning.feature_choices import (  # not .features: that imports dask, and --help must be quick
     DEFAULT_FEATURE_SET,
     DEFAULT_GEOMETRIC,
     DEFAULT_TARGET_MODE,
     FEATURE_SETS,
     TARGET_MODES,
-    FeatureSpec,
 )
 from mpi_lidar.redact import redact
+
+if TYPE_CHECKING:
+    from mpi_lidar.learning.features import FeatureSpec
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -92,6 +95,7 @@ def model_options(command):
 
 def feature_spec(data: Path, feature_set: str | None, target_mode: str | None,
                  geometric: bool | None = None) -> FeatureSpec:
+    from mpi_lidar.learning.features import FeatureSpec
     from mpi_lidar.simulation import dataset
 
     info = dataset.dataset_info(data)
@@ -250,12 +254,19 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--fail-on", "fail_on", type=click.Choice(["degraded", "unchanged", "failed"]), multiple=True,
               help="Exit 1 (after writing the summary) when a scan has this status; repeatable. "
                    "A failed scan always does.")
-@click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
-              help="Worker processes of a local Dask cluster; 0 runs in this process.")
+@click.option("--outputs", type=click.Choice(["full", "light", "data"]), default="light", show_default=True,
+              help="What each scan writes: corrected.zarr, metrics.json, report and a small thumbnail (light); "
+                   "only corrected.zarr and metrics.json (data); or also maps, error histogram, point-cloud "
+                   "views and PLY point clouds (full, several times slower). A scan already corrected at a "
+                   "lower level is corrected again to add the rest.")
+@click.option("--workers", type=click.IntRange(min=0), default=None,
+              help="Worker processes of a local Dask cluster; 0 runs in this process. Default: this process "
+                   "for a batch of fewer than 8 scans or fewer than 16 megapixels in all (a cluster takes "
+                   "10-20 s to start), else 2 workers.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
             footprint_area_m2: float | None, max_invalid_share: float | None, fail_on: tuple[str, ...],
-            workers: int, scheduler: str | None) -> None:
+            outputs: str, workers: int | None, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
 
     Each scan ends corrected, unchanged (no pixel corrected), degraded (too many invalid pixels), skipped
@@ -265,17 +276,18 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
 
     from mpi_lidar.correction import CorrectionOptions
     from mpi_lidar.reporting.scan_report import write_batch_report
-    from mpi_lidar.workflows.correct_archive import correct_archive, failing_outcomes, failure_line
+    from mpi_lidar.workflows.correct_archive import correct_archive, failing_outcomes, failure_line, runs_in_process
     from mpi_lidar.workflows.executor import InProcess, dask_executor
 
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
                                          max_invalid_share=max_invalid_share)
     started = time.perf_counter()
+    here = not scheduler and (workers == 0 if workers is not None else runs_in_process(list(scans)))
     with _progress() as progress:
         task = progress.add_task("scans", total=None)
-        with InProcess() if workers == 0 and not scheduler else dask_executor(scheduler, workers) as executor:
+        with InProcess() if here else dask_executor(scheduler, workers or 2) as executor:
             outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
-                                       on_scan=lambda _outcome: progress.advance(task))
+                                       on_scan=lambda _outcome: progress.advance(task), outputs=outputs)
     summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
     click.echo(summary.joinpath("report.md").read_text())
     failing = failing_outcomes(outcomes, fail_on)
@@ -286,12 +298,22 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
 
 
 @cli.command("import-scan")
-@click.argument("source", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="Scan store to write (.scan.zarr).")
-@click.option("--frequencies", help="Comma-separated frequencies in Hz, if the .npz does not hold frequencies_hz.")
-def import_scan(source: Path, out: Path, frequencies: str | None) -> None:
-    """Import a scan from an .npz of arrays (depth and amplitude (F, H, W), or taps (F, 4, H, W), plus extras)."""
-    from mpi_lidar.scans.scan import load_npz, write_scan
+@click.argument("sources", nargs=-1, required=True)
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Scan store to write (X.scan.zarr) for one file, or a directory: OUT/<name>.scan.zarr per file.")
+@click.option("--frequencies", help="Comma-separated frequencies in Hz, if the files do not hold frequencies_hz.")
+@click.option("--var", "variables", multiple=True, metavar="NAME=VARIABLE",
+              help="Read the scan array NAME (depth, amplitude, taps, azimuth_rad, elevation_rad, reference_depth, "
+                   "frequencies_hz, ...) from the file's VARIABLE (array of an .npz); repeatable.")
+def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, variables: tuple[str, ...]) -> None:
+    """Import scans from .npz archives or NetCDF/HDF5 files (.nc, .h5, .hdf5): files, directories or globs.
+
+    Each file holds depth and amplitude (F, H, W), or taps (F, 4, H, W), plus optional geometry and reference,
+    named as in a scan store or mapped with --var (e.g. --var depth=range_m --var amplitude=intensity).
+    Every file is read and checked before anything is written: one bad file (or an existing store) refuses
+    the whole import with one error line (exit 2), and nothing is written.
+    """
+    from mpi_lidar.scans.scan import find_scan_files, import_files, plan_import
 
     freqs = None
     if frequencies:
@@ -299,10 +321,21 @@ def import_scan(source: Path, out: Path, frequencies: str | None) -> None:
             freqs = tuple(float(f) for f in frequencies.split(","))
         except ValueError:
             raise MpiLidarError(f"--frequencies must be comma-separated numbers in Hz, got {frequencies!r}") from None
-    scan = load_npz(source, freqs)
-    write_scan(scan, out)
-    click.echo(f"scan {scan.name}: {scan.shape[0]} x {scan.shape[1]} pixels at {len(scan.frequencies_hz)} "
-               f"frequencies written to {out}")
+    mapping = {}
+    for item in variables:
+        name, sep, variable = item.partition("=")
+        if not sep or not name.strip() or not variable.strip():
+            raise MpiLidarError(f"--var must be NAME=VARIABLE (e.g. depth=range_m), got {item!r}")
+        if name.strip() in mapping:
+            raise MpiLidarError(f"--var maps {name.strip()!r} twice")
+        mapping[name.strip()] = variable.strip()
+    plan = plan_import(find_scan_files(sources), out)
+
+    def echo(scan, target: Path) -> None:
+        click.echo(f"scan {scan.name}: {scan.shape[0]} x {scan.shape[1]} pixels at {len(scan.frequencies_hz)} "
+                   f"frequencies written to {target}")
+
+    import_files(plan, freqs, mapping, on_scan=echo)
 
 
 @cli.command("render-scenes")

@@ -24,7 +24,6 @@ row's scene parameters and the estimation error measured on rendered scenes (doc
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import dask.array as da
 import numpy as np
@@ -32,19 +31,17 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import PriorConfig
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning.feature_choices import (  # light for the command line; the defaults are re-exported
+    DEFAULT_FEATURE_SET,  # noqa: F401
+    DEFAULT_GEOMETRIC,  # noqa: F401
+    DEFAULT_TARGET_MODE,  # noqa: F401
+    FEATURE_SETS,
+    TARGET_MODES,
+    FeatureSet,
+    TargetMode,
+)
 from mpi_lidar.simulation.dataset import frequency_labels, raw_feature_names
 
-FeatureSet = Literal["raw", "engineered"]
-TargetMode = Literal["absolute", "residual"]
-FEATURE_SETS: tuple[str, ...] = ("raw", "engineered")
-# Engineered features with the residual target: 6.01 mm test MAE at Table I noise against 6.43 mm for the
-# paper's raw inputs and absolute target (200,000 train rows; docs/tradeoff.md).
-DEFAULT_FEATURE_SET: FeatureSet = "engineered"
-DEFAULT_TARGET_MODE: TargetMode = "residual"
-# Geometric inputs: better than the same prior's pixel-wise model on every rendered corner of the scene set
-# (docs/scenes.md, section 4); such a model leaves scans without geometry uncorrected.
-DEFAULT_GEOMETRIC = True
-TARGET_MODES: tuple[str, ...] = ("absolute", "residual")
 # Amplitudes below this are treated as no return when forming ratios and logs. [V^2]
 AMPLITUDE_FLOOR_V2 = 1e-12
 GEOMETRIC_NAMES = ("geometric_coupling", "geometric_d_ab_m")

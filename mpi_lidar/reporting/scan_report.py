@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import json
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+import matplotlib
+import matplotlib.image
 import matplotlib.pyplot as plt
 import numpy as np
 import zarr
@@ -20,10 +25,11 @@ from mpi_lidar.correction import (
     ScanStatus,
 )
 from mpi_lidar.correction.outcome import invalid_share
+from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.reporting.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
 from mpi_lidar.scans import geometry
-from mpi_lidar.scans.scan import Scan, store_fingerprints
+from mpi_lidar.scans.scan import Scan, consolidate, describe_arrays, store_fingerprints
 from mpi_lidar.storage.atomic import atomic_path
 
 FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d"]
@@ -151,59 +157,181 @@ def metrics_table(metrics: dict[str, dict[str, float]]) -> Table:
                   "raw max [mm]", "corrected max [mm]"), tuple(rows))
 
 
+# Output levels of a corrected scan, from most to least; each holds what the next one holds.
+OUTPUT_LEVELS = ("full", "light", "data")
+# The default of a batch (``mpi-lidar correct``, the correction flow): the store, the report and a thumbnail
+# cost little beside the correction itself; ``full`` (maps, histogram, point clouds and their PLY files)
+# costs as much as the correction again on a megapixel scan (docs/benchmarks.md). The pipeline's three demo
+# scenes are written ``full``.
+DEFAULT_OUTPUTS = "light"
+THUMBNAIL_PX = 512  # longest side of thumbnail.png [px]
+THUMBNAIL_GAP_PX = 4
+
+
+def check_outputs(outputs: str) -> str:
+    """``outputs`` if it names an output level; one clear error otherwise."""
+    if outputs not in OUTPUT_LEVELS:
+        raise MpiLidarError(f"unknown output level {outputs!r}; choose one of {', '.join(OUTPUT_LEVELS)}")
+    return outputs
+
+
+def covers(written: str | None, wanted: str) -> bool:
+    """Whether outputs written at level ``written`` hold everything of level ``wanted`` (None: written
+    before output levels existed, that is everything)."""
+    written = written if written in OUTPUT_LEVELS else "full"
+    return OUTPUT_LEVELS.index(written) <= OUTPUT_LEVELS.index(check_outputs(wanted))
+
+
 def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]],
-                       identity: dict[str, str], options: CorrectionOptions) -> list[str]:
-    """Everything for one scan, written into a staging directory and swapped in at the end."""
+                       identity: dict[str, str], options: CorrectionOptions, outputs: str = "full",
+                       cpu_s: dict[str, float] | None = None) -> list[str]:
+    """One scan's outputs at level ``outputs``, written into a staging directory and swapped in at the end.
+
+    ``data``: ``corrected.zarr`` and ``metrics.json`` (counts, metrics, notes, the outputs written);
+    ``light``: those, ``report.md``/``report.html`` and ``thumbnail.png`` (corrected depth and flags, at most
+    :data:`THUMBNAIL_PX` pixels wide); ``full``: those but the thumbnail, plus the maps, the error histogram,
+    the point-cloud views and the raw and corrected point clouds as PLY. Returns the notes for the batch
+    summary; ``cpu_s``, if given, gets the CPU seconds of this process spent on ``write`` (store, PLY files,
+    report and metrics) and ``figures`` (drawing and encoding PNGs).
+    """
+    check_outputs(outputs)
+    cpu_s = {} if cpu_s is None else cpu_s
     notes: list[str] = list(correction.notes)
+    if scan.reference_depth is None:
+        notes.append("no reference depth: errors, error maps and histogram skipped")
     try:
         with atomic_path(target, replace=True, what="scan outputs") as staging:
             staging.mkdir()
-            _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options)
-            figures = {"maps.png": maps_figure(scan, correction)}
-            if scan.reference_depth is not None:
-                where = _regions(scan, correction)["whole map"]
-                figures["error_hist.png"] = error_histogram_figure(
-                    {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz": 1e3 * (scan.depth[-1] - scan.reference_depth)[where],
-                     "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
-            else:
-                notes.append("no reference depth: errors, error maps and histogram skipped")
-            rays = scan.rays()
-            if rays is not None:
-                raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan),
-                                                  rays)
-                corrected_points = geometry.point_cloud(correction.depth, rays)
-                geometry.write_ply(staging / "raw.ply", raw_points, scan.amplitude[-1])
-                geometry.write_ply(staging / "corrected.ply", corrected_points, scan.amplitude[-1])
-                figures["point_cloud.png"] = point_cloud_figure(raw_points, corrected_points)
-            else:
-                notes.append("no scan geometry: point clouds and views skipped")
-            for name, fig in figures.items():
-                save_figure(fig, staging / name)
-            report = scan_report(scan, correction, metrics, notes, sorted(figures))
-            (staging / "report.md").write_text(report.markdown())
-            (staging / "report.html").write_text(report.html())
-            (staging / "metrics.json").write_text(json.dumps(report.data, indent=2, sort_keys=True) + "\n")
-            (staging / REPORT_MARKER).write_text("")
+            with _cpu(cpu_s, "write"):
+                _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options, outputs)
+            figures: dict[str, plt.Figure] = {}
+            files = ["corrected.zarr"]
+            if outputs == "full":
+                with _cpu(cpu_s, "figures"):
+                    figures["maps.png"] = maps_figure(scan, correction)
+                    if scan.reference_depth is not None:
+                        where = _regions(scan, correction)["whole map"]
+                        figures["error_hist.png"] = error_histogram_figure(
+                            {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz":
+                             1e3 * (scan.depth[-1] - scan.reference_depth)[where],
+                             "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
+                rays = scan.rays()
+                if rays is not None:
+                    with _cpu(cpu_s, "write"):
+                        raw_points = geometry.point_cloud(
+                            np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan), rays)
+                        corrected_points = geometry.point_cloud(correction.depth, rays)
+                        del rays
+                        geometry.write_ply(staging / "raw.ply", raw_points, scan.amplitude[-1])
+                        geometry.write_ply(staging / "corrected.ply", corrected_points, scan.amplitude[-1])
+                        files += ["corrected.ply", "raw.ply"]
+                    with _cpu(cpu_s, "figures"):
+                        figures["point_cloud.png"] = point_cloud_figure(raw_points, corrected_points)
+                    del raw_points, corrected_points
+                else:
+                    notes.append("no scan geometry: point clouds and views skipped")
+                with _cpu(cpu_s, "figures"):
+                    for name, fig in figures.items():
+                        save_figure(fig, staging / name)
+            elif outputs == "light":
+                with _cpu(cpu_s, "figures"):
+                    image, depth_limits = thumbnail_image(correction)
+                    write_png(staging / "thumbnail.png", image)
+            images = sorted(figures) if outputs == "full" else ["thumbnail.png"] if outputs == "light" else []
+            files += images + ([] if outputs == "data" else ["report.md", "report.html"]) + ["metrics.json"]
+            with _cpu(cpu_s, "write"):
+                captions = {"thumbnail.png": thumbnail_legend(depth_limits)} if outputs == "light" else None
+                report = scan_report(scan, correction, metrics, notes, images, outputs, files, captions)
+                if outputs != "data":
+                    (staging / "report.md").write_text(report.markdown())
+                    (staging / "report.html").write_text(report.html())
+                (staging / "metrics.json").write_text(json.dumps(report.data, indent=2, sort_keys=True) + "\n")
+                (staging / REPORT_MARKER).write_text("")
     finally:
         plt.close("all")
     return notes
 
 
+@contextmanager
+def _cpu(seconds: dict[str, float], stage: str) -> Iterator[None]:
+    started = time.process_time()
+    try:
+        yield
+    finally:
+        seconds[stage] = seconds.get(stage, 0.0) + time.process_time() - started
+
+
+def thumbnail_image(correction: Correction, limit: int = THUMBNAIL_PX) -> tuple[np.ndarray, tuple[float, float]]:
+    """RGB image (h, w, 3) uint8, at most ``limit`` pixels on its longest side: the corrected depth (left,
+    viridis between its 1 and 99 % quantiles, invalid pixels white) and the flags (right, :data:`FLAG_COLOURS`),
+    every ``step``-th pixel of each. Returns the image and the depth range of the colours [m]."""
+    h, w = correction.flags.shape
+    panel = max(1, (limit - THUMBNAIL_GAP_PX) // 2)
+    step = max(1, -(-h // limit), -(-w // panel))
+    depth, flags = correction.depth[::step, ::step], correction.flags[::step, ::step]
+    finite = depth[np.isfinite(depth)]
+    low, high = (float(v) for v in np.quantile(finite, [0.01, 0.99])) if finite.size else (0.0, 1.0)
+    scaled = np.clip((np.nan_to_num(depth, nan=low) - low) / max(high - low, 1e-9), 0.0, 1.0)
+    left = matplotlib.colormaps["viridis"](scaled, bytes=True)[..., :3]
+    left[~np.isfinite(depth)] = 255
+    palette = np.array([[int(c[i:i + 2], 16) for i in (1, 3, 5)] for c in FLAG_COLOURS], dtype=np.uint8)
+    right = palette[np.minimum(flags, len(FLAG_COLOURS) - 1)]
+    ph, pw = flags.shape
+    image = np.full((ph, 2 * pw + THUMBNAIL_GAP_PX, 3), 255, dtype=np.uint8)
+    image[:, :pw], image[:, pw + THUMBNAIL_GAP_PX:] = left, right
+    return image, (low, high)
+
+
+def thumbnail_legend(depth_limits: tuple[float, float]) -> str:
+    flags = ", ".join(f"{flag.name.lower().replace('_', ' ')} {colour}" for flag, colour in zip(Flag, FLAG_COLOURS,
+                                                                                                  strict=True))
+    return (f"Thumbnail: corrected depth (left; viridis from {depth_limits[0]:.3f} to {depth_limits[1]:.3f} m, "
+            f"invalid pixels white) and what was done per pixel (right; {flags}).")
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """An RGB image (h, w, 3) uint8 as a PNG, without drawing a figure."""
+    matplotlib.image.imsave(path, image, format="png")
+
+
+CORRECTED_METADATA = {
+    "corrected_depth": ("m", "corrected range along the ray"),
+    "flags": ("1", "what was done to the pixel"),
+    "multipath_bias_m": ("m", "expected multipath bias (geometry gate)"),
+}
+
+
 def _write_corrected_store(path: Path, scan: Scan, correction: Correction, identity: dict[str, str],
-                           options: CorrectionOptions) -> None:
+                           options: CorrectionOptions, outputs: str = "full") -> None:
+    """``corrected.zarr``: the corrected depth, the flags and the bias map, readable by ``xarray.open_zarr``.
+
+    Like a scan store: the scan grid's coordinates (``azimuth_rad``/``elevation_rad``, else the pixel indices
+    ``y``/``x``), ``units`` and ``long_name`` on every array, CF ``flag_values``/``flag_meanings`` on ``flags``,
+    fingerprints of every array, then consolidated metadata.
+    """
     group = zarr.open_group(store=str(path), mode="w-")
     group.create_array("corrected_depth", data=correction.depth, dimension_names=("y", "x"))
     group.create_array("flags", data=correction.flags, dimension_names=("y", "x"))
     if correction.multipath_bias_m is not None:
         group.create_array("multipath_bias_m", data=correction.multipath_bias_m, dimension_names=("y", "x"))
+    for name, dims in (("azimuth_rad", ("x",)), ("elevation_rad", ("y",))):
+        if getattr(scan, name) is not None:
+            group.create_array(name, data=np.asarray(getattr(scan, name)), dimension_names=dims)
+    describe_arrays(group, scan.shape, metadata=CORRECTED_METADATA)
+    group["flags"].attrs.update({"flag_values": [int(f) for f in Flag],
+                                 "flag_meanings": " ".join(f.name.lower() for f in Flag)})
     group.attrs.update({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
                         "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},
                         "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz),
-                        "chunk_sha256": store_fingerprints(group)})
+                        "outputs": outputs, "chunk_sha256": store_fingerprints(group)})
+    consolidate(path)
 
 
 def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]], notes: list[str],
-                figures: list[str]) -> Report:
+                figures: list[str], outputs: str = "full", files: list[str] | None = None,
+                captions: dict[str, str] | None = None) -> Report:
+    """The scan's report: what was done per pixel, errors, notes, which outputs were written, and the figures
+    (each after its caption in ``captions``, if any)."""
     counts = correction.counts()
     total = max(sum(counts.values()), 1)
     flags = Table(("pixels", "count", "share"),
@@ -214,9 +342,18 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                     f"{correction.inference_s:.2f} s).", flags]
     if metrics:
         blocks.append(metrics_table(metrics))
-    blocks += list(notes) + [Path(name) for name in figures]
+    files = sorted(files if files is not None else ["corrected.zarr", *figures, "metrics.json", "report.html",
+                                                    "report.md"])
+    more = {"data": " Level light adds this report and a thumbnail; full the maps, histogram and point clouds.",
+            "light": " Level full adds the maps, the error histogram, the point-cloud views and PLY files.",
+            "full": ""}[outputs]
+    blocks += [*notes, f"Outputs (level {outputs}): {', '.join(files)}.{more}"]
+    for name in figures:
+        blocks += [captions[name]] if captions and name in captions else []
+        blocks.append(Path(name))
     return Report(title=f"Correction of {scan.name}", blocks=blocks,
                   data={"scan": scan.name, "counts": counts, "metrics": metrics, "notes": notes,
+                        "outputs": {"level": outputs, "files": files},
                         "seconds": {"total": correction.total_s, "gate": correction.gate_s,
                                     "inference": correction.inference_s}})
 

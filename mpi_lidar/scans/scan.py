@@ -4,8 +4,14 @@ Store (``*.scan.zarr``, Zarr v3, schema ``mpi-lidar/scan@1``): ``depth`` and ``a
 (F, H, W) [m, V^2] with dimensions (frequency, y, x), or raw ``taps`` (F, 4, H, W) [V^2] from which they are
 demodulated; optional geometry: ``azimuth_rad`` (W,) and ``elevation_rad`` (H,) of the scan grid, or
 ``ray_directions`` (H, W, 3) unit vectors; optional ``reference_depth`` (H, W) [m] and ``reference_mask``
-(H, W) bool for evaluation. Root attributes: ``schema``, ``frequencies_hz``, ``name`` and free ``scene``
-metadata.
+(H, W) bool for evaluation. Root attributes: ``schema``, ``frequencies_hz``, ``name``, free ``scene``
+metadata and the chunk fingerprints ``chunk_sha256``.
+
+For xarray (``xr.open_zarr``) the store also holds the coordinate ``frequency_hz`` (F,) [Hz] of the frequency
+dimension and, where the scan has no azimuth (elevation) grid, the pixel indices ``x`` (``y``); ``azimuth_rad``
+and ``elevation_rad`` are coordinates of the pixel columns and rows. Every array carries ``units`` and
+``long_name``, and the metadata is consolidated. Readers take the frequencies from the root attributes, and
+stores written without these coordinates read the same.
 
 Geometry convention: the scanner sits at the origin; x right, y up, z forward. The ray of azimuth a and
 elevation e is (cos e sin a, sin e, cos e cos a); depth is the range along the ray.
@@ -13,9 +19,12 @@ elevation e is (cos e sin a, sin e, cos e cos a); depth is the range along the r
 
 from __future__ import annotations
 
+import glob
 import hashlib
 import json
+import warnings
 import zipfile
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -157,6 +166,22 @@ OPTIONAL_ARRAYS = {
     "azimuth_rad": ("x",), "elevation_rad": ("y",), "ray_directions": ("y", "x", "xyz"),
     "reference_depth": ("y", "x"), "reference_mask": ("y", "x"), "taps": ("frequency", "tap", "y", "x"),
 }
+# Arrays written for xarray only (see the module docstring); no reader takes data from them.
+COORDINATE_ARRAYS = ("frequency_hz", "y", "x")
+# units (UDUNITS) and long_name of every array a scan or corrected store may hold
+ARRAY_METADATA: dict[str, tuple[str, str]] = {
+    "depth": ("m", "measured range along the ray"),
+    "amplitude": ("V^2", "measured amplitude"),
+    "taps": ("V^2", "demodulation taps"),
+    "azimuth_rad": ("rad", "azimuth of the pixel column"),
+    "elevation_rad": ("rad", "elevation of the pixel row"),
+    "ray_directions": ("1", "unit ray direction (x right, y up, z forward)"),
+    "reference_depth": ("m", "reference range along the ray"),
+    "reference_mask": ("1", "reference region mask (1 where the reference holds)"),
+    "frequency_hz": ("Hz", "modulation frequency"),
+    "y": ("1", "pixel row"),
+    "x": ("1", "pixel column"),
+}
 
 
 def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
@@ -175,9 +200,52 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
             value = getattr(scan, name)
             if value is not None:
                 group.create_array(name, data=np.asarray(value), dimension_names=dims)
+        describe_arrays(group, scan.shape, scan.frequencies_hz)
         group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": [float(f) for f in scan.frequencies_hz],
                             "name": scan.name, "scene": scan.scene, "chunk_sha256": store_fingerprints(group)})
+        consolidate(staging)
     return path
+
+
+def describe_arrays(group: zarr.Group, shape: tuple[int, int], frequencies_hz: Sequence[float] | None = None,
+                    metadata: Mapping[str, tuple[str, str]] | None = None) -> None:
+    """Make a store xarray-readable: coordinate arrays, then ``units``, ``long_name`` and ``coordinates``.
+
+    Writes ``frequency_hz`` (with ``frequencies_hz`` given) and the pixel indices ``y``/``x`` of a grid without
+    ``elevation_rad``/``azimuth_rad``, then describes every array of the group from :data:`ARRAY_METADATA` and
+    ``metadata`` (name -> (units, long_name)). Call it after the data arrays and before the fingerprints.
+    """
+    h, w = shape
+    members = set(group.array_keys())
+    if frequencies_hz is not None:
+        group.create_array("frequency_hz", data=np.asarray(frequencies_hz, dtype=np.float64),
+                           dimension_names=("frequency",))
+    for index, grid, size in (("y", "elevation_rad", h), ("x", "azimuth_rad", w)):
+        if grid not in members:
+            group.create_array(index, data=np.arange(size, dtype=np.int64), dimension_names=(index,))
+    described = {**ARRAY_METADATA, **(metadata or {})}
+    arrays = {name: group[name] for name in group.array_keys()}
+    dims = {name: tuple(array.metadata.dimension_names or ()) for name, array in arrays.items()}
+    coordinates = [name for name in ("frequency_hz", "elevation_rad", "azimuth_rad") if name in arrays]
+    for name, array in arrays.items():
+        units, long_name = described.get(name, ("1", name.replace("_", " ")))
+        attrs: dict[str, object] = {"units": units, "long_name": long_name}
+        if name not in coordinates and name not in dims[name]:
+            own = " ".join(c for c in coordinates if set(dims[c]) <= set(dims[name]))
+            if own:
+                attrs["coordinates"] = own
+        array.attrs.update(attrs)
+
+
+def consolidate(path: str | Path) -> None:
+    """Consolidate a store's metadata (for xarray), once its attributes are final.
+
+    Zarr warns that consolidated metadata is not (yet) part of the Zarr v3 specification; xarray and
+    zarr-python read it, and the readers of this package read each array's own metadata.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
+        zarr.consolidate_metadata(str(path))
 
 
 def store_fingerprints(group: zarr.Group) -> dict[str, list[str]]:
@@ -191,7 +259,8 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> Scan
     if not path.exists():
         raise ScanError(f"scan {path} does not exist")
     try:
-        group = zarr.open_group(store=str(path), mode="r")
+        # Each array's own metadata, not the consolidated copy: that is what the chunks were written with.
+        group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
         attrs = dict(group.attrs)
         members = set(group.array_keys())
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
@@ -208,6 +277,10 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> Scan
             return verify_array(group[name], fingerprints.get(name), str(path), name)
 
         optional = {name: read(name) for name in OPTIONAL_ARRAYS if name in members}
+        coordinates = {name: read(name) for name in COORDINATE_ARRAYS if name in members}
+        if "frequency_hz" in coordinates and not np.array_equal(coordinates["frequency_hz"], frequencies):
+            raise ScanError(f"{path}: its frequency_hz array {coordinates['frequency_hz'].tolist()} differs from "
+                            f"its frequencies_hz attribute {list(frequencies)}; the store was altered")
         name = str(attrs.get("name") or path.name.removesuffix(SCAN_SUFFIX))
         scene = attrs.get("scene") or {}
         if {"depth", "amplitude"} <= members:
@@ -245,24 +318,32 @@ def _check_declared_sizes(path: Path, group: zarr.Group, members: set[str]) -> N
 
 
 def import_arrays(
-    name: str, frequencies_hz: tuple[float, ...], arrays: dict[str, NDArray], c: float = TABLE_SPEED_OF_LIGHT_M_PER_S
+    name: str, frequencies_hz: tuple[float, ...], arrays: dict[str, NDArray], c: float = TABLE_SPEED_OF_LIGHT_M_PER_S,
+    source: str | None = None,
 ) -> Scan:
-    """A scan from plain arrays (e.g. an ``.npz`` from another tool): depth+amplitude or taps, plus extras."""
+    """A scan from plain arrays (e.g. an ``.npz`` from another tool): depth+amplitude or taps, plus extras.
+
+    ``source`` (default ``name``) names where the arrays come from in the error messages, e.g. the file.
+    """
+    source = source or name
     known = {"depth", "amplitude", *OPTIONAL_ARRAYS}
     unknown = sorted(set(arrays) - known - {"frequencies_hz"})
     if unknown:
-        raise ScanError(f"{name}: unknown arrays {unknown}; expected some of {sorted(known)}")
+        raise ScanError(f"{source}: unknown arrays {unknown}; expected some of {sorted(known)}")
     optional = {k: np.asarray(v) for k, v in arrays.items() if k in OPTIONAL_ARRAYS and k != "taps"}
     if "reference_mask" in optional:
-        optional["reference_mask"] = _boolean_mask(name, optional["reference_mask"])
+        optional["reference_mask"] = _boolean_mask(source, optional["reference_mask"])
     if "depth" in arrays and "amplitude" in arrays:
         scan = Scan(name=name, frequencies_hz=tuple(frequencies_hz), depth=np.asarray(arrays["depth"]),
                     amplitude=np.asarray(arrays["amplitude"]), taps=arrays.get("taps"), **optional)
     elif "taps" in arrays:
-        scan = from_taps(name, tuple(frequencies_hz), np.asarray(arrays["taps"]), c, **optional)
+        try:
+            scan = from_taps(name, tuple(frequencies_hz), np.asarray(arrays["taps"]), c, **optional)
+        except ScanError as exc:
+            raise ScanError(f"{source}: {str(exc).removeprefix(f'{name}: ')}") from None
     else:
-        raise ScanError(f"{name}: needs arrays 'depth' and 'amplitude' (F, H, W), or 'taps' (F, 4, H, W)")
-    return validate(scan, name)
+        raise ScanError(f"{source}: needs arrays 'depth' and 'amplitude' (F, H, W), or 'taps' (F, 4, H, W)")
+    return validate(scan, source)
 
 
 def _boolean_mask(name: str, mask: NDArray) -> NDArray[np.bool_]:
@@ -272,24 +353,29 @@ def _boolean_mask(name: str, mask: NDArray) -> NDArray[np.bool_]:
     return mask.astype(bool)
 
 
-def load_npz(path: str | Path, frequencies_hz: tuple[float, ...] | None = None) -> Scan:
+def load_npz(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
+             variables: Mapping[str, str] | None = None) -> Scan:
     """Import an ``.npz`` archive (arrays named as in the scan store; frequencies_hz inside or given).
 
-    Every member's header is checked (dtype, declared size against the memory budget) before any array
-    is read, so a damaged or hostile archive is refused without allocating what it claims.
+    ``variables`` maps scan array names to the archive's member names (``{"depth": "range_m"}``); members
+    it does not name must be named as in the scan store. Every member's header is checked (dtype, declared
+    size against the memory budget) before any array is read, so a damaged or hostile archive is refused
+    without allocating what it claims.
     """
     path = Path(path)
+    variables = check_variables(variables)
     _check_npz_headers(path)
     try:
         with np.load(path, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
     except Exception as exc:  # zipfile, numpy and OS errors of a damaged archive
         raise ScanError(f"{path} is not a readable .npz archive ({type(exc).__name__}: {exc})") from None
+    arrays = _renamed(path, arrays, variables)
     stored = arrays.pop("frequencies_hz", None)
     if frequencies_hz is None and stored is None:
         raise ScanError(f"{path} holds no frequencies_hz array; pass --frequencies")
     freqs = frequencies_hz if frequencies_hz is not None else _stored_frequencies(path, stored)
-    return import_arrays(path.name.removesuffix(".npz"), tuple(float(f) for f in freqs), arrays)
+    return import_arrays(path.name.removesuffix(".npz"), tuple(float(f) for f in freqs), arrays, source=str(path))
 
 
 def _stored_frequencies(path: Path, stored: NDArray) -> NDArray:
@@ -321,3 +407,230 @@ def _check_npz_headers(path: Path) -> None:
     if total > MAX_SCAN_BYTES:
         raise ScanError(f"{path}: its arrays declare {total / 2**30:.1f} GiB, more than the "
                         f"{MAX_SCAN_BYTES / 2**30:g} GiB a scan may hold in memory; split the scan into smaller ones")
+
+
+# --- NetCDF / HDF5, and many files at once ----------------------------------------------------------------
+
+IMPORT_SUFFIXES = (".npz", ".nc", ".h5", ".hdf5")
+# The names a file's variables can be mapped to (``--var NAME=VARIABLE``).
+SCAN_VARIABLES = ("depth", "amplitude", *OPTIONAL_ARRAYS, "frequencies_hz")
+# Units a NetCDF/HDF5 variable may declare (its ``units`` attribute), as factors to the store's unit; a
+# variable without ``units`` is taken to be in the store's unit already.
+_METRES = {"m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "cm": 1e-2, "mm": 1e-3, "km": 1e3}
+_RADIANS = {"rad": 1.0, "radian": 1.0, "radians": 1.0, "deg": np.pi / 180, "degree": np.pi / 180,
+            "degrees": np.pi / 180}
+_HERTZ = {"hz": 1.0, "khz": 1e3, "mhz": 1e6, "ghz": 1e9}
+UNITS = {"depth": ("m", _METRES), "reference_depth": ("m", _METRES), "azimuth_rad": ("rad", _RADIANS),
+         "elevation_rad": ("rad", _RADIANS), "frequencies_hz": ("Hz", _HERTZ)}
+_HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+_NETCDF3_MAGIC = b"CDF"
+
+
+def check_variables(variables: Mapping[str, str] | None) -> dict[str, str]:
+    """A mapping of scan array names to a file's variable names, checked: known names, one variable each."""
+    variables = dict(variables or {})
+    unknown = sorted(set(variables) - set(SCAN_VARIABLES))
+    if unknown:
+        raise ScanError(f"--var names {unknown}, which are not scan arrays; map some of {list(SCAN_VARIABLES)}")
+    shared = sorted({v for v in variables.values() if list(variables.values()).count(v) > 1})
+    if shared:
+        raise ScanError(f"--var maps several scan arrays to the variable(s) {shared}; map each variable once")
+    return variables
+
+
+def _renamed(path: Path, arrays: dict[str, NDArray], variables: Mapping[str, str]) -> dict[str, NDArray]:
+    missing = sorted(f"{name}={member}" for name, member in variables.items() if member not in arrays)
+    if missing:
+        raise ScanError(f"{path} has no array for --var {', '.join(missing)}; it holds {sorted(arrays)}")
+    rest = {key: value for key, value in arrays.items() if key not in set(variables.values())}
+    clash = sorted(set(rest) & set(variables))
+    if clash:
+        raise ScanError(f"{path} holds {clash} itself and --var maps other arrays to them; remove one or the other")
+    return {**rest, **{name: arrays[member] for name, member in variables.items()}}
+
+
+def load_netcdf(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
+                variables: Mapping[str, str] | None = None) -> Scan:
+    """Import a NetCDF (3 or 4) or HDF5 file through xarray: its variables named as in the scan store, or
+    mapped by ``variables`` (``{"depth": "range_m", "amplitude": "intensity"}``); other variables are ignored.
+
+    The frequencies come from ``frequencies_hz``, else the variable ``frequencies_hz`` (or ``frequency_hz``),
+    else the global attribute ``frequencies_hz``. CF decoding applies (``_FillValue`` becomes NaN,
+    ``scale_factor``), and a ``units`` attribute is converted (mm, cm or km to m, degrees to rad, kHz, MHz
+    or GHz to Hz; other units are refused). Each variable's dtype and declared size are checked against the
+    memory budget before anything is read.
+    """
+    import xarray as xr
+
+    path = Path(path)
+    variables = check_variables(variables)
+    engine, options = _netcdf_engine(path)
+    try:
+        ds = xr.open_dataset(path, engine=engine, decode_times=False, decode_timedelta=False, cache=False,
+                             **options)
+    except Exception as exc:  # h5netcdf, h5py and scipy raise many types for foreign or damaged files
+        raise ScanError(f"{path} is not a readable NetCDF/HDF5 file ({_reason(exc)})") from None
+    with ds:
+        missing = sorted(f"{name}={v}" for name, v in variables.items() if v not in ds.variables)
+        if missing:
+            raise ScanError(f"{path} has no variable for --var {', '.join(missing)}; it holds "
+                            f"{sorted(map(str, ds.variables))}")
+        chosen = {name: variables.get(name, name) for name in SCAN_VARIABLES
+                  if variables.get(name, name) in ds.variables}
+        if "frequencies_hz" not in chosen and "frequency_hz" in ds.variables:
+            chosen["frequencies_hz"] = "frequency_hz"
+        _check_variable_sizes(path, ds, chosen)
+        try:
+            arrays = {name: _in_store_units(path, name, ds[v].attrs.get("units"), ds[v].values)
+                      for name, v in chosen.items()}
+        except ScanError:
+            raise
+        except Exception as exc:  # a damaged chunk or a failing filter while reading
+            raise ScanError(f"{path} cannot be read ({_reason(exc)})") from None
+        stored = arrays.pop("frequencies_hz", None)
+        if stored is None and "frequencies_hz" in ds.attrs:
+            stored = np.atleast_1d(np.asarray(ds.attrs["frequencies_hz"]))
+    if frequencies_hz is None and stored is None:
+        raise ScanError(f"{path} holds no frequencies_hz variable or attribute; pass --frequencies")
+    freqs = frequencies_hz if frequencies_hz is not None else _stored_frequencies(path, stored)
+    return import_arrays(path.stem, tuple(float(f) for f in freqs), arrays, source=str(path))
+
+
+def _reason(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+def _netcdf_engine(path: Path) -> tuple[str, dict[str, object]]:
+    """xarray's engine for the file, from its first bytes: h5netcdf for NetCDF-4/HDF5, scipy for NetCDF-3."""
+    try:
+        with path.open("rb") as stream:
+            magic = stream.read(len(_HDF5_MAGIC))
+    except OSError as exc:
+        raise ScanError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if magic == _HDF5_MAGIC:
+        return "h5netcdf", {"phony_dims": "access"}  # plain HDF5 datasets have no dimension names
+    if magic.startswith(_NETCDF3_MAGIC):
+        return "scipy", {}
+    raise ScanError(f"{path} is neither NetCDF nor HDF5 (it does not start with their signature)")
+
+
+def _check_variable_sizes(path: Path, ds: object, chosen: Mapping[str, str]) -> None:
+    """Numbers and booleans only, within the memory budget of a scan, before any variable is read."""
+    total = 0.0
+    for name, variable in chosen.items():
+        array = ds[variable]
+        if array.dtype.kind not in "biuf":
+            raise ScanError(f"{path}: variable {variable!r} ({name}) has dtype {array.dtype}; only numbers and "
+                            "booleans can be imported")
+        values = float(np.prod(array.shape, dtype=np.float64))
+        if values > MAX_ARRAY_VALUES:
+            raise ScanError(f"{path}: variable {variable!r} has shape {array.shape}, more than the "
+                            f"{MAX_ARRAY_VALUES:,} values a scan array may hold; split the scan into smaller ones")
+        total += values * array.dtype.itemsize
+    if total > MAX_SCAN_BYTES:
+        raise ScanError(f"{path}: its scan variables take {total / 2**30:.1f} GiB, more than the "
+                        f"{MAX_SCAN_BYTES / 2**30:g} GiB a scan may hold in memory; split the scan into smaller ones")
+
+
+def _in_store_units(path: Path, name: str, units: object, values: NDArray) -> NDArray:
+    """``values`` converted from their declared ``units`` to the unit of the scan store (see :data:`UNITS`)."""
+    if name not in UNITS or units is None:
+        return values
+    unit, factors = UNITS[name]
+    factor = factors.get(str(units).strip().lower())
+    if factor is None:
+        raise ScanError(f"{path}: {name} has units {units!r}; give it in {unit} or one of "
+                        f"{', '.join(sorted(factors))}")
+    return values if factor == 1.0 else values * factor
+
+
+def load_scan_file(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
+                   variables: Mapping[str, str] | None = None) -> Scan:
+    """Import one file by its suffix: ``.npz`` (:func:`load_npz`), ``.nc``/``.h5``/``.hdf5`` (:func:`load_netcdf`)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return load_npz(path, frequencies_hz, variables)
+    if suffix in IMPORT_SUFFIXES:
+        return load_netcdf(path, frequencies_hz, variables)
+    raise ScanError(f"{path}: cannot import {suffix or 'a file without suffix'}; give {', '.join(IMPORT_SUFFIXES)}")
+
+
+def find_scan_files(sources: Sequence[str | Path]) -> list[Path]:
+    """The files named directly, found in a directory (not recursively) or matched by a glob, in order, once.
+
+    A source that names nothing importable is an error, so a mistyped path or pattern is never silently empty.
+    """
+    found: list[Path] = []
+    for source in sources:
+        path = Path(source)
+        if path.is_dir():
+            matches = sorted(p for p in path.iterdir() if _importable(p))
+        elif path.exists():
+            matches = [path]
+        elif glob.has_magic(str(source)):
+            matches = sorted(p for p in map(Path, glob.glob(str(source))) if _importable(p))
+        else:
+            raise ScanError(f"{source} does not exist")
+        if not matches:
+            raise ScanError(f"{source} holds or matches no {', '.join(IMPORT_SUFFIXES)} file")
+        found += matches
+    unique: dict[Path, Path] = {}
+    for path in found:
+        unique.setdefault(path.resolve(), path)
+    return list(unique.values())
+
+
+def _importable(path: Path) -> bool:
+    return path.is_file() and path.suffix.lower() in IMPORT_SUFFIXES and not path.name.startswith(".")
+
+
+def plan_import(files: Sequence[Path], out: str | Path) -> list[tuple[Path, Path]]:
+    """(source, store) pairs: ``out`` itself for one file and an ``out`` ending in ``.scan.zarr``, else
+    ``out/<stem>.scan.zarr`` per file. Two files for one store, or a store that exists, are refused."""
+    out = Path(out)
+    if out.name.endswith(SCAN_SUFFIX):
+        if len(files) != 1:
+            raise ScanError(f"--out {out} is one scan store, but {len(files)} files were given; give a directory "
+                            f"as --out to write <dir>/<name>{SCAN_SUFFIX} for each")
+        plan = [(Path(files[0]), out)]
+    else:
+        if out.exists() and not out.is_dir():
+            raise ScanError(f"--out {out} exists and is not a directory")
+        plan = [(Path(f), out / f"{Path(f).stem}{SCAN_SUFFIX}") for f in files]
+    targets: dict[Path, Path] = {}
+    for source, target in plan:
+        if target in targets:
+            raise ScanError(f"{targets[target]} and {source} would both be written to {target}; import them "
+                            "into different directories")
+        targets[target] = source
+        if target.exists() or target.is_symlink():
+            raise ScanError(f"{target} already exists; choose another --out or remove it")
+    return plan
+
+
+def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float, ...] | None = None,
+                 variables: Mapping[str, str] | None = None,
+                 on_scan: Callable[[Scan, Path], None] | None = None) -> list[Path]:
+    """Import every (source, store) pair of :func:`plan_import`: all or nothing.
+
+    Every file is read and validated before the first store is written, so one bad file refuses the whole
+    import with its error and nothing is written. Scans that fit :data:`MAX_SCAN_BYTES` together are kept
+    from the first pass; the others are read again to be written. ``on_scan(scan, store)`` after each write.
+    """
+    loaded: list[Scan | None] = []
+    held = 0
+    for source, _ in plan:
+        scan = load_scan_file(source, frequencies_hz, variables)
+        size = scan.depth.nbytes + scan.amplitude.nbytes + (0 if scan.taps is None else scan.taps.nbytes)
+        keep = held + size <= MAX_SCAN_BYTES
+        held += size if keep else 0
+        loaded.append(scan if keep else None)
+    written = []
+    for (source, target), scan in zip(plan, loaded, strict=True):
+        scan = scan if scan is not None else load_scan_file(source, frequencies_hz, variables)
+        written.append(write_scan(scan, target))
+        if on_scan is not None:
+            on_scan(scan, target)
+    return written

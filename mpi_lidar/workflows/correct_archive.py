@@ -31,18 +31,21 @@ import time
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path, PurePosixPath
+from typing import TYPE_CHECKING
 
 import zarr
-from distributed import Client
 
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, correct_scan, make_gate
 from mpi_lidar.correction.outcome import invalid_share, scan_status
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.learning.model import CorrectionModel, load_model
-from mpi_lidar.reporting.scan_report import scan_metrics, write_scan_outputs
+from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, CorrectionModel, load_model
+from mpi_lidar.reporting.scan_report import check_outputs, covers, scan_metrics, write_scan_outputs
 from mpi_lidar.scans.scan import SCAN_SUFFIX, read_scan
 from mpi_lidar.storage.atomic import remove_interrupted_staging
 from mpi_lidar.workflows.executor import Executor, as_executor
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")  # fullmatch: "$" would let a final newline pass
 SUMMARY_NAME = "summary"  # <out>/summary/: the batch summary (mpi_lidar.reporting.scan_report)
@@ -112,13 +115,16 @@ def _safe_output(out_dir: Path, output: str) -> Path:
     return out_dir.joinpath(*output.split("/"))
 
 
-def _already_done(target: Path, scan_sha: str, model_sha: str, options_sha: str) -> bool:
+def _already_done(target: Path, scan_sha: str, model_sha: str, options_sha: str, outputs: str = "full") -> bool:
+    """Whether ``target`` holds this scan corrected by this model with these options, with at least the files
+    of output level ``outputs``. The level is no part of the options' hash: it never changes a pixel, so
+    outputs written at a higher level are kept, and a lower level is corrected again to write the rest."""
     try:
         attrs = zarr.open_group(store=str(target / "corrected.zarr"), mode="r").attrs
     except Exception:  # no store, or a foreign one: not done
         return False
     return (attrs.get("scan_sha256"), attrs.get("model_sha256"), attrs.get("options_sha256")) == (
-        scan_sha, model_sha, options_sha)
+        scan_sha, model_sha, options_sha) and covers(attrs.get("outputs"), outputs)
 
 
 def _existing_results(target: Path) -> dict[str, object] | None:
@@ -150,11 +156,12 @@ def _one_line(exc: Exception) -> str:
 
 
 def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
-                 output: str | None = None) -> ScanOutcome:
+                 output: str | None = None, outputs: str = "full") -> ScanOutcome:
     """Correct one scan and write its outputs into ``out_dir/output``; any failure becomes a 'failed' outcome.
 
     ``output`` is the scan's output directory relative to ``out_dir`` (:func:`scan_output_paths` of the
-    whole batch); None derives it from ``source`` alone (its store name without the suffix). Every
+    whole batch); None derives it from ``source`` alone (its store name without the suffix). ``outputs`` is
+    the output level (:data:`mpi_lidar.reporting.scan_report.OUTPUT_LEVELS`: full, light, data). Every
     exception (any type: a damaged store, a bug, no memory) fails this scan alone with a one-line reason
     (``TypeName: message`` for other than the library's own errors); KeyboardInterrupt and SystemExit stop it.
     """
@@ -163,24 +170,44 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
     try:
         if output is None:
             output = scan_output_paths([source])[source]
-        return _process_scan(source, Path(model_dir), _safe_output(Path(out_dir), output), options, started)
+        return _process_scan(source, Path(model_dir), _safe_output(Path(out_dir), output), options, started,
+                             outputs)
     except Exception as exc:  # one bad scan, whatever went wrong, must not stop the batch
         return ScanOutcome(source, Path(source).name, ScanStatus.FAILED, _one_line(exc),
                            seconds=time.perf_counter() - started)
 
 
-@lru_cache(maxsize=4)
 def _cached_model(model_dir: str) -> CorrectionModel:
+    """The model of ``model_dir``, loaded once per process: every scan of a batch run here, or of one Dask
+    worker, shares it. Its files' sizes and modification times are part of the key, so a model replaced
+    at the same path is loaded again."""
+    return _load_model(str(model_dir), _model_files_signature(Path(model_dir)))
+
+
+@lru_cache(maxsize=4)
+def _load_model(model_dir: str, _signature: tuple[tuple[int, int, int] | None, ...]) -> CorrectionModel:
     return load_model(model_dir)
 
 
+def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None, ...]:
+    signature: list[tuple[int, int, int] | None] = []
+    for name in (MODEL_FILE, CARD_FILE):
+        try:
+            stat = (model_dir / name).stat()
+            signature.append((stat.st_ino, stat.st_size, stat.st_mtime_ns))
+        except OSError:  # load_model says what is missing
+            signature.append(None)
+    return tuple(signature)
+
+
 def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
-                  started: float) -> ScanOutcome:
+                  started: float, outputs: str = "full") -> ScanOutcome:
     scan = read_scan(source)
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
     scan_sha, model_sha, options_sha = scan.content_sha256(), model.card.model_sha256, options.sha256()
-    existing = _existing_results(target) if _already_done(target, scan_sha, model_sha, options_sha) else None
+    done = _already_done(target, scan_sha, model_sha, options_sha, outputs)
+    existing = _existing_results(target) if done else None
     if existing is not None:
         counts = existing["counts"]
         return ScanOutcome(source, name, ScanStatus.SKIPPED, "already corrected with this model and options",
@@ -190,7 +217,7 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
     correction = correct_scan(scan, model, options)
     metrics = scan_metrics(scan, correction)
     identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
-    notes = write_scan_outputs(target, scan, correction, metrics, identity, options)
+    notes = write_scan_outputs(target, scan, correction, metrics, identity, options, outputs)
     counts = correction.counts()
     return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share), output=str(target),
                        counts=counts, metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes))
@@ -219,7 +246,7 @@ def expand_archive(inputs: list[str]) -> list[str]:
 
 def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
                     executor: Executor | Client | None = None, on_scan: Callable[[ScanOutcome], None] | None = None,
-                    *, client: Client | None = None) -> list[ScanOutcome]:
+                    *, client: Client | None = None, outputs: str = "full") -> list[ScanOutcome]:
     """Correct every scan, one call of :func:`process_scan` per scan on ``executor``; a bad scan fails alone.
 
     The executor runs the scans in this process (None), as Dask tasks (an executor or a ``client``, the same)
@@ -227,28 +254,64 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     cannot be loaded, a gate that cannot be made or two scans that would write the same output directory
     (:func:`scan_output_paths`) fail the batch with one line; then staging directories an interrupted run
     left in ``out_dir`` (and in the folders of nested outputs) are removed. ``on_scan`` sees each outcome as
-    it finishes; the outcomes come back by source.
+    it finishes; the outcomes come back by source. ``outputs`` is the output level of every scan
+    (:data:`mpi_lidar.reporting.scan_report.OUTPUT_LEVELS`); the command line and the correction flow default
+    to ``light`` (:data:`~mpi_lidar.reporting.scan_report.DEFAULT_OUTPUTS`), the pipeline writes ``full``.
     """
-    load_model(model_dir)  # a broken model fails the whole batch at once, with one clear line
+    level = check_outputs(outputs)
+    _cached_model(str(model_dir))  # a broken model fails the whole batch at once, with one clear line
     make_gate(options)
     out_dir = Path(out_dir)
     sources = expand_archive(inputs)
-    outputs = scan_output_paths(sources)
+    directories = scan_output_paths(sources)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
-    for folder in sorted({PurePosixPath(output).parent for output in outputs.values()}):
+    for folder in sorted({PurePosixPath(output).parent for output in directories.values()}):
         if ".." not in folder.parts:
             remove_interrupted_staging(out_dir.joinpath(*folder.parts))
     calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options,
-              "output": outputs[source]} for source in sources]
+              "output": directories[source], "outputs": level} for source in sources]
     outcomes: list[ScanOutcome] = []
     for _call, outcome in as_executor(executor if executor is not None else client).map(process_scan, calls):
         outcomes.append(outcome)
         if on_scan:
             on_scan(outcome)
     return sorted(outcomes, key=lambda o: o.source)
+
+
+# --- where a small batch runs -----------------------------------------------------------------------------
+
+# Without --workers, a batch smaller than this runs in this process: a local cluster takes 10 to 20 s to start
+# and to import the libraries in its workers (two scans of 256 x 256: 21 s on a 2-worker cluster against
+# 1.3 s here), and two workers cannot save that much on less work (docs/benchmarks.md).
+IN_PROCESS_MAX_SCANS = 8  # fewer scans than this run here ...
+IN_PROCESS_MAX_PIXELS = 16_000_000  # ... and so do batches of fewer pixels than this in all
+
+
+def runs_in_process(inputs: list[str]) -> bool:
+    """Whether a batch is small enough to run in this process (:data:`IN_PROCESS_MAX_SCANS`,
+    :data:`IN_PROCESS_MAX_PIXELS`); the sizes are read from the stores' metadata, and a store that cannot
+    be read counts as no pixels (it fails alone later)."""
+    sources = expand_archive(inputs)
+    if len(sources) < IN_PROCESS_MAX_SCANS:
+        return True
+    pixels = 0
+    for source in sources:
+        pixels += _declared_pixels(source)
+        if pixels >= IN_PROCESS_MAX_PIXELS:
+            return False
+    return True
+
+
+def _declared_pixels(source: str) -> int:
+    try:
+        group = zarr.open_group(store=source, mode="r")
+        shape = group["depth"].shape if "depth" in group else group["taps"].shape
+        return int(shape[-1]) * int(shape[-2])
+    except Exception:  # a damaged or foreign store: it fails alone when it is corrected
+        return 0
 
 
 # --- which outcomes fail a batch --------------------------------------------------------------------------

@@ -8,7 +8,8 @@ each call as a Prefect task on a Dask task runner. Calls are keyword arguments, 
 its task runs after them (``write-chunk-{index}``).
 
 An executor is a context manager: entering it starts what it needs (its workers), so the loops' clocks time
-the work and not the start-up, and leaving it releases what it started.
+the work and not the start-up, and leaving it releases what it started. Dask is imported only by what uses
+it, so a loop run in this process does not pay for importing ``distributed``.
 """
 
 from __future__ import annotations
@@ -17,11 +18,10 @@ import uuid
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
-from typing import Any, Self, TypeVar
+from typing import TYPE_CHECKING, Any, Self, TypeVar
 
-from distributed import Client, as_completed
-
-from mpi_lidar.workflows.cluster import dask_client
+if TYPE_CHECKING:
+    from distributed import Client
 
 R = TypeVar("R")
 Call = Mapping[str, Any]  # the keyword arguments of one call
@@ -65,6 +65,8 @@ class DaskExecutor(Executor):
         self.client = client
 
     def map(self, fn: Callable[..., R], calls: Iterable[Call], *, retries: int = 0) -> Iterator[tuple[Call, R]]:
+        from distributed import as_completed
+
         name = getattr(fn, "__name__", "call").replace("_", "-")
         futures = {self.client.submit(_apply, fn, call, key=f"{name}-{uuid.uuid4().hex}", retries=retries,
                                       pure=False): call
@@ -77,13 +79,17 @@ def as_executor(where: Executor | Client | None) -> Executor:
     """An executor for ``where``: itself, a Dask client's tasks, or (None) this process."""
     if where is None:
         return InProcess()
-    if isinstance(where, Client):
-        return DaskExecutor(where)
-    return where
+    if isinstance(where, Executor):
+        return where
+    from distributed import Client
+
+    return DaskExecutor(where) if isinstance(where, Client) else where
 
 
 @contextmanager
 def dask_executor(scheduler: str | None = None, workers: int = 2) -> Iterator[DaskExecutor]:
     """Tasks on the scheduler at ``scheduler``, or on a LocalCluster of ``workers`` processes started here."""
+    from mpi_lidar.workflows.cluster import dask_client
+
     with dask_client(scheduler, workers) as client:
         yield DaskExecutor(client)

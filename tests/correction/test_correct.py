@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from mpi_lidar.cli import cli
 from mpi_lidar.config import Config
-from mpi_lidar.correction import NO_GEOMETRY_NOTE, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction import NO_GEOMETRY_NOTE, CorrectionOptions, Flag, ScanStatus, correct_scan
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.scans.scan import Scan, write_scan
@@ -82,13 +82,13 @@ def test_correct_scan__other_frequencies_are_refused(small_model):
 
 def test_correct_archive__rerun_skips_finished_scans_and_redoes_missing(archive, small_model, tmp_path):
     first = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions())
-    assert [o.status for o in first] == ["corrected"] * 3
+    assert [o.status for o in first] == ["unchanged"] * 3, "a tilted plane: the geometry gate corrects nothing"
     stamp = (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns
     import shutil
 
     shutil.rmtree(tmp_path / "b")  # as if the batch had been interrupted before scan b
     second = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions())
-    assert [o.status for o in second] == ["skipped", "corrected", "skipped"]
+    assert [o.status for o in second] == ["skipped", "unchanged", "skipped"]
     assert (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns == stamp
     other_gate = correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path,
                                  CorrectionOptions(gate="consistency"))
@@ -112,7 +112,7 @@ def test_correct_archive__dask_and_in_process_agree(archive, small_model, tmp_pa
     outcomes = correct_archive([str(archive / "*.scan.zarr")], small_model, tmp_path / "dask", CorrectionOptions(),
                                client=cluster_client)
     local = correct_archive([str(archive)], small_model, tmp_path / "local", CorrectionOptions())
-    assert [o.status for o in outcomes] == ["corrected"] * 3
+    assert [o.status for o in outcomes] == ["unchanged"] * 3
     for name in ("a", "b", "c"):
         on_dask = zarr.open_group(str(tmp_path / "dask" / name / "corrected.zarr"), mode="r")["corrected_depth"][:]
         here = zarr.open_group(str(tmp_path / "local" / name / "corrected.zarr"), mode="r")["corrected_depth"][:]
@@ -134,9 +134,12 @@ def test_process_scan__bad_scans_fail_alone_with_a_reason(tmp_path, small_model,
     assert by_name[str(bad)].status == "failed" and "not a readable Zarr store" in by_name[str(bad)].reason
     escaped = by_name[str(group_path)]
     assert escaped.status == "failed" and "not a safe directory name" in escaped.reason
-    assert by_name[str(archive / "a.scan.zarr")].status == "corrected"
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a"]
-    assert not (tmp_path / "escape").exists()
+    good = by_name[str(archive / "a.scan.zarr")]
+    assert good.status == "unchanged"
+    # inputs from two folders: outputs are named by their path below the folders' common root
+    assert good.output == str(tmp_path / "out" / archive.name / "a")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [archive.name]
+    assert not (tmp_path / "escape").exists() and not list((tmp_path / "out").rglob("escape"))
 
 
 def test_process_scan__unwritable_output_fails_cleanly(small_model, archive):
@@ -153,10 +156,10 @@ def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(arc
     assert result.returncode == 1
     errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "broken.scan.zarr" in errors[0]
-    assert "| a | corrected |" in result.stdout
+    assert "| a | unchanged |" in result.stdout
     assert (tmp_path / "out" / "summary" / "report.html").exists()
     for name in ("maps.png", "error_hist.png", "point_cloud.png", "raw.ply", "corrected.ply", "report.md"):
-        assert (tmp_path / "out" / "a" / name).exists(), name
+        assert (tmp_path / "out" / archive.name / "a" / name).exists(), name  # two folders: nested
 
 
 def test_correct_cli__missing_model_is_one_line_exit_2(archive, tmp_path):
@@ -226,6 +229,27 @@ def test_batch_report__gated_out_counts_both_skip_flags():
                           counts={"corrected": 4, "not_needed": 1, "no_multipath": 3, "not_finite": 2})
     report = batch_report([outcome], 1.0).markdown()
     assert "gated out" in report and "| 40.0 % |" in report
+
+
+def test_scan_status__degraded_then_unchanged_then_corrected():
+    from mpi_lidar.correction.outcome import scan_status
+
+    assert scan_status({"corrected": 5, "no_multipath": 5}, 0.5) == ScanStatus.CORRECTED
+    assert scan_status({"corrected": 0, "no_multipath": 9, "out_of_range": 1}, 0.5) == ScanStatus.UNCHANGED
+    assert scan_status({"corrected": 4, "saturated": 6}, 0.5) == ScanStatus.DEGRADED
+    assert scan_status({"corrected": 0, "no_return": 6, "no_multipath": 4}, 0.5) == ScanStatus.DEGRADED
+    assert scan_status({"corrected": 5, "inconsistent": 5}, 0.5) == ScanStatus.CORRECTED, "half is not above half"
+    assert scan_status({"corrected": 4, "not_finite": 6}, 1.0) == ScanStatus.CORRECTED
+
+
+def test_correction_options__max_invalid_share_is_bounded_and_not_hashed():
+    # the hash of the defaults before max_invalid_share existed: outputs written then are still recognised
+    assert CorrectionOptions().sha256() == "60f34a4236aaaebe7317d65a6b26b44fb18bdd6d4b7e20a9cb91fc30bd1028ed"
+    assert CorrectionOptions(max_invalid_share=0.9).sha256() == CorrectionOptions().sha256()
+    assert CorrectionOptions.from_cli(max_invalid_share=0.25).max_invalid_share == 0.25
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(MpiLidarError, match="max_invalid_share"):
+            CorrectionOptions.from_cli(max_invalid_share=bad)
 
 
 def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, tmp_path):

@@ -29,12 +29,13 @@ def test_correct_archive_flow__bad_scan_fails_alone_and_rerun_skips(archive, sma
                                  scheduler=dask_scheduler, return_state=True)
     assert state.is_failed()
     assert "1 of 3 scans failed" in str(state.message) and "broken.scan.zarr" in str(state.message)
-    assert (out / "north" / "report.html").exists() and (out / "south" / "maps.png").exists()
+    assert (out / "north" / "report.html").exists() and (out / "south" / "thumbnail.png").exists()  # outputs light
     assert not (out / "broken").exists()
     summary = (out / "summary" / "report.md").read_text()
-    assert "| north | corrected |" in summary and "| broken.scan.zarr | failed |" in summary
+    assert "| north | unchanged |" in summary and "| broken.scan.zarr | failed |" in summary
+    assert f"| {archive / 'north.scan.zarr'} |" in summary, "the source is a column"
     [published] = artifacts(str(state.state_details.flow_run_id), SUMMARY_ARTIFACT_KEY)
-    assert "| south | corrected |" in published.data
+    assert "| south | unchanged |" in published.data
 
     again = correct_archive_flow(scans=[str(archive / "north.scan.zarr"), str(archive / "south.scan.zarr")],
                                  model=str(small_model), out=str(out), scheduler=dask_scheduler)
@@ -55,3 +56,20 @@ def test_correct_archive_flow__takes_the_cli_options_and_removes_interrupted_sta
     expected = CorrectionOptions.from_cli(gate="all", min_bias_mm=1.5, footprint_area_m2=0.02)
     assert options == expected.model_dump()
     assert expected.min_multipath_bias_m == pytest.approx(0.0015) and expected.footprint_area_m2 == 0.02
+
+
+def test_correct_archive_flow__fail_on_ends_failed_after_the_summary(archive, small_model, tmp_path):
+    """A status named in fail_on ends the flow Failed, after every scan and the summary were written."""
+    out = tmp_path / "corrected"
+    scans = [str(archive / "north.scan.zarr"), str(archive / "south.scan.zarr")]
+    plain = correct_archive_flow(scans=scans, model=str(small_model), out=str(out), workers=0)
+    assert set(plain["statuses"].values()) == {"unchanged"}, "without fail_on an unchanged scan is fine"
+    state = correct_archive_flow(scans=scans, model=str(small_model), out=str(out), fail_on=["unchanged"],
+                                 workers=0, return_state=True)
+    assert state.is_failed()
+    assert "2 of 2 scans unchanged" in str(state.message) and "north.scan.zarr: unchanged" in str(state.message)
+    assert "0 corrected, 0 unchanged, 0 degraded, 2 already done, 0 failed." in (
+        out / "summary" / "report.md").read_text()
+    with pytest.raises(Exception, match="fail_on"):
+        correct_archive_flow(scans=scans, model=str(small_model), out=str(out), fail_on=["corrected"], workers=0)
+
