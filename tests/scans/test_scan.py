@@ -87,7 +87,7 @@ def test_load_npz__imports_arrays_from_other_tools(tmp_path):
 def test_load_npz__object_arrays_are_refused_without_unpickling(tmp_path):
     np.save(tmp_path / "evil.npy", np.array([object()], dtype=object), allow_pickle=True)
     np.savez(tmp_path / "evil.npz", depth=np.array([{"a": 1}], dtype=object))
-    with pytest.raises(ScanError, match=r"not a readable \.npz"):
+    with pytest.raises(ScanError, match=r"(not a readable \.npz|has dtype object)"):
         load_npz(tmp_path / "evil.npz", FREQS)
 
 
