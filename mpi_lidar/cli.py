@@ -441,9 +441,6 @@ def main() -> None:
     A user error (bad input, a damaged store, an unreachable service) exits 2; anything unexpected exits 1 with
     its traceback written to a log file (printed with ``--debug``). Secrets are masked in every line.
     """
-    import optuna
-
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
     debug = "--debug" in sys.argv[1:]
     if debug:
         sys.argv.remove("--debug")

@@ -35,6 +35,8 @@ from mpi_lidar.learning.train import check_dataset_matches, training_geometry, x
 from mpi_lidar.redact import MASK, SECRET_KEYS, redact
 from mpi_lidar.simulation import dataset
 
+optuna.logging.set_verbosity(optuna.logging.WARNING)  # one line per trial is noise at archive scale
+
 DEFAULT_TRIALS = 30
 DEFAULT_TUNE_ROWS = 100_000
 HEARTBEAT_S = 10
