@@ -90,7 +90,7 @@ def masked(url: str) -> str:
     try:
         return redact(make_url(url).render_as_string(hide_password=True))
     except (sqlalchemy.exc.ArgumentError, ValueError):  # ValueError: a port that is not a number
-        return redact(url)
+        return "<unparseable storage URL>"  # not a URL: no telling which part of it is a secret
 
 
 def _storage(url: str) -> optuna.storages.RDBStorage:
