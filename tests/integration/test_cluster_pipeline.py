@@ -56,14 +56,15 @@ def test_cli_pipeline__runs_unchanged_on_dask_processes_and_postgresql(
     scans = tmp_path / "scans"
     run_cli("render-scenes", "--out", str(scans), *[arg for name in SCENES for arg in ("--scene", name)])
     out = tmp_path / "corrected"
-    run_cli("correct", str(scans), "--model", str(model), "--out", str(out), *cluster)
+    run_cli("correct", str(scans), "--model", str(model), "--out", str(out), "--outputs", "full", *cluster)
     outputs = sorted(p for p in out.iterdir() if p.name != "summary")
     assert len(outputs) == len(SCENES)
     for output in outputs:
         depth = zarr.open_group(str(output / "corrected.zarr"), mode="r")["corrected_depth"][:]
         assert depth.shape == (96, 128) and np.isfinite(depth).mean() > 0.9
         assert (output / "report.html").is_file() and (output / "corrected.ply").is_file()
-    assert "2 corrected, 0 already done, 0 failed" in (out / "summary" / "report.md").read_text()
+    assert "1 corrected, 1 unchanged, 0 degraded, 0 already done, 0 failed" in (
+        out / "summary" / "report.md").read_text()  # the corner is corrected, the flat wall left as measured
     assert not (tmp_path / "optuna.db").exists()
     assert all(PASSWORD not in r.stdout + r.stderr for r in (tuned, trained))
     assert files_containing(tmp_path, PASSWORD) == []
