@@ -12,12 +12,9 @@ import numpy as np
 import pytest
 
 import mpi_lidar
-from mpi_lidar.config import Config
 from mpi_lidar.correction import Flag
-from mpi_lidar.learning.features import FeatureSpec
-from mpi_lidar.learning.model import DatasetCard, save_model
-from mpi_lidar.learning.train import model_card, train_arrays
 from mpi_lidar.scans.scan import write_scan
+from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -55,24 +52,12 @@ def readme_python_example() -> str:
     return blocks[0]
 
 
-def _tiny_model(path: Path) -> Path:
-    """A pixel-wise residual model of a few trees, trained in memory (seconds)."""
-    config = Config()
-    spec = FeatureSpec(config.frequencies_hz, "raw", "residual")
-    rng = np.random.default_rng(0)
-    depth = rng.uniform(1.4, 2.4, (500, 1))
-    raw = np.hstack([depth + rng.normal(0, 0.01, (500, 4)), rng.uniform(0.01, 1, (500, 4))]).astype(np.float32)
-    fitted = train_arrays(spec.transform(raw), spec.target(raw, depth[:, 0]), {"max_depth": 2}, 5, None)
-    card = model_card(spec, DatasetCard.from_config(config, path="in memory"), {"max_depth": 2}, fitted, workers=0)
-    return save_model(path, fitted.booster, card)
-
-
 def test_readme_python_example__runs_and_writes_a_laz_file(tmp_path, monkeypatch, capsys):
     code = readme_python_example()
     model_dir = re.search(r'load_model\("([^"]+)"\)', code).group(1)
     scan_path = re.search(r'read_scan\("([^"]+)"\)', code).group(1)
     output = re.search(r'write_point_cloud\("([^"]+)"', code).group(1)
-    _tiny_model(tmp_path / model_dir)
+    tiny_model(tmp_path / model_dir, geometric=False, feature_set="raw", rounds=5)
     scan = two_path_scan(Path(scan_path).name.removesuffix(".scan.zarr"), height=12, width=16)
     scan.depth[-1, 0, 0] = np.nan  # one invalid pixel: no point
     write_scan(scan, tmp_path / scan_path)

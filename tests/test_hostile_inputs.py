@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,15 +20,14 @@ import zarr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mpi_lidar import cli
 from mpi_lidar.config import Config, load_config
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.learning.features import FeatureSpec
-from mpi_lidar.learning.model import CARD_FILE, DatasetCard, load_model, save_model
-from mpi_lidar.learning.train import model_card, train_arrays
+from mpi_lidar.learning.model import CARD_FILE, load_model
 from mpi_lidar.scans.scan import load_npz, read_scan, write_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.verify import verify_store
+from tests.cli_runner import assert_one_error_line, call_main
+from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
 HOSTILE_EXAMPLES = 60
@@ -43,20 +41,6 @@ SCALARS = st.one_of(
 )
 JSON_VALUES = st.recursive(SCALARS, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(
     st.text(max_size=8), inner, max_size=4), max_leaves=8)
-
-
-def call_main(monkeypatch, capsys, *args: str | Path) -> tuple[int, str, str]:
-    monkeypatch.setattr(sys, "argv", ["mpi-lidar", *map(str, args)])
-    with pytest.raises(SystemExit) as info:
-        cli.main()
-    captured = capsys.readouterr()
-    return info.value.code, captured.out, captured.err
-
-
-def assert_one_error_line(stderr: str) -> None:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), stderr
-    assert "Traceback" not in stderr
 
 
 # --- configurations ----------------------------------------------------------------------------------------
@@ -237,14 +221,7 @@ def test_dataset_reader__hostile_stores(tmp_path_factory, dataset_store, data):
 
 @pytest.fixture(scope="module")
 def model_dir(tmp_path_factory) -> Path:
-    config = Config()
-    spec = FeatureSpec(config.frequencies_hz, "raw", "residual")
-    rng = np.random.default_rng(0)
-    depth = rng.uniform(1.4, 2.4, (500, 1))
-    raw = np.hstack([depth + rng.normal(0, 0.01, (500, 4)), rng.uniform(0.01, 1, (500, 4))]).astype(np.float32)
-    fitted = train_arrays(spec.transform(raw), spec.target(raw, depth[:, 0]), {"max_depth": 2}, 5, None)
-    card = model_card(spec, DatasetCard.from_config(config, path="in memory"), {"max_depth": 2}, fitted, workers=0)
-    return save_model(tmp_path_factory.mktemp("model") / "model", fitted.booster, card)
+    return tiny_model(tmp_path_factory.mktemp("model") / "model", geometric=False, feature_set="raw", rounds=5)
 
 
 def _paths(value: object, prefix: tuple = ()) -> list[tuple]:

@@ -23,6 +23,7 @@ import xarray as xr
 from mpi_lidar import cli
 from mpi_lidar.config import Config, config_sha256
 from mpi_lidar.simulation import dataset
+from tests.cli_runner import assert_one_error_line, call_main
 
 SCRIPT = Path(sys.executable).with_name("mpi-lidar")
 SAMPLES = 2_000
@@ -53,13 +54,6 @@ def snapshot(path: Path) -> dict[str, tuple[str, int]]:
     files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
     return {str(p.relative_to(path.parent)): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns)
             for p in files}
-
-
-def assert_one_error_line(stderr: str, fragment: str) -> None:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1, stderr
-    assert lines[0].startswith("error: "), stderr
-    assert fragment in lines[0], stderr
 
 
 def expected_config(seed: int = SEED) -> Config:
@@ -187,14 +181,6 @@ def test_simulate__regular_file_at_out_is_refused_unchanged(runs):
 
 
 # --- the other input errors, through the same entry point in this process -----------------------------------
-
-
-def call_main(monkeypatch, capsys, *args: str | Path) -> tuple[int, str, str]:
-    monkeypatch.setattr(sys, "argv", ["mpi-lidar", *map(str, args)])
-    with pytest.raises(SystemExit) as info:
-        cli.main()
-    captured = capsys.readouterr()
-    return info.value.code, captured.out, captured.err
 
 
 BAD_CONFIGS = {

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mpi_lidar import cli
 from mpi_lidar.config import Config
+from tests.cli_runner import call_main
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 SMALL_CONFIG = "[dataset]\nsamples = 3000\nchunk_rows = 1500\nseed = 3\n"
@@ -25,17 +25,6 @@ SMALL_CONFIG = "[dataset]\nsamples = 3000\nchunk_rows = 1500\nseed = 3\n"
 def readme_commands() -> list[str]:
     """The sub-command of every row of the README's command table (``| `mpi-lidar NAME ...` | ... |``)."""
     return re.findall(r"^\| `mpi-lidar ([a-z0-9-]+)", README.read_text(), flags=re.M)
-
-
-def call_main(monkeypatch, capsys, *args: str | Path) -> tuple[int, str, str]:
-    monkeypatch.setattr(sys, "argv", ["mpi-lidar", *map(str, args)])
-    try:
-        cli.main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
 
 
 @pytest.fixture(scope="module")

@@ -151,7 +151,7 @@ def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(arc
     bad = tmp_path / "broken.scan.zarr"
     bad.mkdir()
     command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(archive / "a.scan.zarr"), str(bad),
-               "--model", str(small_model), "--out", str(tmp_path / "out"), "--workers", "0"]
+               "--model", str(small_model), "--out", str(tmp_path / "out"), "--workers", "0", "--outputs", "full"]
     result = subprocess.run(command, capture_output=True, text=True)
     assert result.returncode == 1
     errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
@@ -261,7 +261,7 @@ def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, t
         arguments = ["correct", str(tmp_path / "corner.scan.zarr"), "--model", str(small_model), "--out", str(out),
                      "--workers", "0", *options]
         assert CliRunner().invoke(cli, arguments).exit_code == 0
-        return zarr.open_group(str(out / scan.name / "corrected.zarr"), mode="r")["flags"][:]
+        return zarr.open_group(str(out / "corner" / "corrected.zarr"), mode="r")["flags"][:]  # the store name
 
     default = flags_with()
     every = flags_with("--min-bias-mm", "0")

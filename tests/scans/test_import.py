@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,28 +10,11 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from mpi_lidar import cli
 from mpi_lidar.scans.scan import ScanError, find_scan_files, load_netcdf, load_scan_file, plan_import, read_scan
+from tests.cli_runner import assert_one_error_line, call_main
 from tests.scan_factory import two_path_scan
 
 FREQS = two_path_scan("f").frequencies_hz
-
-
-def call_main(monkeypatch, capsys, *args: str | Path) -> tuple[int, str, str]:
-    monkeypatch.setattr(sys, "argv", ["mpi-lidar", *map(str, args)])
-    try:
-        cli.main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def assert_one_error_line(stderr: str, fragment: str) -> None:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), stderr
-    assert fragment in lines[0], stderr
 
 
 def save_npz(path: Path, name: str = "frame", seed: int = 0) -> Path:

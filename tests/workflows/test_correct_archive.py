@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,7 +11,6 @@ import numpy as np
 import pytest
 import zarr
 
-from mpi_lidar import cli
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus
 from mpi_lidar.errors import MpiLidarError
@@ -26,22 +24,10 @@ from mpi_lidar.workflows.correct_archive import (
     safe_scan_name,
     scan_output_paths,
 )
+from tests.cli_runner import call_main
 from tests.scan_factory import two_path_scan
 
 ALL = CorrectionOptions(gate="all")  # every valid pixel corrected: a two-path scan ends 'corrected'
-
-
-def call_main(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: str | Path
-              ) -> tuple[int, str, str]:
-    """``mpi-lidar ARGS`` in this process: exit code (0 when it returns), stdout, stderr."""
-    monkeypatch.setattr(sys, "argv", ["mpi-lidar", *map(str, args)])
-    try:
-        cli.main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 1
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
 
 
 def saturated(scan: Scan, share: float, options: CorrectionOptions) -> Scan:

@@ -1,0 +1,27 @@
+"""Small models trained in this process in a second, for correction and output tests (no cluster)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mpi_lidar.config import Config
+from mpi_lidar.learning.features import FeatureSpec, synthetic_geometry
+from mpi_lidar.learning.model import DatasetCard, save_model
+from mpi_lidar.learning.train import model_card, train_arrays
+from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
+from mpi_lidar.simulation.sampling import THETA_NAMES
+
+
+def tiny_model(out: Path, geometric: bool = True, feature_set: str = "engineered", rows: int = 3_000,
+               rounds: int = 30) -> Path:
+    """A residual model of ``feature_set`` (with the geometric inputs if ``geometric``) on simulated rows."""
+    config = Config()
+    spec = FeatureSpec(config.frequencies_hz, feature_set, "residual", geometric)
+    raw, theta = simulate_rows(config, rows, seeded_rng(config.dataset.seed, 0))
+    geometry = synthetic_geometry(theta, THETA_NAMES, config.prior, config.dataset.seed, np.arange(rows))
+    params = {"max_depth": 4}
+    fitted = train_arrays(spec.transform(raw, geometry), spec.target(raw, theta[:, 0]), params, rounds, None)
+    card = model_card(spec, DatasetCard.from_config(config, path="in memory"), params, fitted, workers=0)
+    return save_model(out, fitted.booster, card)

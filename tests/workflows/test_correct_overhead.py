@@ -1,0 +1,101 @@
+"""Per-scan overhead of batch correction: light imports, a small batch in this process, one model load."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from mpi_lidar.cli import cli
+from mpi_lidar.correction import CorrectionOptions
+from mpi_lidar.reporting.scan_report import DEFAULT_OUTPUTS, OUTPUT_LEVELS
+from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.workflows import correct_archive as archive_module
+from mpi_lidar.workflows.correct_archive import correct_archive, runs_in_process
+from tests.model_factory import tiny_model
+from tests.scan_factory import two_path_scan
+
+HEAVY = ("dask", "distributed", "xgboost", "zarr", "matplotlib", "scipy", "optuna", "pandas")
+
+
+@pytest.fixture(scope="module")
+def archive(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("archive")
+    for index in range(3):
+        write_scan(two_path_scan(f"s{index}", seed=index), root / f"s{index}.scan.zarr")
+    return root
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory) -> Path:
+    return tiny_model(tmp_path_factory.mktemp("model") / "model", geometric=False, feature_set="raw")
+
+
+def _imported_after(statement: str) -> set[str]:
+    code = f"import sys; {statement}; print(' '.join(sorted({{m.split('.')[0] for m in sys.modules}})))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    return set(done.stdout.split())
+
+
+def test_cli__help_imports_no_numerics_library():
+    assert not _imported_after("import mpi_lidar.cli") & set(HEAVY)
+
+
+def test_executor__a_loop_in_this_process_needs_no_dask():
+    assert "distributed" not in _imported_after("from mpi_lidar.workflows.executor import InProcess, as_executor; "
+                                                "as_executor(None)")
+
+
+def test_correct_cli__outputs_choices_are_the_levels_and_light_is_the_default():
+    option = next(p for p in cli.commands["correct"].params if p.name == "outputs")
+    assert tuple(option.type.choices) == OUTPUT_LEVELS and option.default == DEFAULT_OUTPUTS == "light"
+
+
+def test_runs_in_process__small_batches_here_large_ones_on_a_cluster(archive, tmp_path, monkeypatch):
+    assert runs_in_process([str(archive)]), "3 small scans: well under half a minute"
+    monkeypatch.setattr(archive_module, "IN_PROCESS_MAX_SECONDS", 3 * 0.15 + 2.5 * 768 * 2e-6)
+    assert not runs_in_process([str(archive)]), "3 x (0.15 s + 768 pixels x 2 us) is more"
+    assert runs_in_process([str(archive / "s0.scan.zarr")]), "one scan always runs here"
+    monkeypatch.setattr(archive_module, "IN_PROCESS_MAX_SECONDS", 2 * 0.15 + 768 * 2e-6 + 1e-9)
+    broken = tmp_path / "broken.scan.zarr"
+    broken.mkdir()
+    assert runs_in_process([str(broken), str(archive / "s0.scan.zarr")]), "an unreadable store counts no pixels"
+    monkeypatch.setattr(archive_module, "IN_PROCESS_MAX_SECONDS", 3 * 0.15)
+    assert not runs_in_process([str(archive)]), "the scans alone reach the limit"
+
+
+def test_correct_cli__default_workers_run_a_small_batch_here_and_an_explicit_count_is_honoured(
+        archive, model_dir, tmp_path, monkeypatch):
+    from mpi_lidar.workflows import executor
+
+    started: list[int] = []
+
+    def no_cluster(scheduler=None, workers=2):
+        started.append(workers)
+        raise RuntimeError("no cluster in this test")
+
+    monkeypatch.setattr(executor, "dask_executor", no_cluster)
+    arguments = ["correct", str(archive), "--model", str(model_dir), "--gate", "all"]
+    assert CliRunner().invoke(cli, [*arguments, "--out", str(tmp_path / "a")]).exit_code == 0
+    assert started == [] and (tmp_path / "a" / "s0" / "thumbnail.png").exists()
+    result = CliRunner().invoke(cli, [*arguments, "--out", str(tmp_path / "b"), "--workers", "3"])
+    assert started == [3] and isinstance(result.exception, RuntimeError)
+
+
+def test_cached_model__loaded_once_per_process_and_again_when_replaced(archive, model_dir, tmp_path, monkeypatch):
+    loads: list[str] = []
+    real = archive_module.load_model
+    monkeypatch.setattr(archive_module, "load_model", lambda path: loads.append(str(path)) or real(path))
+    archive_module._load_model.cache_clear()
+    outcomes = correct_archive([str(archive)], model_dir, tmp_path / "out", CorrectionOptions(gate="all"),
+                               outputs="data")
+    assert [o.status for o in outcomes] == ["corrected"] * 3 and loads == [str(model_dir)]
+    card = model_dir / "card.json"
+    os.utime(card, ns=(card.stat().st_atime_ns, card.stat().st_mtime_ns + 1_000_000))
+    correct_archive([str(archive)], model_dir, tmp_path / "again", CorrectionOptions(gate="all"), outputs="data")
+    assert loads == [str(model_dir)] * 2, "a model whose files changed is loaded again"
