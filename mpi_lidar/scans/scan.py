@@ -304,17 +304,25 @@ def _check_declared_sizes(path: Path, group: zarr.Group, members: set[str]) -> N
 
     A damaged or hostile store can declare 4 x 8000 x 8000 pixels in a few hundred bytes of metadata.
     """
-    total = 0
-    for name in members:
-        array = group[name]
-        values = float(np.prod(array.shape, dtype=np.float64))
+    check_memory_budget(path, [(f"array {name!r}", group[name].shape, group[name].dtype) for name in members])
+
+
+def check_memory_budget(path: Path, declared: list[tuple[str, tuple[int, ...], np.dtype]]) -> None:
+    """Refuse what a scan's arrays declare, (what, shape, dtype) each, beyond one array's or the scan's budget.
+
+    Called with the declared shapes only (store metadata, .npy headers, NetCDF variables), before any value
+    is read or allocated.
+    """
+    total = 0.0
+    for what, shape, dtype in declared:
+        values = float(np.prod(shape, dtype=np.float64))
         if values > MAX_ARRAY_VALUES:
-            raise ScanError(f"{path}: array {name!r} declares shape {array.shape}, more than the "
-                            f"{MAX_ARRAY_VALUES:,} values a scan array may hold; the store is damaged")
-        total += values * array.dtype.itemsize
+            raise ScanError(f"{path}: {what} declares shape {tuple(shape)}, more than the {MAX_ARRAY_VALUES:,} "
+                            "values a scan array may hold; split the scan into smaller ones")
+        total += values * np.dtype(dtype).itemsize
     if total > MAX_SCAN_BYTES:
-        raise ScanError(f"{path}: its arrays declare {total / 2**30:.1f} GiB, more than the {MAX_SCAN_BYTES / 2**30:g} "
-                        "GiB a scan may hold in memory; split the scan into smaller ones")
+        raise ScanError(f"{path}: its arrays declare {total / 2**30:.1f} GiB, more than the "
+                        f"{MAX_SCAN_BYTES / 2**30:g} GiB a scan may hold in memory; split the scan into smaller ones")
 
 
 def import_arrays(
@@ -389,7 +397,7 @@ def _check_npz_headers(path: Path) -> None:
     """Refuse members that are not plain numeric arrays, or that declare more than a scan may hold."""
     try:
         with zipfile.ZipFile(path) as archive:
-            total = 0.0
+            declared = []
             for info in archive.infolist():
                 with archive.open(info) as member:
                     version = np.lib.format.read_magic(member)
@@ -399,14 +407,12 @@ def _check_npz_headers(path: Path) -> None:
                 if dtype.hasobject or dtype.kind not in "biuf":
                     raise ScanError(f"{path}: member {info.filename} has dtype {dtype}; only numbers and booleans "
                                     "can be imported")
-                total += float(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+                declared.append((f"member {info.filename}", shape, dtype))
     except ScanError:
         raise
     except Exception as exc:  # not a zip, a member without an .npy header, a damaged header
         raise ScanError(f"{path} is not a readable .npz archive ({type(exc).__name__}: {exc})") from None
-    if total > MAX_SCAN_BYTES:
-        raise ScanError(f"{path}: its arrays declare {total / 2**30:.1f} GiB, more than the "
-                        f"{MAX_SCAN_BYTES / 2**30:g} GiB a scan may hold in memory; split the scan into smaller ones")
+    check_memory_budget(path, declared)
 
 
 # --- NetCDF / HDF5, and many files at once ----------------------------------------------------------------
@@ -517,20 +523,11 @@ def _netcdf_engine(path: Path) -> tuple[str, dict[str, object]]:
 
 def _check_variable_sizes(path: Path, ds: object, chosen: Mapping[str, str]) -> None:
     """Numbers and booleans only, within the memory budget of a scan, before any variable is read."""
-    total = 0.0
     for name, variable in chosen.items():
-        array = ds[variable]
-        if array.dtype.kind not in "biuf":
-            raise ScanError(f"{path}: variable {variable!r} ({name}) has dtype {array.dtype}; only numbers and "
-                            "booleans can be imported")
-        values = float(np.prod(array.shape, dtype=np.float64))
-        if values > MAX_ARRAY_VALUES:
-            raise ScanError(f"{path}: variable {variable!r} has shape {array.shape}, more than the "
-                            f"{MAX_ARRAY_VALUES:,} values a scan array may hold; split the scan into smaller ones")
-        total += values * array.dtype.itemsize
-    if total > MAX_SCAN_BYTES:
-        raise ScanError(f"{path}: its scan variables take {total / 2**30:.1f} GiB, more than the "
-                        f"{MAX_SCAN_BYTES / 2**30:g} GiB a scan may hold in memory; split the scan into smaller ones")
+        if ds[variable].dtype.kind not in "biuf":
+            raise ScanError(f"{path}: variable {variable!r} ({name}) has dtype {ds[variable].dtype}; only numbers "
+                            "and booleans can be imported")
+    check_memory_budget(path, [(f"variable {v!r}", ds[v].shape, ds[v].dtype) for v in chosen.values()])
 
 
 def _in_store_units(path: Path, name: str, units: object, values: NDArray) -> NDArray:
