@@ -52,6 +52,10 @@ def simulate(
 ) -> None:
     """Simulate a labelled dataset and print its raw-error summary.
 
+    \b
+    Example:
+      mpi-lidar simulate --out runs/d.zarr --samples 20000 --workers 2
+
     Re-running on a complete store of the same configuration only prints the summary; an interrupted
     store resumes where it stopped.
     """
@@ -116,7 +120,12 @@ def feature_spec(data: Path, feature_set: str | None, target_mode: str | None,
 @cluster_options
 def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_rows: int, feature_set: str | None,
          target_mode: str | None, geometric: bool | None, workers: int, scheduler: str | None) -> None:
-    """Tune XGBoost with Optuna TPE, trials running in parallel on Dask workers."""
+    """Tune XGBoost with Optuna TPE, trials running in parallel on Dask workers.
+
+    \b
+    Example:
+      mpi-lidar tune --data runs/d.zarr --trials 30 --storage postgresql://user@db-host/optuna
+    """
     from mpi_lidar.learning import tune as tuning
     from mpi_lidar.workflows.cluster import dask_client
 
@@ -146,7 +155,12 @@ def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_row
 def train(data: Path, out: Path, params_file: Path | None, study_name: str | None, storage: str | None,
           feature_set: str | None, target_mode: str | None, geometric: bool | None, workers: int,
           scheduler: str | None) -> None:
-    """Train the final XGBoost model through xgboost.dask on the whole train split."""
+    """Train the final XGBoost model through xgboost.dask on the whole train split.
+
+    \b
+    Example:
+      mpi-lidar train --data runs/d.zarr --out runs/model --study xgboost
+    """
     from mpi_lidar.learning import tune as tuning
     from mpi_lidar.learning.train import train_and_save
     from mpi_lidar.workflows.cluster import dask_client
@@ -193,10 +207,16 @@ def load_params(path: Path) -> dict[str, object]:
 @cli.command()
 @click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
 @click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
-@click.option("--report", "report_dir", type=click.Path(path_type=Path), required=True, help="Report directory.")
+@click.option("--out", "--report", "report_dir", type=click.Path(path_type=Path), required=True,
+              help="Report directory (--report is the older name).")
 @click.option("--split", type=click.Choice(["test", "train"]), default="test", show_default=True)
 def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
-    """Evaluate a model on a dataset split: metrics table, error histogram, report files."""
+    """Evaluate a model on a dataset split: metrics table, error histogram, report files.
+
+    \b
+    Example:
+      mpi-lidar evaluate --data runs/d.zarr --model runs/model --out runs/report
+    """
     from mpi_lidar.reporting.report import Table
     from mpi_lidar.workflows.pipeline import evaluate_to_report
 
@@ -206,8 +226,8 @@ def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
 
 
 @cli.command()
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("runs/quick"), show_default=True,
-              help="Run directory: dataset.zarr, optuna.db, model/, report/.")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=None,
+              help="Run directory: dataset.zarr, optuna.db, model/, report/ (default: runs/<preset>).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file overriding the preset.")
 @click.option("--preset", "preset_name", type=click.Choice(sorted(PRESETS)), default="quick", show_default=True)
 @click.option("--trials", type=click.IntRange(min=1), default=6, show_default=True, help="Tuning budget.")
@@ -215,11 +235,17 @@ def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
 @cluster_options
 def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: int, tune_rows: int, workers: int,
              scheduler: str | None) -> None:
-    """The main job: simulate, tune, train and evaluate into one run directory (resumable)."""
+    """The main job: simulate, tune, train and evaluate into one run directory (resumable).
+
+    \b
+    Example:
+      mpi-lidar pipeline --preset quick --out runs/quick
+    """
     from mpi_lidar.workflows.cluster import dask_client
     from mpi_lidar.workflows.pipeline import ClusterSteps, run_pipeline
 
     config = resolve_config(config_file, preset_name)
+    out_dir = out_dir or Path("runs") / preset_name
     with dask_client(scheduler, workers) as client:
         result = run_pipeline(ClusterSteps(client), out_dir, config, trials, tune_rows, echo=click.echo)
     metrics = result.evaluation.metrics
@@ -261,13 +287,17 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "lower level is corrected again to add the rest.")
 @click.option("--workers", type=click.IntRange(min=0), default=None,
               help="Worker processes of a local Dask cluster; 0 runs in this process. Default: this process "
-                   "for a batch of fewer than 8 scans or fewer than 16 megapixels in all (a cluster takes "
-                   "10-20 s to start), else 2 workers.")
+                   "for one scan or a batch of less than about 30 s of work (0.15 s per scan plus 2 s per "
+                   "megapixel; a cluster takes about 10 s to start), else 2 workers.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
             footprint_area_m2: float | None, max_invalid_share: float | None, fail_on: tuple[str, ...],
             outputs: str, workers: int | None, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
+
+    \b
+    Example:
+      mpi-lidar correct 'archive/2026-11-*/*.scan.zarr' --model runs/model --out corrected --fail-on degraded
 
     Each scan ends corrected, unchanged (no pixel corrected), degraded (too many invalid pixels), skipped
     (already done) or failed. Exit 1 when a scan failed or has a --fail-on status; 2 on a user error.
@@ -276,18 +306,32 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
 
     from mpi_lidar.correction import CorrectionOptions
     from mpi_lidar.reporting.scan_report import write_batch_report
-    from mpi_lidar.workflows.correct_archive import correct_archive, failing_outcomes, failure_line, runs_in_process
+    from mpi_lidar.workflows.correct_archive import (
+        correct_archive,
+        expand_archive,
+        failing_outcomes,
+        failure_line,
+        runs_in_process,
+    )
     from mpi_lidar.workflows.executor import InProcess, dask_executor
 
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
                                          max_invalid_share=max_invalid_share)
     started = time.perf_counter()
     here = not scheduler and (workers == 0 if workers is not None else runs_in_process(list(scans)))
+    total = len(expand_archive(list(scans)))
+    done = iter(range(1, total + 1))
+
+    def on_scan(outcome) -> None:
+        progress.advance(task)
+        if not sys.stdout.isatty():  # a log, not a terminal: one line per scan as it finishes
+            click.echo(f"[{next(done)}/{total}] {outcome.source}: {outcome.status}")
+
     with _progress() as progress:
-        task = progress.add_task("scans", total=None)
+        task = progress.add_task("scans", total=total)
         with InProcess() if here else dask_executor(scheduler, workers or 2) as executor:
-            outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
-                                       on_scan=lambda _outcome: progress.advance(task), outputs=outputs)
+            outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor, on_scan=on_scan,
+                                       outputs=outputs)
     summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
     click.echo(summary.joinpath("report.md").read_text())
     failing = failing_outcomes(outcomes, fail_on)
@@ -307,6 +351,10 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
                    "frequencies_hz, ...) from the file's VARIABLE (array of an .npz); repeatable.")
 def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, variables: tuple[str, ...]) -> None:
     """Import scans from .npz archives or NetCDF/HDF5 files (.nc, .h5, .hdf5): files, directories or globs.
+
+    \b
+    Example:
+      mpi-lidar import-scan 'day1/*.nc' --out scans/day1 --var depth=range_m --var amplitude=intensity
 
     Each file holds depth and amplitude (F, H, W), or taps (F, 4, H, W), plus optional geometry and reference,
     named as in a scan store or mapped with --var (e.g. --var depth=range_m --var amplitude=intensity).
@@ -343,7 +391,12 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
 @click.option("--scene", "names", multiple=True, help="Scene name (repeatable); default: the demo scenes.")
 @click.option("--seed", type=int, default=0, show_default=True)
 def render_scenes_command(out_dir: Path, names: tuple[str, ...], seed: int) -> None:
-    """Render simulated scenes (cornered board, multi-object, flat wall, ...) as scan stores with references."""
+    """Render simulated scenes (cornered board, multi-object, flat wall, ...) as scan stores with references.
+
+    \b
+    Example:
+      mpi-lidar render-scenes --out scenes --scene corner --scene flat_wall
+    """
     from mpi_lidar.simulation.scenes import DEMO_SCENES, SCENES, render_scenes
 
     unknown = sorted(set(names) - set(SCENES))
@@ -355,14 +408,20 @@ def render_scenes_command(out_dir: Path, names: tuple[str, ...], seed: int) -> N
 
 @cli.command()
 @click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
-@click.option("--report", "report_dir", type=click.Path(path_type=Path), required=True, help="Report directory.")
+@click.option("--out", "--report", "report_dir", type=click.Path(path_type=Path), required=True,
+              help="Report directory (--report is the older name).")
 @click.option("--model", "model_dir", type=click.Path(path_type=Path), help="XGBoost model directory for its row.")
 @click.option("--trials", type=click.IntRange(min=1), default=10, show_default=True, help="TPE trials per baseline.")
 @click.option("--train-rows", type=click.IntRange(min=10), default=100_000, show_default=True,
               help="Train rows the scikit-learn baselines fit on.")
 @click.option("--svm-rows", type=click.IntRange(min=10), default=20_000, show_default=True)
 def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, train_rows: int, svm_rows: int) -> None:
-    """The paper's Table II: KNN, RF, SVM, DNN and XGBoost against raw and weighted depth."""
+    """The paper's Table II: KNN, RF, SVM, DNN and XGBoost against raw and weighted depth.
+
+    \b
+    Example:
+      mpi-lidar table2 --data runs/paper/dataset.zarr --model runs/paper/model --out runs/table2
+    """
     from mpi_lidar.learning.baselines import table2 as make_table2
     from mpi_lidar.reporting.report import write_report
     from mpi_lidar.reporting.table2 import table2_report, table2_table
@@ -383,7 +442,12 @@ def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, tr
 @click.option("--quick", is_flag=True, help="Tiny sizes (seconds), for a first look and for tests.")
 @click.option("--seed", type=click.IntRange(min=0), help="Seed of the simulated rows (default: the config's).")
 def bench(out_dir: Path, rows: int | None, quick: bool, seed: int | None) -> None:
-    """Run time against error: test MAE, training time and throughput of every estimator, Pareto fronts."""
+    """Run time against error: test MAE, training time and throughput of every estimator, Pareto fronts.
+
+    \b
+    Example:
+      mpi-lidar bench --out runs/bench --quick
+    """
     import dataclasses
     import os
     import platform
@@ -412,7 +476,9 @@ def verify(stores: tuple[Path, ...]) -> None:
     Prints one line per store; exits 1 if any store is damaged (a deleted, truncated or replaced chunk),
     naming the array and chunk.
 
-    Example: mpi-lidar verify runs/quick/dataset.zarr runs/quick/scenes/*.scan.zarr runs/quick/corrected/*
+    \b
+    Example:
+      mpi-lidar verify runs/quick/dataset.zarr runs/quick/scenes/*.scan.zarr runs/quick/corrected/*
     """
     from mpi_lidar.workflows.verify import verify_store
 

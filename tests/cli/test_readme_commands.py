@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mpi_lidar import cli
 from mpi_lidar.config import Config
 from tests.cli_runner import call_main
 
@@ -48,14 +49,14 @@ def cases(w: Path) -> dict[str, tuple[list[str | Path], str]]:
                  "study 'xgboost'"),
         "train": (["train", "--data", w / "d.zarr", "--out", w / "model", "--study", "xgboost", "--workers", 0],
                   "model written to"),
-        "evaluate": (["evaluate", "--data", w / "d.zarr", "--model", w / "model", "--report", w / "report"],
+        "evaluate": (["evaluate", "--data", w / "d.zarr", "--model", w / "model", "--out", w / "report"],
                      "report written to"),
         "render-scenes": (["render-scenes", "--out", w / "scenes", "--scene", "flat_wall"], "wrote"),
         "correct": (["correct", w / "scenes", "--model", w / "model", "--out", w / "corrected", "--workers", 0],
                     "flat_wall"),
         "import-scan": (["import-scan", w / "frame.npz", "--out", w / "frame.scan.zarr"], "written to"),
         "verify": (["verify", w / "d.zarr", w / "frame.scan.zarr"], "ok "),
-        "table2": (["table2", "--data", w / "d.zarr", "--report", w / "table2", "--trials", 1, "--train-rows", 500,
+        "table2": (["table2", "--data", w / "d.zarr", "--out", w / "table2", "--trials", 1, "--train-rows", 500,
                     "--svm-rows", 200], "report written to"),
         "bench": (["bench", "--out", w / "bench", "--quick"], "report written to"),
         "pipeline": (["pipeline", "--out", w / "run", "--config", w / "small.toml", "--trials", 1,
@@ -84,3 +85,9 @@ def test_readme_benchmark_commands__run_small(command):
                             cwd=README.parent)
     assert result.returncode == 0, result.stderr
     assert "|" in result.stdout  # a markdown table
+
+
+def test_help__every_command_shows_an_example(monkeypatch, capsys):
+    for name in sorted(cli.cli.commands):
+        code, stdout, _ = call_main(monkeypatch, capsys, name, "--help")
+        assert code == 0 and "Example:" in stdout and f"mpi-lidar {name}" in stdout, name
