@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
-import html
 import json
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Protocol
 
+import jinja2
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from markdown_it import MarkdownIt
+from markupsafe import Markup
 
 from mpi_lidar.learning.evaluate import Evaluation
 from mpi_lidar.learning.model import ModelCard
@@ -86,7 +89,7 @@ REPORT_MARKER = ".mpi-lidar-report"
 
 @dataclass(frozen=True)
 class Table:
-    """A table rendered both as markdown and as HTML."""
+    """A table rendered both as markdown and as HTML; cells may hold inline markdown (code, links)."""
 
     headers: tuple[str, ...]
     rows: tuple[tuple[str, ...], ...]
@@ -97,17 +100,50 @@ class Table:
         return "\n".join(lines)
 
     def html(self) -> str:
-        head = "".join(f"<th>{html.escape(h)}</th>" for h in self.headers)
-        body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in self.rows)
+        head = "".join(f"<th>{_inline(h)}</th>" for h in self.headers)
+        body = "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>" for row in self.rows)
         return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+@dataclass(frozen=True)
+class Embed:
+    """Markup this package generated itself (an interactive figure), placed in the HTML report as it is.
+
+    ``scripts`` are the files (relative to the report) it needs loaded in the page head; ``fallback`` is what
+    report.md says instead.
+    """
+
+    markup: str
+    fallback: str
+    scripts: tuple[str, ...] = ()
+
+
+Block = str | Table | Path | Embed
+
+
+@lru_cache(maxsize=1)
+def _markdown() -> MarkdownIt:
+    # Raw HTML in text is escaped, never passed through: notes can quote file names and user strings.
+    return MarkdownIt("commonmark", {"html": False})
+
+
+def _inline(text: str) -> str:
+    return _markdown().renderInline(text)
+
+
+@lru_cache(maxsize=1)
+def _template() -> jinja2.Template:
+    environment = jinja2.Environment(loader=jinja2.PackageLoader("mpi_lidar.reporting", "templates"),
+                                     autoescape=True, keep_trailing_newline=True)
+    return environment.get_template("report.html.j2")
 
 
 @dataclass
 class Report:
-    """A titled report of text, tables and figures, written as report.md, report.html, PNGs and JSON."""
+    """A titled report of text (markdown), tables, figures and embeds: report.md, report.html, PNGs and JSON."""
 
     title: str
-    blocks: list[str | Table | Path] = field(default_factory=list)
+    blocks: list[Block] = field(default_factory=list)
     data: dict[str, object] = field(default_factory=dict)
 
     def markdown(self) -> str:
@@ -116,24 +152,28 @@ class Report:
             if isinstance(block, Table):
                 parts.append(block.markdown())
             elif isinstance(block, Path):
-                parts.append(f"![{block.stem}]({block.name})")
+                parts.append(f"![{block.stem}]({block.as_posix()})")
+            elif isinstance(block, Embed):
+                parts.append(block.fallback)
             else:
                 parts.append(block)
         return "\n\n".join(parts) + "\n"
 
     def html(self) -> str:
-        parts = [f"<h1>{html.escape(self.title)}</h1>"]
+        """The report as one HTML page (Jinja2 template; text through a markdown parser; images fit the page)."""
+        rendered, scripts = [], []
         for block in self.blocks:
             if isinstance(block, Table):
-                parts.append(block.html())
+                rendered.append(Markup(block.html()))
             elif isinstance(block, Path):
-                parts.append(f'<img src="{html.escape(block.name)}" alt="{html.escape(block.stem)}">')
+                rendered.append(Markup('<img src="{}" alt="{}">').format(block.as_posix(), block.stem))
+            elif isinstance(block, Embed):
+                rendered.append(Markup('<div class="embed">{}</div>').format(Markup(block.markup)))
+                scripts += [s for s in block.scripts if s not in scripts]
             else:
-                parts.append(f"<p>{html.escape(block)}</p>")
-        style = ("body{font-family:sans-serif;max-width:60em;margin:2em auto}"
-                 "td,th{padding:.2em .6em;border:1px solid #ccc}")
-        return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(self.title)}</title>"
-                f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
+                rendered.append(Markup(_markdown().render(block)))
+        return _template().render(title=self.title.replace("`", ""), heading=Markup(_inline(self.title)),
+                                  blocks=rendered, scripts=scripts)
 
 
 def write_report(report: Report, report_dir: str | Path, figures: dict[str, plt.Figure]) -> Path:
