@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -320,10 +321,11 @@ def _write_corrected_store(path: Path, scan: Scan, correction: Correction, ident
     describe_arrays(group, scan.shape, metadata=CORRECTED_METADATA)
     group["flags"].attrs.update({"flag_values": [int(f) for f in Flag],
                                  "flag_meanings": " ".join(f.name.lower() for f in Flag)})
-    group.attrs.update({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
-                        "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},
-                        "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz),
-                        "outputs": outputs, "chunk_sha256": store_fingerprints(group)})
+    # One metadata write: group.attrs.update would rewrite the group's metadata once per key.
+    group.update_attributes({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
+                             "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},
+                             "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz),
+                             "outputs": outputs, "chunk_sha256": store_fingerprints(group)})
     consolidate(path)
 
 
@@ -358,14 +360,15 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                                     "inference": correction.inference_s}})
 
 
-def batch_report(outcomes: list[ScanOutcome], wall_s: float) -> Report:
+def batch_report(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path | None = None) -> Report:
     """One table over the batch: per scan its name, status, gated-out and invalid shares, MAE before/after on
     the whole map and the mask, notes and source path; above it a line counting every status.
 
     Gated out: valid pixels left as measured because the gate found no need (no multipath potential, or
     not needed by a pixel-wise gate), as a share of all pixels. Invalid: pixels flagged not finite, no
     return, saturated or inconsistent, as a share of all pixels. A skipped scan shows the numbers of its
-    existing outputs, and its notes say the status those earned.
+    existing outputs, and its notes say the status those earned. With ``summary_dir`` (where the summary is
+    written) a last column links each scan's own report.
     """
     rows = []
     for o in outcomes:
@@ -378,9 +381,10 @@ def batch_report(outcomes: list[ScanOutcome], wall_s: float) -> Report:
         rows.append(tuple(_cell(c) for c in (
             o.name, o.status, not_needed, invalid, _mm(whole, "raw_mae_m"), _mm(whole, "corrected_mae_m"),
             _mm(masked, "raw_mae_m"), _mm(masked, "corrected_mae_m"), f"{o.seconds:.2f}",
-            "; ".join(n for n in (reason, *o.notes) if n), o.source)))
-    table = Table(("scan", "status", "gated out", "invalid", "raw MAE [mm]", "corrected MAE [mm]",
-                   "masked raw MAE [mm]", "masked corrected MAE [mm]", "seconds", "notes", "source"), tuple(rows))
+            "; ".join(n for n in (reason, *o.notes) if n), o.source)) + _report_link(o, summary_dir))
+    headers = ("scan", "status", "gated out", "invalid", "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]",
+               "masked corrected MAE [mm]", "seconds", "notes", "source")
+    table = Table(headers + (("report",) if summary_dir is not None else ()), tuple(rows))
     labels = {ScanStatus.SKIPPED: "already done"}
     counted = ", ".join(f"{sum(o.status == status for o in outcomes)} {labels.get(status, status.value)}"
                         for status in ScanStatus)
@@ -390,8 +394,21 @@ def batch_report(outcomes: list[ScanOutcome], wall_s: float) -> Report:
 
 
 def _cell(text: object) -> str:
-    """One table cell: one line, and no ``|`` that would split a markdown row."""
-    return " ".join(str(text).splitlines()).replace("|", "\\|")
+    """One table cell of plain text: one line, no ``|`` that would split a markdown row, no markup."""
+    text = " ".join(str(text).splitlines())
+    for special in ("\\", "|", "*", "[", "]", "`"):
+        text = text.replace(special, "\\" + special)
+    return text
+
+
+def _report_link(outcome: ScanOutcome, summary_dir: Path | None) -> tuple[str, ...]:
+    """The link cell from the summary to the scan's own report, where one was written."""
+    if summary_dir is None:
+        return ()
+    report = Path(outcome.output) / "report.html" if outcome.output else None
+    if report is None or not report.is_file():
+        return ("",)
+    return (f"[report]({Path(os.path.relpath(report, summary_dir)).as_posix()})",)
 
 
 def _mm(metrics: dict[str, float], key: str) -> str:
@@ -401,4 +418,5 @@ def _mm(metrics: dict[str, float], key: str) -> str:
 
 def write_batch_report(outcomes: list[ScanOutcome], wall_s: float, out_dir: str | Path) -> Path:
     """The batch summary into ``<out_dir>/summary/`` (a name no scan's outputs take, see correct_archive)."""
-    return write_report(batch_report(outcomes, wall_s), Path(out_dir) / "summary", {})
+    summary_dir = Path(out_dir) / "summary"
+    return write_report(batch_report(outcomes, wall_s, summary_dir), summary_dir, {})
