@@ -14,10 +14,11 @@ corrected and the summary was written, so nothing is lost and nothing failed sil
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Literal
 
 from prefect import flow, task
-from prefect.artifacts import create_markdown_artifact
+from prefect.artifacts import create_link_artifact, create_markdown_artifact, create_table_artifact
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
@@ -27,6 +28,7 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.scan_report import batch_report, write_batch_report
 from mpi_lidar.workflows.correct_archive import batch_failure, correct_archive, process_scan
 
+TABLE_ARTIFACT_KEY = "correction-table"
 SUMMARY_ARTIFACT_KEY = "correction-summary"
 Gate = Literal["geometry", "all", "consistency"]  # mpi_lidar.correction.GATES, as a parameter schema enum
 FailOn = Literal["degraded", "unchanged", "failed"]  # mpi_lidar.workflows.correct_archive.FAIL_ON
@@ -48,6 +50,10 @@ def publish_scan_task(outcome: ScanOutcome) -> None:
     if outcome.output:
         lines.append(f"- outputs: `{outcome.output}/` (its report lists them)")
     create_markdown_artifact(markdown="\n".join(lines), description=f"Correction of {outcome.name}")
+    report = Path(outcome.output) / "report.html" if outcome.output else None
+    if report is not None and report.is_file():
+        create_link_artifact(link=report.resolve().as_uri(), link_text=f"report of {outcome.name}",
+                             description=f"Correction report of {outcome.source}")
 
 
 @task(name="write-summary", cache_policy=NO_CACHE)
@@ -56,7 +62,22 @@ def summary_task(outcomes: list[ScanOutcome], wall_s: float, out: str) -> str:
     write_batch_report(outcomes, wall_s, out)
     markdown = batch_report(outcomes, wall_s).markdown()
     create_markdown_artifact(markdown=markdown, key=SUMMARY_ARTIFACT_KEY, description=f"Batch correction into {out}")
+    create_table_artifact(table=batch_rows(outcomes), key=TABLE_ARTIFACT_KEY,
+                          description=f"One row per scan of the batch into {out}")
     return markdown
+
+
+def batch_rows(outcomes: list[ScanOutcome]) -> list[dict[str, object]]:
+    """The batch as table rows: status, counts, the MAEs that exist [mm], seconds and source of every scan."""
+    rows = []
+    for o in outcomes:
+        row: dict[str, object] = {"scan": o.name, "status": str(o.status), "source": o.source,
+                                  "seconds": round(o.seconds, 3), **{f"{k} pixels": v for k, v in o.counts.items()}}
+        for region, m in o.metrics.items():
+            row[f"{region} raw MAE [mm]"] = round(1e3 * m["raw_mae_m"], 3)
+            row[f"{region} corrected MAE [mm]"] = round(1e3 * m["corrected_mae_m"], 3)
+        rows.append(row)
+    return rows
 
 
 def correct_and_publish(scans: list[str], model: str, out: str, options: CorrectionOptions, workers: int,

@@ -1,11 +1,12 @@
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 import zarr
 
-from flows.correct import SUMMARY_ARTIFACT_KEY, correct_archive_flow
+from flows.correct import SUMMARY_ARTIFACT_KEY, TABLE_ARTIFACT_KEY, correct_archive_flow
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.scans.scan import write_scan
 from tests.flows.helpers import artifacts
@@ -36,6 +37,10 @@ def test_correct_archive_flow__bad_scan_fails_alone_and_rerun_skips(archive, sma
     assert f"| {archive / 'north.scan.zarr'} |" in summary, "the source is a column"
     [published] = artifacts(str(state.state_details.flow_run_id), SUMMARY_ARTIFACT_KEY)
     assert "| south | unchanged |" in published.data
+    [table] = artifacts(str(state.state_details.flow_run_id), TABLE_ARTIFACT_KEY)
+    rows = json.loads(table.data) if isinstance(table.data, str) else table.data
+    assert sorted((row["scan"], row["status"]) for row in rows) == [
+        ("broken.scan.zarr", "failed"), ("north", "unchanged"), ("south", "unchanged")]
 
     again = correct_archive_flow(scans=[str(archive / "north.scan.zarr"), str(archive / "south.scan.zarr")],
                                  model=str(small_model), out=str(out), scheduler=dask_scheduler)
