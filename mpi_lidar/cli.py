@@ -162,7 +162,7 @@ def train(data: Path, out: Path, params_file: Path | None, study_name: str | Non
       mpi-lidar train --data runs/d.zarr --out runs/model --study xgboost
     """
     from mpi_lidar.learning import tune as tuning
-    from mpi_lidar.learning.train import train_and_save
+    from mpi_lidar.learning.train import DEFAULT_ROUNDS, train_and_save
     from mpi_lidar.workflows.cluster import dask_client
 
     if params_file and study_name:
@@ -176,7 +176,8 @@ def train(data: Path, out: Path, params_file: Path | None, study_name: str | Non
         geometric = settings.get("geometric", False) if geometric is None else geometric
         params = tuning.best_params(study)
     spec = feature_spec(data, feature_set, target_mode, geometric)
-    with dask_client(scheduler, workers) as client:
+    with _progress() as progress, dask_client(scheduler, workers) as client:
+        progress.add_task(f"training on {data} (early-stopped; up to {DEFAULT_ROUNDS} rounds)", total=None)
         out_dir, result = train_and_save(client, data, out, spec, params)
     click.echo(f"model written to {out_dir}: {result.best_iteration + 1} trees, validation MAE "
                f"{1e3 * result.validation_mae_m:.3f} mm, {result.fit_rows:,} rows in {result.wall_s:.1f} s")
