@@ -1,28 +1,48 @@
-"""Correction of one scan: validity mask, gates that skip what needs no correction, inference per pixel."""
+"""Correction of one scan: validity mask, gates that skip what needs no correction, inference per pixel.
+
+Each name of ``__all__`` is imported from its module on first access (PEP 562), so the options, flags and
+statuses (``from mpi_lidar.correction import CorrectionOptions``) come without the model's libraries
+(XGBoost, Dask) that :func:`correct_scan` needs.
+"""
 
 from __future__ import annotations
 
-from mpi_lidar.correction.correct import Correction, correct_scan, in_model_range
-from mpi_lidar.correction.gates import (
-    NO_GEOMETRY_INPUTS_NOTE,
-    NO_GEOMETRY_NOTE,
-    ConsistencyGate,
-    CorrectAll,
-    Gate,
-    GeometryGate,
-    geometry_gate,
-    make_gate,
-)
-from mpi_lidar.correction.options import (
-    CORRECTED_SCHEMA,
-    GATES,
-    INVALID_FLAGS,
-    CorrectionOptions,
-    Flag,
-    ScanStatus,
-)
-from mpi_lidar.correction.outcome import ScanOutcome
-from mpi_lidar.correction.validity import noise_floor_v2, quadrature_noise_v2, validity_flags
+from importlib import import_module
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the names for type checkers; at run time __getattr__ imports them
+    from mpi_lidar.correction.correct import Correction, correct_scan, in_model_range
+    from mpi_lidar.correction.gates import (
+        NO_GEOMETRY_INPUTS_NOTE,
+        NO_GEOMETRY_NOTE,
+        ConsistencyGate,
+        CorrectAll,
+        Gate,
+        GeometryGate,
+        geometry_gate,
+        make_gate,
+    )
+    from mpi_lidar.correction.options import (
+        CORRECTED_SCHEMA,
+        GATES,
+        INVALID_FLAGS,
+        CorrectionOptions,
+        Flag,
+        ScanStatus,
+    )
+    from mpi_lidar.correction.outcome import ScanOutcome
+    from mpi_lidar.correction.validity import noise_floor_v2, quadrature_noise_v2, validity_flags
+
+_MODULES = {
+    "mpi_lidar.correction.correct": ("Correction", "correct_scan", "in_model_range"),
+    "mpi_lidar.correction.gates": ("NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "ConsistencyGate", "CorrectAll",
+                                   "Gate", "GeometryGate", "geometry_gate", "make_gate"),
+    "mpi_lidar.correction.options": ("CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "CorrectionOptions", "Flag",
+                                     "ScanStatus"),
+    "mpi_lidar.correction.outcome": ("ScanOutcome",),
+    "mpi_lidar.correction.validity": ("noise_floor_v2", "quadrature_noise_v2", "validity_flags"),
+}
+_EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = [
     "CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "ConsistencyGate",
@@ -30,3 +50,16 @@ __all__ = [
     "correct_scan", "geometry_gate", "in_model_range", "make_gate", "noise_floor_v2", "quadrature_noise_v2",
     "validity_flags",
 ]
+
+
+def __getattr__(name: str) -> object:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'mpi_lidar.correction' has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value  # the next access does not come here
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -53,9 +53,8 @@ class Correction:
     cpu_s: dict[str, float] = field(default_factory=dict)
 
     def counts(self) -> dict[str, int]:
-        values, counts = np.unique(self.flags, return_counts=True)
-        found = dict(zip(values.tolist(), counts.tolist(), strict=True))
-        return {flag.name.lower(): int(found.get(int(flag), 0)) for flag in Flag}
+        found = np.bincount(self.flags.ravel(), minlength=len(Flag))
+        return {flag.name.lower(): int(found[int(flag)]) for flag in Flag}
 
 
 def in_model_range(depth: NDArray, model: CorrectionModel, options: CorrectionOptions) -> NDArray[np.bool_]:
@@ -112,7 +111,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         if not predict:
             notes = (NO_GEOMETRY_INPUTS_NOTE,)
     gate_s = time.perf_counter() - gate_started
-    depth = usable_depth
+    depth = usable_depth  # the gate is done with it (the geometry gate copied it): filled in place, no copy
     inference_s = 0.0
     for pixels, raw in _raw_tiles(scan, tiles) if predict else ():  # second pass: the pixels that need it
         gate_started = time.perf_counter()

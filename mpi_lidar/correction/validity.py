@@ -44,7 +44,10 @@ def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: Cor
     f = len(frequencies_hz)
     depth, amplitude = raw[:, :f], raw[:, f:]
     flags = np.full(raw.shape[0], Flag.NOT_NEEDED, dtype=np.uint8)
-    spread = depth.max(axis=1) - depth.min(axis=1) if raw.size else np.zeros(0)  # NaN rows: NOT_FINITE
+    high = low = depth[:, 0]
+    for column in range(1, f):  # column by column: a row reduction over F values is several times slower
+        high, low = np.maximum(high, depth[:, column]), np.minimum(low, depth[:, column])
+    spread = high - low  # NaN where a depth is NaN, as a row's max - min: those rows are NOT_FINITE
     floor = options.min_amplitude_sigmas * noise_floor_v2(sensor, tuple(frequencies_hz))
     rules = [
         (Flag.INCONSISTENT, spread > options.max_depth_spread_m),
