@@ -6,7 +6,6 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.options import CorrectionOptions
@@ -71,6 +70,8 @@ class ConsistencyGate(Gate):
         weight = sigma**-2
         mean = (weight * depth).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
         chi2 = (weight * (depth - mean) ** 2).sum(1)
+        from scipy import stats  # 1-2 s of imports that only this gate needs
+
         return chi2 > stats.chi2.ppf(1 - self.p_value, df=f - 1)
 
 

@@ -23,9 +23,10 @@ row's scene parameters and the estimation error measured on rendered scenes (doc
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import dask.array as da
 import numpy as np
 from numpy.typing import NDArray
 
@@ -41,6 +42,9 @@ from mpi_lidar.learning.feature_choices import (  # light for the command line; 
     TargetMode,
 )
 from mpi_lidar.simulation.dataset import frequency_labels, raw_feature_names
+
+if TYPE_CHECKING:
+    import dask.array as da
 
 # Amplitudes below this are treated as no return when forming ratios and logs. [V^2]
 AMPLITUDE_FLOOR_V2 = 1e-12
@@ -187,7 +191,8 @@ class FeatureSpec:
         if self.geometric and geometry is None:
             raise MpiLidarError("this model was trained with geometric features (coupling, d_AB) and needs them "
                                 "for every pixel: give a scan with geometry (azimuth/elevation or ray directions)")
-        if isinstance(raw, da.Array):
+        if is_dask_array(raw):
+
             raw = raw.rechunk({1: -1})
             base = len(self.names) - (len(GEOMETRIC_NAMES) if self.geometric else 0)
             features = raw.map_blocks(self._transform_block, dtype=np.float32, chunks=(raw.chunks[0], (base,)))
@@ -235,9 +240,17 @@ class FeatureSpec:
         return self.reference_depth(raw) + prediction
 
 
+
+def is_dask_array(values: object) -> bool:
+    """Whether ``values`` is a dask array, without importing dask (if it is not loaded, it cannot be one)."""
+    module = sys.modules.get("dask.array")
+    return module is not None and isinstance(values, module.Array)
+
+
 def synthetic_geometry_dask(theta: da.Array, theta_names: tuple[str, ...] | list[str], prior: PriorConfig,
                             seed: int) -> da.Array:
     """:func:`synthetic_geometry` for all rows of a lazy theta (n, k), block by block, rows numbered from 0."""
+
     theta = theta.rechunk({1: -1})
     rows = da.arange(theta.shape[0], chunks=theta.chunks[0], dtype=np.int64)[:, None]
 

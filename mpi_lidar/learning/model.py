@@ -13,9 +13,8 @@ import json
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
-import dask.array as da
 import numpy as np
 import xgboost as xgb
 from numpy.typing import NDArray
@@ -26,6 +25,9 @@ from mpi_lidar.config import Config, config_sha256
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSet, FeatureSpec, TargetMode
 from mpi_lidar.storage.atomic import atomic_path
+
+if TYPE_CHECKING:
+    import dask.array as da
 
 MODEL_SCHEMA = "mpi-lidar/model@1"
 MODEL_FILE = "model.ubj"

@@ -12,12 +12,10 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import dask.array as da
 import numpy as np
 import xgboost as xgb
-import xgboost.dask as dxgb
-from distributed import Client
 from numpy.typing import NDArray
 
 from mpi_lidar.errors import MpiLidarError
@@ -34,6 +32,10 @@ from mpi_lidar.learning.model import (
     save_model,
 )
 from mpi_lidar.simulation import dataset
+
+if TYPE_CHECKING:
+    import dask.array as da
+    from distributed import Client
 
 VALIDATION_EVERY = 10
 # Absolute error: the model then estimates the posterior median of the depth, which minimises the MAE (the
@@ -128,6 +130,8 @@ def train_arrays(
 
 def train_split_masks(split: da.Array) -> tuple[da.Array, da.Array]:
     """(fit, validation) boolean masks over all rows: train rows, every tenth one held for validation."""
+    import dask.array as da
+
     row = da.arange(split.shape[0], chunks=split.chunks)
     is_train = split == dataset.SPLIT_CODES["train"]
     holdout = row % VALIDATION_EVERY == 0
@@ -143,6 +147,8 @@ def train_dask(
     early_stopping_rounds: int = DEFAULT_EARLY_STOPPING,
 ) -> TrainResult:
     """Train on the full train split of a complete dataset with xgboost.dask, early-stopped on validation."""
+    import xgboost.dask as dxgb  # its imports (pandas, distributed) cost seconds that correction never needs
+
     lazy = dataset.read_lazy(data_path)
     check_dataset_matches(spec, lazy.info)
     fit, validation = train_split_masks(lazy.split)

@@ -20,8 +20,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import dask.array as da
 import numpy as np
 import zarr
 from numpy.typing import NDArray
@@ -33,6 +33,9 @@ from mpi_lidar.physics import SensorModel, make_sensor
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
 from mpi_lidar.storage.integrity import FINGERPRINT_BYTES, check_fingerprint, fingerprint, read_chunk
+
+if TYPE_CHECKING:
+    import dask.array as da
 
 SCHEMA = "mpi-lidar/dataset@1"
 SPLIT_CODES = {"train": 0, "test": 1}
@@ -379,6 +382,8 @@ def chunk_fingerprints(group: zarr.Group) -> NDArray[np.uint8] | None:
 
 def _verified_lazy(path: str | Path, array: zarr.Array, k: int, fingerprints: NDArray | None) -> da.Array:
     """A dask array whose every block is read and checked against its fingerprint where it is computed."""
+    import dask.array as da  # only where a dask array is built: the rest of the module stays light
+
     chunks = da.core.normalize_chunks(array.chunks, array.shape)
     return da.map_blocks(_load_verified_block, dtype=array.dtype, chunks=chunks, path=str(path),
                          array_name=array.basename, k=k, fingerprints=fingerprints,
