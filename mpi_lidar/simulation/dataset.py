@@ -30,6 +30,7 @@ from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
 from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import SensorModel, make_sensor
+from mpi_lidar.scans.scan import consolidate
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
 from mpi_lidar.storage.integrity import FINGERPRINT_BYTES, check_fingerprint, fingerprint, read_chunk
@@ -40,6 +41,14 @@ if TYPE_CHECKING:
 SCHEMA = "mpi-lidar/dataset@1"
 SPLIT_CODES = {"train": 0, "test": 1}
 DATA_ARRAYS = ("features", "target", "theta", "split")
+# What xarray shows of each array (CF ``units`` and ``long_name``); the columns are named in ``columns``.
+ARRAY_DESCRIPTIONS = {
+    "features": {"units": "m (depth columns), V^2 (amplitude columns)",
+                 "long_name": "measured depth then amplitude per modulation frequency"},
+    "target": {"units": "m", "long_name": "true distance d_AS to the surface"},
+    "theta": {"units": "m (d_as_m, d_ab_m), 1 (reflectances)", "long_name": "scene parameters"},
+    "split": {"units": "1", "long_name": "train (0) or test (1) row"},
+}
 ARRAYS = (*DATA_ARRAYS, "chunk_done", "chunk_sha256")
 # Stream of the seed tree reserved for summary statistics, apart from the chunk streams (seed, i).
 SUMMARY_STREAM = (1, 0)
@@ -154,7 +163,9 @@ def _build_layout(path: Path, config: Config) -> None:
                            fill_value=0, dimension_names=dims)
     group["features"].attrs["columns"] = raw_feature_names(config.frequencies_hz)
     group["theta"].attrs["columns"] = list(THETA_NAMES)
-    group["target"].attrs["units"] = "m"
+    for name, described in ARRAY_DESCRIPTIONS.items():
+        group[name].attrs.update(described)
+    group["split"].attrs.update({"flag_values": list(SPLIT_CODES.values()), "flag_meanings": " ".join(SPLIT_CODES)})
     group.create_array("chunk_done", shape=(plan.chunks,), chunks=(1,), dtype="uint8", fill_value=0,
                        dimension_names=("chunk",))
     # One row of fingerprints per chunk, written with its completion mark (mpi_lidar.storage.integrity).
@@ -162,6 +173,7 @@ def _build_layout(path: Path, config: Config) -> None:
                        chunks=(1, len(DATA_ARRAYS), FINGERPRINT_BYTES), dtype="uint8", fill_value=0,
                        dimension_names=("chunk", "array", "byte"))
     group.attrs.update(_root_attributes(config))
+    consolidate(path)  # for xarray; this package's readers read each array's own metadata
 
 
 def create_store(path: str | Path, config: Config) -> zarr.Group:
@@ -175,12 +187,12 @@ def create_store(path: str | Path, config: Config) -> zarr.Group:
     if path.exists() and not _is_empty_dir(path):
         group = open_store(path)
         _check_same_config(path, group, config)
-        return zarr.open_group(store=str(path), mode="r+")
+        return zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
     _check_free_space(path, config)
     # Here path is absent or an empty directory, which the new store may replace.
     with atomic_path(path, replace=True, what="dataset store", error=StoreError) as staging:
         _build_layout(staging, config)
-    return zarr.open_group(store=str(path), mode="r+")
+    return zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
 
 
 def _check_free_space(path: Path, config: Config) -> None:
@@ -213,7 +225,7 @@ def open_store(path: str | Path, mode: str = "r") -> zarr.Group:
     if not path.exists():
         raise StoreError(f"dataset store {path} does not exist; create it with 'mpi-lidar simulate --out {path}'")
     try:
-        group = zarr.open_group(store=str(path), mode=mode)
+        group = zarr.open_group(store=str(path), mode=mode, use_consolidated=False)
         attrs = dict(group.attrs)
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
         raise StoreError(f"{path} is not a readable Zarr store ({type(exc).__name__}: {exc})") from None
@@ -280,7 +292,7 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
     Returns True when the chunk was written, False when it was already complete. The completion mark is
     written after the data, so a chunk interrupted part-way is redone on the next run.
     """
-    group = zarr.open_group(store=str(path), mode="r+")
+    group = zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
     if group["chunk_done"][index]:
         return False
     chunk = simulate_chunk(config, index)
@@ -394,7 +406,8 @@ def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArr
     info = block_info[None]
     where = tuple(slice(start, stop) for start, stop in info["array-location"])
     index = info["chunk-location"][0]
-    values = read_chunk(zarr.open_group(store=path, mode="r")[array_name], where, path, array_name, index)
+    group = zarr.open_group(store=path, mode="r", use_consolidated=False)
+    values = read_chunk(group[array_name], where, path, array_name, index)
     if fingerprints is not None:
         check_fingerprint(values, fingerprints[index, k], path, array_name, index)
     return values

@@ -34,7 +34,7 @@ def verify_store(path: str | Path) -> Verified:
     schema = _schema(path)
     if schema == dataset.SCHEMA:
         return Verified(str(path), "dataset", dataset.verify_dataset(path),
-                        "chunk_sha256" in zarr.open_group(store=str(path), mode="r"))
+                        "chunk_sha256" in zarr.open_group(store=str(path), mode="r", use_consolidated=False))
     if schema == SCAN_SCHEMA:
         read_scan(path)
         return _verified_arrays(path, "scan", check=False)
@@ -54,7 +54,7 @@ def _schema(path: Path) -> object:
 
 def _verified_arrays(path: Path, kind: str, check: bool) -> Verified:
     """Count (and, with ``check``, verify) every chunk of every array against the store's recorded fingerprints."""
-    group = zarr.open_group(store=str(path), mode="r")
+    group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
     fingerprints = group.attrs.get("chunk_sha256")
     fingerprints = fingerprints if isinstance(fingerprints, dict) else None
     chunks = 0

@@ -6,6 +6,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -234,3 +235,16 @@ def test_store__opens_with_xarray(reference_store):
     assert ds["split"].dtype == np.uint8
     assert ds.attrs["schema"] == dataset.SCHEMA
     assert ds.attrs["frequencies_hz"] == list(Config().frequencies_hz)
+
+
+def test_create_store__xarray_opens_it_without_warnings(tmp_path):
+    config = small_config()
+    path = tmp_path / "d.zarr"
+    dataset.create_store(path, config)
+    for index in range(dataset.SamplingPlan.from_config(config).chunks):
+        dataset.write_chunk(path, config, index)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        opened = xr.open_zarr(path)
+    assert opened.target.attrs["units"] == "m" and opened.split.attrs["flag_meanings"] == "train test"
+    np.testing.assert_array_equal(opened.target.values, dataset.read_subsample(path, "all").target)
