@@ -33,6 +33,7 @@ SUMMARY_ARTIFACT_KEY = "correction-summary"
 Gate = Literal["geometry", "all", "consistency"]  # mpi_lidar.correction.GATES, as a parameter schema enum
 FailOn = Literal["degraded", "unchanged", "failed"]  # mpi_lidar.workflows.correct_archive.FAIL_ON
 Outputs = Literal["full", "light", "data"]  # mpi_lidar.reporting.scan_report.OUTPUT_LEVELS
+PointCloud = Literal["las", "laz", "ply"]  # mpi_lidar.scans.pointcloud.POINT_CLOUD_FORMATS
 
 # One scan: the library's process_scan itself (validity mask, gate, inference, outputs), as a task run named
 # after its source. A bad scan returns a 'failed' outcome, so the one retry is for infrastructure failures.
@@ -81,17 +82,20 @@ def batch_rows(outcomes: list[ScanOutcome]) -> list[dict[str, object]]:
 
 
 def correct_and_publish(scans: list[str], model: str, out: str, options: CorrectionOptions, workers: int,
-                        scheduler: str | None, outputs: str = "light") -> tuple[list[ScanOutcome], float]:
+                        scheduler: str | None, outputs: str = "light",
+                        point_clouds: tuple[str, ...] | None = None) -> tuple[list[ScanOutcome], float]:
     """Inside a flow: correct the scans, publish each outcome and write and publish the batch summary.
 
     ``workers`` processes of a LocalCluster, or the Dask cluster at ``scheduler``, run the scans; with
     neither (``workers=0``) they run in the flow's process, as ``mpi-lidar correct --workers 0``. Returns
-    the outcomes, by source, and the seconds the batch took. ``outputs``: each scan's output level.
+    the outcomes, by source, and the seconds the batch took. ``outputs``: each scan's output level;
+    ``point_clouds``: the point-cloud formats each scan writes (None: ply and las at full, none below).
     """
     runner = dask_task_runner(workers, scheduler) if workers > 0 or scheduler else None
     started = time.perf_counter()
     with shared_api(), PrefectExecutor(runner, [correct_scan_task]) as executor:
-        outcomes = correct_archive(scans, model, out, options, executor, outputs=outputs)
+        outcomes = correct_archive(scans, model, out, options, executor, outputs=outputs,
+                                   point_clouds=point_clouds)
     wall_s = time.perf_counter() - started
     for outcome in outcomes:
         publish_scan_task(outcome)
@@ -104,20 +108,22 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "g
                          min_bias_mm: float | None = None, footprint_area_m2: float | None = None,
                          max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
                          workers: int = 2, scheduler: str | None = None, outputs: Outputs = "light",
-                         ) -> dict[str, object]:
+                         point_clouds: list[PointCloud] | None = None) -> dict[str, object]:
     """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
 
     The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
     [m^2] and ``max_invalid_share`` (None keeps the default), ``fail_on`` (statuses that end the flow Failed
     after the summary is written; failed always does), ``workers`` (0: in the flow's process),
-    ``scheduler`` and ``outputs`` (light: store, metrics, report and thumbnail; data; full). Returns the flow
+    ``scheduler``, ``outputs`` (light: store, metrics, report and thumbnail; data; full) and ``point_clouds``
+    (formats written at any level, as ``--point-cloud``; None: ply and las at full, none below). Returns the flow
     run's id, the wall time and each source's status.
     """
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
                                          max_invalid_share=max_invalid_share)
     fail_on = list(fail_on or [])
     batch_failure([], fail_on)  # an unknown status is refused before any scan runs
-    outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler, outputs)
+    outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler, outputs,
+                                           None if point_clouds is None else tuple(point_clouds))
     result = {"flow_run_id": str(flow_run.id), "wall_s": wall_s,
               "statuses": {o.source: o.status for o in outcomes}}
     failure = batch_failure(outcomes, fail_on)

@@ -284,8 +284,12 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--outputs", type=click.Choice(["full", "light", "data"]), default="light", show_default=True,
               help="What each scan writes: corrected.zarr, metrics.json, report and a small thumbnail (light); "
                    "only corrected.zarr and metrics.json (data); or also maps, error histogram, point-cloud "
-                   "views and PLY point clouds (full, several times slower). A scan already corrected at a "
+                   "views, a 3-D view and point clouds (full, several times slower). A scan already corrected at a "
                    "lower level is corrected again to add the rest.")
+@click.option("--point-cloud", "point_clouds", type=click.Choice(["las", "laz", "ply"]), multiple=True,
+              help="Write the corrected point cloud in this format at any --outputs level; repeatable: "
+                   "corrected.las / corrected.laz (LAS 1.4, the raw range an extra dimension) or raw.ply and "
+                   "corrected.ply, each with named fields per point. Default: ply and las at full, none below.")
 @click.option("--workers", type=click.IntRange(min=0), default=None,
               help="Worker processes of a local Dask cluster; 0 runs in this process. Default: this process "
                    "for one scan or a batch of less than about 30 s of work (0.15 s per scan plus 2 s per "
@@ -293,7 +297,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
             footprint_area_m2: float | None, max_invalid_share: float | None, fail_on: tuple[str, ...],
-            outputs: str, workers: int | None, scheduler: str | None) -> None:
+            outputs: str, point_clouds: tuple[str, ...], workers: int | None, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
 
     \b
@@ -332,7 +336,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
         task = progress.add_task("scans", total=total)
         with InProcess() if here else dask_executor(scheduler, workers or 2) as executor:
             outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor, on_scan=on_scan,
-                                       outputs=outputs)
+                                       outputs=outputs, point_clouds=point_clouds or None)
     summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
     click.echo(summary.joinpath("report.md").read_text())
     failing = failing_outcomes(outcomes, fail_on)

@@ -28,7 +28,15 @@ from mpi_lidar.correction import (
 from mpi_lidar.correction.outcome import invalid_share
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import error_metrics
-from mpi_lidar.reporting.report import REPORT_MARKER, Report, Table, error_histogram_figure, save_figure, write_report
+from mpi_lidar.reporting.report import (
+    REPORT_MARKER,
+    Embed,
+    Report,
+    Table,
+    error_histogram_figure,
+    save_figure,
+    write_report,
+)
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan, consolidate, describe_arrays, store_fingerprints
 from mpi_lidar.storage.atomic import atomic_path
@@ -60,44 +68,92 @@ def scan_metrics(scan: Scan, correction: Correction) -> dict[str, dict[str, floa
     return metrics
 
 
+def applied_correction_mm(scan: Scan, correction: Correction) -> np.ndarray:
+    """What correction did per pixel: corrected minus raw highest-frequency depth [mm], NaN where the pixel
+    was not corrected (left as measured, or invalid)."""
+    with np.errstate(invalid="ignore"):
+        applied = 1e3 * (correction.depth.astype(np.float64) - scan.depth[-1])
+    return np.where(correction.flags == Flag.CORRECTED, applied, np.nan)
+
+
+def grid_axes(scan: Scan) -> tuple[tuple[float, float, float, float] | None, str, str]:
+    """``extent`` of ``imshow`` and the axis labels of a map of the scan grid: azimuth and elevation [deg]
+    where the scan has an azimuth/elevation grid, pixel indices otherwise (extent None)."""
+    h, w = scan.shape
+    az, el = scan.azimuth_rad, scan.elevation_rad
+    if az is None or el is None or np.size(az) != w or np.size(el) != h:
+        return None, "column [pixel]", "row [pixel]"
+    az, el = np.degrees(np.asarray(az, dtype=np.float64)), np.degrees(np.asarray(el, dtype=np.float64))
+    half_az = 0.5 * (az[-1] - az[0]) / (w - 1) if w > 1 else 0.05
+    half_el = 0.5 * (el[-1] - el[0]) / (h - 1) if h > 1 else 0.05
+    # imshow draws row 0 at the top: the top edge is the first row's elevation.
+    extent = (float(az[0] - half_az), float(az[-1] + half_az), float(el[-1] + half_el), float(el[0] - half_el))
+    return extent, "azimuth [deg]", "elevation [deg]"
+
+
 def maps_figure(scan: Scan, correction: Correction) -> plt.Figure:
-    """Raw and corrected depth, amplitude, error maps before and after (Fig. 7/8 b-f), and the flag map."""
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5))
+    """Raw and corrected depth, amplitude, what correction did and the flag map; with a reference depth also
+    the error maps before and after (Fig. 7/8 b-f).
+
+    Without a reference (every archived scan) the second row shows the applied correction (corrected minus
+    raw depth, where corrected), the geometry gate's expected multipath bias and the flags; with one, the
+    applied correction joins the first row and the error maps the second. Axes in degrees of azimuth and
+    elevation where the scan has that grid, pixel indices otherwise.
+    """
+    reference = scan.reference_depth is not None
+    columns = 4 if reference else 3
+    fig, axes = plt.subplots(2, columns, figsize=(4.4 * columns, 7.5), squeeze=False)
+    grid = grid_axes(scan)
     label = f"{scan.frequencies_hz[-1] / 1e6:g} MHz"
     finite = scan.depth[-1][np.isfinite(correction.depth)]
     limits = np.quantile(finite, [0.01, 0.99]) if finite.size else (0.0, 1.0)
-    _image(axes[0, 0], scan.depth[-1], f"raw depth {label} [m]", "viridis", limits)
-    _image(axes[0, 1], correction.depth, "corrected depth [m]", "viridis", limits)
-    _image(axes[0, 2], scan.amplitude[-1], f"amplitude {label} [V$^2$]", "magma", None)
-    if scan.reference_depth is not None:
+    _image(axes[0, 0], scan.depth[-1], f"raw depth {label} [m]", "viridis", limits, grid)
+    _image(axes[0, 1], correction.depth, "corrected depth [m]", "viridis", limits, grid)
+    _image(axes[0, 2], scan.amplitude[-1], f"amplitude {label} [V$^2$]", "magma", None, grid)
+    applied = applied_correction_mm(scan, correction)
+    shown = np.abs(applied[np.isfinite(applied)])
+    span = max(float(np.quantile(shown, 0.99)), 1e-3) if shown.size else 1.0
+    _image(axes[0, 3] if reference else axes[1, 0], applied,
+           f"applied correction [mm]\n({shown.size:,} pixels corrected)", "RdBu_r", (-span, span), grid)
+    if reference:
         raw_error = 1e3 * (scan.depth[-1] - scan.reference_depth)
         corrected_error = 1e3 * (correction.depth - scan.reference_depth)
         valid = np.isfinite(corrected_error)
         span = float(np.quantile(np.abs(raw_error[valid]), 0.99)) if valid.any() else 1.0
         raw_error[~valid] = np.nan
-        _image(axes[1, 0], raw_error, "raw error [mm]", "RdBu_r", (-span, span))
-        _image(axes[1, 1], corrected_error, "corrected error [mm]", "RdBu_r", (-span, span))
+        _image(axes[1, 0], raw_error, "raw error [mm]", "RdBu_r", (-span, span), grid)
+        _image(axes[1, 1], corrected_error, "corrected error [mm]", "RdBu_r", (-span, span), grid)
+    bias_ax = axes[1, 2] if reference else axes[1, 1]
+    if correction.multipath_bias_m is not None:
+        bias = 1e3 * np.asarray(correction.multipath_bias_m, dtype=np.float64)
+        finite_bias = bias[np.isfinite(bias)]
+        top = max(float(np.quantile(finite_bias, 0.99)), 1e-3) if finite_bias.size else 1.0
+        _image(bias_ax, bias, "expected multipath bias [mm]", "cividis", (0.0, top), grid)
     else:
-        for ax in axes[1, :2]:
-            ax.text(0.5, 0.5, "no reference depth:\nerror maps skipped", ha="center", va="center")
-            ax.set_axis_off()
-    flag_image = axes[1, 2].imshow(correction.flags, cmap=ListedColormap(FLAG_COLOURS), vmin=-0.5,
-                                   vmax=len(Flag) - 0.5, interpolation="nearest")
-    bar = fig.colorbar(flag_image, ax=axes[1, 2], ticks=range(len(Flag)))
+        bias_ax.text(0.5, 0.5, "expected multipath bias:\ncomputed by the geometry gate only", ha="center",
+                     va="center")
+        bias_ax.set_axis_off()
+    flag_ax = axes[1, -1]
+    flag_image = flag_ax.imshow(correction.flags, cmap=ListedColormap(FLAG_COLOURS), vmin=-0.5,
+                                vmax=len(Flag) - 0.5, interpolation="nearest", extent=grid[0])
+    bar = fig.colorbar(flag_image, ax=flag_ax, ticks=range(len(Flag)))
     bar.ax.set_yticklabels([f.name.lower().replace("_", " ") for f in Flag])
-    axes[1, 2].set_title("what was done per pixel")
-    axes[1, 2].set_axis_off()
+    flag_ax.set_title("what was done per pixel")
+    flag_ax.set_xlabel(grid[1])
+    flag_ax.set_ylabel(grid[2])
     fig.suptitle(f"scan {scan.name}")
     fig.tight_layout()
     return fig
 
 
-def _image(ax: plt.Axes, values: np.ndarray, title: str, cmap: str, limits) -> None:
+def _image(ax: plt.Axes, values: np.ndarray, title: str, cmap: str, limits,
+           grid: tuple[tuple[float, float, float, float] | None, str, str]) -> None:
     shown = ax.imshow(values, cmap=cmap, vmin=None if limits is None else limits[0],
-                      vmax=None if limits is None else limits[1], interpolation="nearest")
+                      vmax=None if limits is None else limits[1], interpolation="nearest", extent=grid[0])
     ax.figure.colorbar(shown, ax=ax)
     ax.set_title(title)
-    ax.set_axis_off()
+    ax.set_xlabel(grid[1])
+    ax.set_ylabel(grid[2])
 
 
 POINT_CLOUD_BINS = 400  # pixels per axis of a rasterized view: a million points cost what a thousand do
@@ -148,6 +204,93 @@ def _mean_raster(u: np.ndarray, v: np.ndarray, value: np.ndarray, extent: tuple[
         return np.where(count > 0, total / count, np.nan).reshape(bins, bins)
 
 
+# Point-cloud files per format (mpi_lidar.scans.pointcloud.POINT_CLOUD_FORMATS): the raw cloud as PLY beside the
+# corrected one; LAS/LAZ hold the raw range as an extra dimension of the corrected cloud.
+POINT_CLOUD_FILES = {"ply": ("raw.ply", "corrected.ply"), "las": ("corrected.las",), "laz": ("corrected.laz",)}
+FULL_POINT_CLOUDS = ("ply", "las")  # written at level full unless ``point_clouds`` says otherwise
+VIEW_3D_POINTS = 20_000  # most points per cloud in the interactive 3-D view of report.html
+PLOTLY_JS = "plotly.min.js"
+VIEW_3D_FALLBACK = "interactive 3-D view: open report.html"
+
+
+def point_cloud_formats(outputs: str, point_clouds: tuple[str, ...] | list[str] | None = None) -> tuple[str, ...]:
+    """The point-cloud formats a scan writes: ``point_clouds`` at any level (each once, in the order of
+    :data:`POINT_CLOUD_FILES`), or by default :data:`FULL_POINT_CLOUDS` at level full and none below."""
+    if point_clouds is None:
+        return FULL_POINT_CLOUDS if check_outputs(outputs) == "full" else ()
+    unknown = sorted(set(point_clouds) - set(POINT_CLOUD_FILES))
+    if unknown:
+        raise MpiLidarError(f"unknown point cloud format {unknown[0]!r}; choose from {', '.join(POINT_CLOUD_FILES)}")
+    return tuple(fmt for fmt in POINT_CLOUD_FILES if fmt in point_clouds)
+
+
+def point_cloud_files(scan: Scan, outputs: str, point_clouds: tuple[str, ...] | list[str] | None = None) -> list[str]:
+    """The point-cloud files a scan's outputs hold at level ``outputs`` (none for a scan without geometry)."""
+    if scan.ray_directions is None and (scan.azimuth_rad is None or scan.elevation_rad is None):
+        return []
+    return [name for fmt in point_cloud_formats(outputs, point_clouds) for name in POINT_CLOUD_FILES[fmt]]
+
+
+def _write_point_clouds(directory: Path, formats: tuple[str, ...], raw_points: np.ndarray,
+                        corrected_points: np.ndarray, fields: dict[str, np.ndarray]) -> list[str]:
+    from mpi_lidar.scans.pointcloud import write_point_cloud  # laspy and plyfile only where clouds are written
+
+    written = []
+    for fmt in formats:
+        for name in POINT_CLOUD_FILES[fmt]:
+            points = raw_points if name.startswith("raw.") else corrected_points
+            write_point_cloud(directory / name, fmt, points, fields)
+            written.append(name)
+    return written
+
+
+def point_cloud_view_3d(raw_points: np.ndarray, corrected_points: np.ndarray, correction_mm: np.ndarray,
+                        limit: int = VIEW_3D_POINTS) -> str:
+    """An interactive plotly scatter3d of the raw and corrected points (grid (H, W, 3) [m]), both coloured by
+    the applied correction [mm], as a ``<div>`` and its script (plotly.js itself not included: the page loads
+    :data:`PLOTLY_JS`). At most ``limit`` points per cloud, evenly spread over the finite ones."""
+    import plotly.graph_objects as go
+
+    keep = np.flatnonzero(np.isfinite(raw_points.reshape(-1, 3)).all(axis=1)
+                          & np.isfinite(corrected_points.reshape(-1, 3)).all(axis=1))
+    if keep.size > limit:
+        keep = keep[np.linspace(0, keep.size - 1, limit).round().astype(np.int64)]
+    colour = np.nan_to_num(np.asarray(correction_mm, dtype=np.float32).reshape(-1)[keep], nan=0.0)
+    span = max(float(np.quantile(np.abs(colour), 0.99)), 1e-3) if colour.size else 1.0
+    fig = go.Figure()
+    for name, points, size, opacity in (("raw", raw_points, 1.5, 0.45), ("corrected", corrected_points, 2.0, 1.0)):
+        xyz = points.reshape(-1, 3)[keep].astype(np.float32)
+        # plotly's z is up: x right, our z (forward) into plotly's y, our y (up) into plotly's z
+        fig.add_trace(go.Scatter3d(x=xyz[:, 0], y=xyz[:, 2], z=xyz[:, 1], mode="markers", name=f"{name} points",
+                                   marker={"size": size, "opacity": opacity, "color": colour,
+                                           "coloraxis": "coloraxis"}))
+    fig.update_layout(
+        title=f"raw and corrected points ({keep.size:,} of each), coloured by the applied correction",
+        coloraxis={"colorscale": "RdBu_r", "cmin": -span, "cmax": span,
+                   "colorbar": {"title": {"text": "correction [mm]"}}},
+        scene={"xaxis_title": "x [m]", "yaxis_title": "z (forward) [m]", "zaxis_title": "y (up) [m]",
+               "aspectmode": "data"},
+        legend={"x": 0.0, "y": 1.0}, margin={"l": 0, "r": 0, "t": 40, "b": 0}, autosize=True)
+    return fig.to_html(include_plotlyjs=False, full_html=False, default_width="100%", default_height="600px",
+                       config={"responsive": True, "displaylogo": False})
+
+
+def write_plotly_js(directory: Path) -> Path:
+    """plotly.js of the installed plotly package into ``directory`` (reports are read offline: no CDN)."""
+    from importlib import resources
+
+    source = resources.files("plotly") / "package_data" / PLOTLY_JS
+    if source.is_file():
+        data = source.read_bytes()
+    else:  # pragma: no cover - a plotly that keeps its bundle elsewhere
+        from plotly.offline import get_plotlyjs
+
+        data = get_plotlyjs().encode("utf-8")
+    target = directory / PLOTLY_JS
+    target.write_bytes(data)
+    return target
+
+
 def metrics_table(metrics: dict[str, dict[str, float]]) -> Table:
     rows = []
     for region, m in metrics.items():
@@ -161,7 +304,7 @@ def metrics_table(metrics: dict[str, dict[str, float]]) -> Table:
 # Output levels of a corrected scan, from most to least; each holds what the next one holds.
 OUTPUT_LEVELS = ("full", "light", "data")
 # The default of a batch (``mpi-lidar correct``, the correction flow): the store, the report and a thumbnail
-# cost little beside the correction itself; ``full`` (maps, histogram, point clouds and their PLY files)
+# cost little beside the correction itself; ``full`` (maps, histogram, point clouds as PLY and LAS, 3-D view)
 # costs as much as the correction again on a megapixel scan (docs/benchmarks.md). The pipeline's three demo
 # scenes are written ``full``.
 DEFAULT_OUTPUTS = "light"
@@ -185,17 +328,23 @@ def covers(written: str | None, wanted: str) -> bool:
 
 def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]],
                        identity: dict[str, str], options: CorrectionOptions, outputs: str = "full",
-                       cpu_s: dict[str, float] | None = None) -> list[str]:
+                       cpu_s: dict[str, float] | None = None,
+                       point_clouds: tuple[str, ...] | list[str] | None = None) -> list[str]:
     """One scan's outputs at level ``outputs``, written into a staging directory and swapped in at the end.
 
     ``data``: ``corrected.zarr`` and ``metrics.json`` (counts, metrics, notes, the outputs written);
     ``light``: those, ``report.md``/``report.html`` and ``thumbnail.png`` (corrected depth and flags, at most
     :data:`THUMBNAIL_PX` pixels wide); ``full``: those but the thumbnail, plus the maps, the error histogram,
-    the point-cloud views and the raw and corrected point clouds as PLY. Returns the notes for the batch
-    summary; ``cpu_s``, if given, gets the CPU seconds of this process spent on ``write`` (store, PLY files,
-    report and metrics) and ``figures`` (drawing and encoding PNGs).
+    the point-cloud views, an interactive 3-D view in report.html (with ``plotly.min.js`` beside it) and the
+    point clouds. ``point_clouds``: the formats written at any level (:data:`POINT_CLOUD_FILES`: ``ply``
+    writes ``raw.ply`` and ``corrected.ply``, ``las``/``laz`` ``corrected.las``/``.laz``, every file with the
+    named fields of :func:`mpi_lidar.scans.pointcloud.correction_fields`); None: ``ply`` and ``las`` at
+    level full, none below. Returns the notes for the batch summary; ``cpu_s``, if given, gets the CPU
+    seconds of this process spent on ``write`` (store, point clouds, report and metrics) and ``figures``
+    (drawing and encoding PNGs, the 3-D view).
     """
     check_outputs(outputs)
+    formats = point_cloud_formats(outputs, point_clouds)
     cpu_s = {} if cpu_s is None else cpu_s
     notes: list[str] = list(correction.notes)
     if scan.reference_depth is None:
@@ -207,6 +356,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
                 _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options, outputs)
             figures: dict[str, plt.Figure] = {}
             files = ["corrected.zarr"]
+            embeds: list[Embed] = []
             if outputs == "full":
                 with _cpu(cpu_s, "figures"):
                     figures["maps.png"] = maps_figure(scan, correction)
@@ -216,21 +366,32 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
                             {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz":
                              1e3 * (scan.depth[-1] - scan.reference_depth)[where],
                              "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
-                rays = scan.rays()
-                if rays is not None:
-                    with _cpu(cpu_s, "write"):
-                        raw_points = geometry.point_cloud(
-                            np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan), rays)
-                        corrected_points = geometry.point_cloud(correction.depth, rays)
-                        del rays
-                        geometry.write_ply(staging / "raw.ply", raw_points, scan.amplitude[-1])
-                        geometry.write_ply(staging / "corrected.ply", corrected_points, scan.amplitude[-1])
-                        files += ["corrected.ply", "raw.ply"]
+            rays = scan.rays() if outputs == "full" or formats else None
+            if rays is not None:
+                from mpi_lidar.scans.pointcloud import correction_fields
+
+                with _cpu(cpu_s, "write"):
+                    raw_points = geometry.point_cloud(
+                        np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan), rays)
+                    corrected_points = geometry.point_cloud(correction.depth, rays)
+                    del rays
+                    fields = correction_fields(scan.depth[-1], correction.depth, correction.flags,
+                                               scan.amplitude[-1])
+                    files += _write_point_clouds(staging, formats, raw_points, corrected_points, fields)
+                if outputs == "full":
                     with _cpu(cpu_s, "figures"):
                         figures["point_cloud.png"] = point_cloud_figure(raw_points, corrected_points)
-                    del raw_points, corrected_points
-                else:
-                    notes.append("no scan geometry: point clouds and views skipped")
+                        embeds.append(Embed(point_cloud_view_3d(raw_points, corrected_points,
+                                                                fields["correction_mm"]),
+                                            fallback=VIEW_3D_FALLBACK, scripts=(PLOTLY_JS,)))
+                        write_plotly_js(staging)
+                        files.append(PLOTLY_JS)
+                del raw_points, corrected_points, fields
+            elif outputs == "full":
+                notes.append("no scan geometry: point clouds and views skipped")
+            elif formats:
+                notes.append("no scan geometry: point clouds skipped")
+            if outputs == "full":
                 with _cpu(cpu_s, "figures"):
                     for name, fig in figures.items():
                         save_figure(fig, staging / name)
@@ -242,7 +403,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
             files += images + ([] if outputs == "data" else ["report.md", "report.html"]) + ["metrics.json"]
             with _cpu(cpu_s, "write"):
                 captions = {"thumbnail.png": thumbnail_legend(depth_limits)} if outputs == "light" else None
-                report = scan_report(scan, correction, metrics, notes, images, outputs, files, captions)
+                report = scan_report(scan, correction, metrics, notes, images, outputs, files, captions, embeds)
                 if outputs != "data":
                     (staging / "report.md").write_text(report.markdown())
                     (staging / "report.html").write_text(report.html())
@@ -331,9 +492,9 @@ def _write_corrected_store(path: Path, scan: Scan, correction: Correction, ident
 
 def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]], notes: list[str],
                 figures: list[str], outputs: str = "full", files: list[str] | None = None,
-                captions: dict[str, str] | None = None) -> Report:
-    """The scan's report: what was done per pixel, errors, notes, which outputs were written, and the figures
-    (each after its caption in ``captions``, if any)."""
+                captions: dict[str, str] | None = None, embeds: list[Embed] | None = None) -> Report:
+    """The scan's report: what was done per pixel, errors, notes, which outputs were written, the figures
+    (each after its caption in ``captions``, if any) and then the ``embeds`` (the interactive 3-D view)."""
     counts = correction.counts()
     total = max(sum(counts.values()), 1)
     flags = Table(("pixels", "count", "share"),
@@ -347,12 +508,13 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
     files = sorted(files if files is not None else ["corrected.zarr", *figures, "metrics.json", "report.html",
                                                     "report.md"])
     more = {"data": " Level light adds this report and a thumbnail; full the maps, histogram and point clouds.",
-            "light": " Level full adds the maps, the error histogram, the point-cloud views and PLY files.",
+            "light": " Level full adds the maps, the error histogram, the point-cloud views and point clouds.",
             "full": ""}[outputs]
     blocks += [*notes, f"Outputs (level {outputs}): {', '.join(files)}.{more}"]
     for name in figures:
         blocks += [captions[name]] if captions and name in captions else []
         blocks.append(Path(name))
+    blocks += embeds or []
     return Report(title=f"Correction of {scan.name}", blocks=blocks,
                   data={"scan": scan.name, "counts": counts, "metrics": metrics, "notes": notes,
                         "outputs": {"level": outputs, "files": files},

@@ -39,7 +39,14 @@ from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, cor
 from mpi_lidar.correction.outcome import invalid_share, scan_status
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, CorrectionModel, load_model
-from mpi_lidar.reporting.scan_report import check_outputs, covers, scan_metrics, write_scan_outputs
+from mpi_lidar.reporting.scan_report import (
+    check_outputs,
+    covers,
+    point_cloud_files,
+    point_cloud_formats,
+    scan_metrics,
+    write_scan_outputs,
+)
 from mpi_lidar.scans.scan import SCAN_SUFFIX, read_scan
 from mpi_lidar.storage.atomic import remove_interrupted_staging
 from mpi_lidar.workflows.executor import Executor, as_executor
@@ -156,12 +163,15 @@ def _one_line(exc: Exception) -> str:
 
 
 def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
-                 output: str | None = None, outputs: str = "full") -> ScanOutcome:
+                 output: str | None = None, outputs: str = "full",
+                 point_clouds: tuple[str, ...] | None = None) -> ScanOutcome:
     """Correct one scan and write its outputs into ``out_dir/output``; any failure becomes a 'failed' outcome.
 
     ``output`` is the scan's output directory relative to ``out_dir`` (:func:`scan_output_paths` of the
     whole batch); None derives it from ``source`` alone (its store name without the suffix). ``outputs`` is
-    the output level (:data:`mpi_lidar.reporting.scan_report.OUTPUT_LEVELS`: full, light, data). Every
+    the output level (:data:`mpi_lidar.reporting.scan_report.OUTPUT_LEVELS`: full, light, data);
+    ``point_clouds`` the point-cloud formats written at any level (``las``, ``laz``, ``ply``; None: ply and
+    las at level full, none below), and a scan done before without one of them is corrected again. Every
     exception (any type: a damaged store, a bug, no memory) fails this scan alone with a one-line reason
     (``TypeName: message`` for other than the library's own errors); KeyboardInterrupt and SystemExit stop it.
     """
@@ -171,7 +181,7 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
         if output is None:
             output = scan_output_paths([source])[source]
         return _process_scan(source, Path(model_dir), _safe_output(Path(out_dir), output), options, started,
-                             outputs)
+                             outputs, point_clouds)
     except Exception as exc:  # one bad scan, whatever went wrong, must not stop the batch
         return ScanOutcome(source, Path(source).name, ScanStatus.FAILED, _one_line(exc),
                            seconds=time.perf_counter() - started)
@@ -201,12 +211,14 @@ def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None
 
 
 def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
-                  started: float, outputs: str = "full") -> ScanOutcome:
+                  started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None
+                  ) -> ScanOutcome:
     scan = read_scan(source)
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
     scan_sha, model_sha, options_sha = scan.content_sha256(), model.card.model_sha256, options.sha256()
-    done = _already_done(target, scan_sha, model_sha, options_sha, outputs)
+    done = _already_done(target, scan_sha, model_sha, options_sha, outputs) and all(
+        (target / name).is_file() for name in point_cloud_files(scan, outputs, point_clouds))
     existing = _existing_results(target) if done else None
     if existing is not None:
         counts = existing["counts"]
@@ -217,7 +229,8 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
     correction = correct_scan(scan, model, options)
     metrics = scan_metrics(scan, correction)
     identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
-    notes = write_scan_outputs(target, scan, correction, metrics, identity, options, outputs)
+    notes = write_scan_outputs(target, scan, correction, metrics, identity, options, outputs,
+                               point_clouds=point_clouds)
     counts = correction.counts()
     return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share), output=str(target),
                        counts=counts, metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes))
@@ -246,7 +259,8 @@ def expand_archive(inputs: list[str]) -> list[str]:
 
 def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
                     executor: Executor | Client | None = None, on_scan: Callable[[ScanOutcome], None] | None = None,
-                    *, client: Client | None = None, outputs: str = "full") -> list[ScanOutcome]:
+                    *, client: Client | None = None, outputs: str = "full",
+                    point_clouds: tuple[str, ...] | list[str] | None = None) -> list[ScanOutcome]:
     """Correct every scan, one call of :func:`process_scan` per scan on ``executor``; a bad scan fails alone.
 
     The executor runs the scans in this process (None), as Dask tasks (an executor or a ``client``, the same)
@@ -257,8 +271,11 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     it finishes; the outcomes come back by source. ``outputs`` is the output level of every scan
     (:data:`mpi_lidar.reporting.scan_report.OUTPUT_LEVELS`); the command line and the correction flow default
     to ``light`` (:data:`~mpi_lidar.reporting.scan_report.DEFAULT_OUTPUTS`), the pipeline writes ``full``.
+    ``point_clouds``: the point-cloud formats every scan writes (``las``, ``laz``, ``ply``) at any level;
+    None: ply and las at level full, none below.
     """
     level = check_outputs(outputs)
+    point_clouds = None if point_clouds is None else point_cloud_formats(level, point_clouds)
     _cached_model(str(model_dir))  # a broken model fails the whole batch at once, with one clear line
     make_gate(options)
     out_dir = Path(out_dir)
@@ -272,7 +289,7 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
         if ".." not in folder.parts:
             remove_interrupted_staging(out_dir.joinpath(*folder.parts))
     calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options,
-              "output": directories[source], "outputs": level} for source in sources]
+              "output": directories[source], "outputs": level, "point_clouds": point_clouds} for source in sources]
     outcomes: list[ScanOutcome] = []
     for _call, outcome in as_executor(executor if executor is not None else client).map(process_scan, calls):
         outcomes.append(outcome)

@@ -59,8 +59,9 @@ FILES = {
     "data": {"corrected.zarr", "metrics.json"},
     "light": {"corrected.zarr", "metrics.json", "report.md", "report.html", "thumbnail.png"},
     "full": {"corrected.zarr", "metrics.json", "report.md", "report.html", "maps.png", "error_hist.png",
-             "point_cloud.png", "raw.ply", "corrected.ply"},
+             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las", "plotly.min.js"},
 }
+GEOMETRY_FILES = {"point_cloud.png", "raw.ply", "corrected.ply", "corrected.las", "plotly.min.js"}
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +135,7 @@ def test_output_level__scan_without_geometry_at_full_says_point_clouds_were_skip
     pixelwise = tiny_model(tmp_path / "model", geometric=False)
     outcome = process_scan(store, pixelwise, tmp_path / "out", CorrectionOptions(), outputs="full")
     assert "no scan geometry: point clouds and views skipped" in outcome.notes
-    assert _listing(Path(outcome.output)) == FILES["full"] - {"point_cloud.png", "raw.ply", "corrected.ply"}
+    assert _listing(Path(outcome.output)) == FILES["full"] - GEOMETRY_FILES
     light = process_scan(store, pixelwise, tmp_path / "light", CorrectionOptions(), outputs="light")
     assert not any("point clouds" in note for note in light.notes), "light never writes point clouds"
 
