@@ -192,6 +192,7 @@ class FeatureSpec:
             raise MpiLidarError("this model was trained with geometric features (coupling, d_AB) and needs them "
                                 "for every pixel: give a scan with geometry (azimuth/elevation or ray directions)")
         if is_dask_array(raw):
+            import dask.array as da  # loaded already: raw is a dask array
 
             raw = raw.rechunk({1: -1})
             base = len(self.names) - (len(GEOMETRIC_NAMES) if self.geometric else 0)
@@ -250,6 +251,7 @@ def is_dask_array(values: object) -> bool:
 def synthetic_geometry_dask(theta: da.Array, theta_names: tuple[str, ...] | list[str], prior: PriorConfig,
                             seed: int) -> da.Array:
     """:func:`synthetic_geometry` for all rows of a lazy theta (n, k), block by block, rows numbered from 0."""
+    import dask.array as da  # only where a dask array is built: the rest of the module stays light
 
     theta = theta.rechunk({1: -1})
     rows = da.arange(theta.shape[0], chunks=theta.chunks[0], dtype=np.int64)[:, None]
