@@ -161,7 +161,7 @@ def test_correct_cli__killed_batch_rerun_skips_finished_and_leaves_no_partial_ou
     archive = write_archive(tmp_path / "archive", 10, height=48, width=64)
     out = tmp_path / "out"
     command = [str(BIN / "mpi-lidar"), "correct", str(archive), "--model", str(cluster_model), "--out", str(out),
-               "--workers", "0"]
+               "--workers", "0", "--outputs", "full"]
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=subprocess_env(),
                                cwd=REPO, start_new_session=True)
     deadline = time.monotonic() + 180
