@@ -24,6 +24,7 @@ from prefect.runtime import flow_run
 
 from flows.runtime import PrefectExecutor, dask_task_runner, shared_api
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome
+from mpi_lidar.correction.profile import profile_options
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.scan_report import batch_report, write_batch_report
 from mpi_lidar.workflows.correct_archive import batch_failure, correct_archive, process_scan
@@ -105,21 +106,23 @@ def correct_and_publish(scans: list[str], model: str, out: str, options: Correct
 
 @flow(name="correct-archive")
 def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "geometry",
-                         min_bias_mm: float | None = None, footprint_area_m2: float | None = None,
+                         min_bias_mm: float | None = None, footprint_area_m2: float | str | None = None,
+                         sensor: str | None = None,
                          max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
                          workers: int = 2, scheduler: str | None = None, outputs: Outputs = "light",
                          point_clouds: list[PointCloud] | None = None) -> dict[str, object]:
     """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
 
     The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
-    [m^2] and ``max_invalid_share`` (None keeps the default), ``fail_on`` (statuses that end the flow Failed
+    [m^2] or "auto", ``sensor`` (a sensor profile's path) and ``max_invalid_share`` (None keeps the
+    default), ``fail_on`` (statuses that end the flow Failed
     after the summary is written; failed always does), ``workers`` (0: in the flow's process),
     ``scheduler``, ``outputs`` (light: store, metrics, report and thumbnail; data; full) and ``point_clouds``
     (formats written at any level, as ``--point-cloud``; None: ply and las at full, none below). Returns the flow
     run's id, the wall time and each source's status.
     """
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
-                                         max_invalid_share=max_invalid_share)
+                                         max_invalid_share=max_invalid_share, **profile_options(sensor))
     fail_on = list(fail_on or [])
     batch_failure([], fail_on)  # an unknown status is refused before any scan runs
     outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler, outputs,

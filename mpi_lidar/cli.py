@@ -272,9 +272,14 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--min-bias-mm", type=click.FloatRange(min=0), default=None,
               help="Geometry gate: correct pixels whose expected multipath bias reaches this. [mm] "
                    "(default 4; 1 suits geometric models on weak multipath, see docs/scenes.md)")
-@click.option("--footprint-area-m2", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Effective receiver footprint of your sensor, which scales the geometric coupling. [m^2] "
-                   "(default: the Fig. 7 calibration, 90 pi (12 mm)^2)")
+@click.option("--footprint-area-m2", default=None, metavar="auto|A",
+              help="Effective receiver footprint of your sensor, which scales the geometric coupling [m^2], or "
+                   "auto: each scan measures its own from its facing surfaces, and pixels that depend on an "
+                   "estimate that is not significant are left as measured (flag uncalibrated). "
+                   "(default: the --sensor profile's, else auto)")
+@click.option("--sensor", "sensor_file", type=click.Path(path_type=Path), default=None,
+              help="Sensor profile (sensor.toml from mpi-lidar calibrate): footprint and the saturation and "
+                   "no-return thresholds; --footprint-area-m2 overrides its footprint.")
 @click.option("--max-invalid-share", type=click.FloatRange(0, 1), default=None,
               help="A scan with more invalid pixels (not finite, no return, saturated, inconsistent) than this "
                    "share is 'degraded'. (default 0.5)")
@@ -296,7 +301,8 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "megapixel; a cluster takes about 10 s to start), else 2 workers.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
-            footprint_area_m2: float | None, max_invalid_share: float | None, fail_on: tuple[str, ...],
+            footprint_area_m2: str | None, sensor_file: Path | None, max_invalid_share: float | None,
+            fail_on: tuple[str, ...],
             outputs: str, point_clouds: tuple[str, ...], workers: int | None, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
 
@@ -321,7 +327,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     from mpi_lidar.workflows.executor import InProcess, dask_executor
 
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
-                                         max_invalid_share=max_invalid_share)
+                                         max_invalid_share=max_invalid_share, **_profile_options(sensor_file))
     started = time.perf_counter()
     here = not scheduler and (workers == 0 if workers is not None else runs_in_process(list(scans)))
     total = len(expand_archive(list(scans)))
@@ -344,6 +350,36 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
         click.echo(f"error: {failure_line(outcome)}", err=True)
     if failing:
         sys.exit(1)
+
+
+def _profile_options(sensor_file: Path | None) -> dict[str, object]:
+    from mpi_lidar.correction.profile import profile_options
+
+    return profile_options(sensor_file)
+
+
+@cli.command()
+@click.argument("scans", nargs=-1, required=True)
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Sensor profile to write (.toml).")
+@click.option("--no-reference", is_flag=True,
+              help="Measure against each scan's own surfaces even where it has a reference depth.")
+def calibrate(scans: tuple[str, ...], out: Path, no_reference: bool) -> None:
+    """Measure your sensor's receiver footprint on its scans and write a sensor profile for correct --sensor.
+
+    \b
+    Example:
+      mpi-lidar calibrate 'archive/corners/*.scan.zarr' --out sensor.toml
+
+    Each scan's footprint comes from the depth and amplitude near its facing surfaces (against its reference
+    depth where it has one); the estimates are pooled by their uncertainty. Scans of corners work best. Nothing
+    is written when the pooled estimate is not significant (exit 2).
+    """
+    from mpi_lidar.workflows.calibrate import calibrate_scans, describe
+
+    profile, _ = calibrate_scans(list(scans), out, use_reference=not no_reference,
+                                 on_scan=lambda r: click.echo(f"{r.source}: {describe(r.estimate)}"))
+    sigma = profile.calibration["sigma_m2"] if profile.calibration else float("nan")
+    click.echo(f"footprint {profile.footprint_area_m2:.4g} +- {sigma:.2g} m^2; sensor profile written to {out}")
 
 
 @cli.command("import-scan")

@@ -25,7 +25,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.gates import NO_GEOMETRY_INPUTS_NOTE, NO_GEOMETRY_NOTE, geometry_gate, make_gate
+from mpi_lidar.correction.calibration import FootprintEstimate
+from mpi_lidar.correction.gates import (
+    NO_GEOMETRY_INPUTS_NOTE,
+    NO_GEOMETRY_NOTE,
+    GeometryGate,
+    geometry_gate,
+    make_gate,
+)
 from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.correction.validity import validity_flags
 from mpi_lidar.learning.features import geometry_inputs
@@ -40,7 +47,8 @@ class Correction:
     ``multipath_bias_m`` (H, W) is the geometry gate's expected multipath bias [m] (None for other gates
     or without geometry); ``gate_s`` the time the gate took [s]; ``notes`` what the report must say;
     ``cpu_s`` the CPU seconds of this process (all threads) per stage: validity, gate, inference (the model's
-    features and its prediction) [s].
+    features and its prediction) [s]; ``calibration`` the scan's own footprint estimate where the footprint
+    was "auto" and the geometry was used (None otherwise).
     """
 
     depth: NDArray[np.float32]
@@ -51,6 +59,7 @@ class Correction:
     multipath_bias_m: NDArray[np.float32] | None = None
     notes: tuple[str, ...] = ()
     cpu_s: dict[str, float] = field(default_factory=dict)
+    calibration: FootprintEstimate | None = None
 
     def counts(self) -> dict[str, int]:
         found = np.bincount(self.flags.ravel(), minlength=len(Flag))
@@ -96,12 +105,19 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
             usable_depth[pixels] = np.where(~np.isin(tile_flags, invalid), top, np.nan)
     gate_started = time.perf_counter()
     with clock("gate"):
-        gate = make_gate(options)
+        gate = make_gate(options, sensor)
         candidates = gate.scan_candidates(scan, usable_depth)
         notes: tuple[str, ...] = ()
+        geometry = gate if isinstance(gate, GeometryGate) else None
         potential = getattr(gate, "potential_", None)
         if model.geometric and potential is None:
-            potential = geometry_gate(options).potential(scan, usable_depth)
+            geometry = geometry_gate(options, sensor)
+            potential = geometry.potential(scan, usable_depth)
+        calibration = None if geometry is None else geometry.calibration_
+        uncalibrated = None if geometry is None else geometry.uncalibrated_
+        if uncalibrated is not None:
+            flags[(flags == Flag.NOT_NEEDED) & uncalibrated] = Flag.UNCALIBRATED
+            del uncalibrated
         if candidates is not None:
             flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
             del candidates
@@ -110,6 +126,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         predict = not (model.geometric and potential is None)
         if not predict:
             notes = (NO_GEOMETRY_INPUTS_NOTE,)
+        if calibration is not None and np.isfinite(calibration.area_m2):  # nothing to say where nothing faces
+            notes += (calibration_note(calibration, int((flags == Flag.UNCALIBRATED).sum())),)
     gate_s = time.perf_counter() - gate_started
     depth = usable_depth  # the gate is done with it (the geometry gate copied it): filled in place, no copy
     inference_s = 0.0
@@ -128,7 +146,18 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
             flags[pixels.start + needs] = Flag.CORRECTED
         inference_s += time.perf_counter() - inference_started
     return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
-                      None if potential is None else potential.bias_m.astype(np.float32), notes, clock.seconds)
+                      None if potential is None else potential.bias_m.astype(np.float32), notes, clock.seconds,
+                      calibration)
+
+
+def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
+    """What a report says of a scan's own footprint estimate and of the pixels it decided."""
+    measured = (f"footprint auto: {estimate.area_m2:.4g} +- {estimate.sigma_m2:.2g} m^2 from {estimate.pixels:,} "
+                f"pixels on {estimate.surfaces} surfaces")
+    if estimate.significant:
+        return f"{measured}; the coupling and the gate use it"
+    return (f"{measured}, not significant: {uncalibrated:,} pixels that could hold multipath above the gate's "
+            "threshold were left as measured (flag uncalibrated)")
 
 
 def row_tiles(height: int, width: int, tile_pixels: int) -> list[slice]:

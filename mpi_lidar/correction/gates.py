@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.options import CorrectionOptions
+from mpi_lidar.correction.options import AUTO, CorrectionOptions
 from mpi_lidar.correction.validity import quadrature_noise_v2
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
+
+if TYPE_CHECKING:
+    from mpi_lidar.correction.calibration import FootprintEstimate
 
 
 class Gate(ABC):
@@ -82,25 +86,44 @@ class GeometryGate(Gate):
     phase) reaches ``min_bias_m`` [m]; flat walls, convex objects and open sky have none. The potential is
     computed from the raw highest-frequency depth of the valid pixels. Scans without geometry (no rays or
     scan grid) get None: every valid pixel is corrected, pixel-wise.
+
+    With ``footprint_area_m2`` = "auto" the scan measures its own footprint
+    (:func:`mpi_lidar.correction.calibration.estimate_footprint`, kept in ``calibration_``). Where the
+    estimate is not significant, the potential is that of no multipath and ``uncalibrated_`` marks the
+    pixels whose bias could still reach ``min_bias_m`` at the estimate's upper bound: they are left as measured.
     """
 
     name = "geometry"
     uses_geometry = True
 
-    def __init__(self, min_bias_m: float, block_m: float, partner_range_m: float, footprint_area_m2: float):
+    def __init__(self, min_bias_m: float, block_m: float, partner_range_m: float, footprint_area_m2: float | str,
+                 sensor: SensorConfig | None = None):
         self.min_bias_m = min_bias_m
         self.block_m = block_m
         self.partner_range_m = partner_range_m
         self.footprint_area_m2 = footprint_area_m2
+        self.sensor = sensor or SensorConfig()
         self.potential_: geometry.MultipathPotential | None = None
+        self.calibration_: FootprintEstimate | None = None
+        self.uncalibrated_: NDArray | None = None
 
     def potential(self, scan: Scan, valid_depth: NDArray) -> geometry.MultipathPotential | None:
         rays = scan.rays()
         if rays is None:
             return None
-        return geometry.multipath_potential(valid_depth.reshape(scan.shape), rays, block_m=self.block_m,
-                                            max_range_m=self.partner_range_m,
-                                            footprint_area_m2=self.footprint_area_m2)
+        blocks = geometry.facing_blocks(valid_depth.reshape(scan.shape), rays, block_m=self.block_m,
+                                        max_range_m=self.partner_range_m)
+        if self.footprint_area_m2 != AUTO:
+            return blocks.potential(float(self.footprint_area_m2))
+        from mpi_lidar.correction.calibration import estimate_footprint
+
+        estimate = estimate_footprint(scan, blocks, np.isfinite(valid_depth), self.sensor)
+        self.calibration_ = estimate
+        if estimate.significant:
+            return blocks.potential(estimate.area_m2)
+        upper = blocks.potential(min(estimate.upper_m2(), 1.0))
+        self.uncalibrated_ = (upper.bias_m >= self.min_bias_m).ravel()
+        return blocks.potential(0.0)
 
     def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
         self.potential_ = self.potential(scan, valid_depth)
@@ -117,11 +140,12 @@ NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (
                            "pixel keeps its raw depth")
 
 
-def geometry_gate(options: CorrectionOptions) -> GeometryGate:
+def geometry_gate(options: CorrectionOptions, sensor: SensorConfig | None = None) -> GeometryGate:
     return GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
-                        options.footprint_area_m2)
+                        options.footprint_area_m2, sensor)
 
-def make_gate(options: CorrectionOptions) -> Gate:
+
+def make_gate(options: CorrectionOptions, sensor: SensorConfig | None = None) -> Gate:
     gates = {"all": lambda: CorrectAll(), "consistency": lambda: ConsistencyGate(options.consistency_p_value),
-             "geometry": lambda: geometry_gate(options)}
+             "geometry": lambda: geometry_gate(options, sensor)}
     return gates[options.gate]()

@@ -13,6 +13,7 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans import geometry
 
 CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
+AUTO = "auto"  # footprint_area_m2: each scan measures its own (mpi_lidar.correction.calibration)
 GATES = ("geometry", "all", "consistency")
 
 
@@ -27,6 +28,7 @@ class Flag(IntEnum):
     INCONSISTENT = 5
     OUT_OF_RANGE = 6
     NO_MULTIPATH = 7
+    UNCALIBRATED = 8
 
 
 INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
@@ -72,12 +74,16 @@ class CorrectionOptions(BaseModel):
     min_multipath_bias_m: NonNegative = 0.004
     geometry_block_m: Positive = geometry.DEFAULT_BLOCK_M
     partner_range_m: Positive = geometry.DEFAULT_MAX_RANGE_M
-    footprint_area_m2: Positive = geometry.DEFAULT_FOOTPRINT_AREA_M2
+    # The receiver footprint A_fp [m^2] that scales the geometric coupling, or "auto": each scan estimates its
+    # own from the depth and amplitude near its facing surfaces (mpi_lidar.correction.calibration).
+    footprint_area_m2: Positive | Literal["auto"] = AUTO
     tile_pixels: Annotated[int, Field(ge=1)] = 262_144
     # Above this share of invalid pixels a scan is 'degraded', not 'corrected': past half the map the
     # outputs describe the sensor setup (gain, saturation level, range) more than the scene, and a batch
     # should say so rather than report success. It only names how a scan ended, never changes a pixel.
     max_invalid_share: Annotated[float, Field(ge=0, le=1)] = 0.5
+    # The sensor profile (sensor.toml) the footprint and thresholds came from: the hash of its values.
+    sensor_profile_sha256: str | None = None
 
     def sha256(self) -> str:
         """Identity of what the options do to the pixels: part of a corrected scan's identity.
@@ -86,21 +92,42 @@ class CorrectionOptions(BaseModel):
         must not re-correct a scan, and outputs written before they existed keep their hash.
         """
         pixels = self.model_dump(exclude=STATUS_ONLY_OPTIONS)
+        if pixels["sensor_profile_sha256"] is None:  # hashes from before profiles existed stay the same
+            del pixels["sensor_profile_sha256"]
         return hashlib.sha256(json.dumps(pixels, sort_keys=True).encode()).hexdigest()
+
+    @property
+    def self_calibrating(self) -> bool:
+        """Whether each scan estimates its own footprint (``footprint_area_m2`` = "auto")."""
+        return self.footprint_area_m2 == AUTO
 
     @classmethod
     def from_cli(cls, gate: str = "geometry", min_bias_mm: float | None = None,
-                 footprint_area_m2: float | None = None,
-                 max_invalid_share: float | None = None) -> CorrectionOptions:
+                 footprint_area_m2: float | str | None = None, max_invalid_share: float | None = None,
+                 sensor_profile: dict[str, float] | None = None) -> CorrectionOptions:
         """The options of ``mpi-lidar correct`` and of the correction flow, in their units; None keeps a default.
 
-        ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000).
+        ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000);
+        ``footprint_area_m2`` a number or "auto"; ``sensor_profile`` the options a sensor profile sets
+        (:meth:`mpi_lidar.correction.profile.SensorProfile.options`), which the other arguments override.
         Out-of-range values are refused with one line.
         """
-        overrides = {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
-                     "footprint_area_m2": footprint_area_m2, "max_invalid_share": max_invalid_share}
+        overrides = {**(sensor_profile or {}),
+                     **{k: v for k, v in {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
+                                          "footprint_area_m2": _footprint(footprint_area_m2),
+                                          "max_invalid_share": max_invalid_share}.items() if v is not None}}
         try:
-            return cls(gate=gate, **{k: v for k, v in overrides.items() if v is not None})
+            return cls(gate=gate, **overrides)
         except ValidationError as exc:
             problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors())
             raise MpiLidarError(f"invalid correction options ({problems})") from None
+
+
+def _footprint(value: float | str | None) -> float | str | None:
+    """A footprint given on a command line or in a flow parameter: "auto", a number, or None."""
+    if value is None or isinstance(value, float | int) or str(value).strip().lower() == AUTO:
+        return AUTO if isinstance(value, str) else value
+    try:
+        return float(value)
+    except ValueError:
+        raise MpiLidarError(f"footprint_area_m2 must be 'auto' or a positive number in m^2, got {value!r}") from None

@@ -41,8 +41,8 @@ from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan, consolidate, describe_arrays, store_fingerprints
 from mpi_lidar.storage.atomic import atomic_path
 
-FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d"]
-GATED_OUT = ("not_needed", "no_multipath")
+FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea"]
+GATED_OUT = ("not_needed", "no_multipath", "uncalibrated")
 
 
 def _regions(scan: Scan, correction: Correction) -> dict[str, np.ndarray]:
@@ -486,6 +486,7 @@ def _write_corrected_store(path: Path, scan: Scan, correction: Correction, ident
     group.update_attributes({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
                              "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},
                              "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz),
+                             **({} if correction.calibration is None else {"footprint": footprint_record(correction)}),
                              "outputs": outputs, "chunk_sha256": store_fingerprints(group)})
     consolidate(path)
 
@@ -519,7 +520,17 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                   data={"scan": scan.name, "counts": counts, "metrics": metrics, "notes": notes,
                         "outputs": {"level": outputs, "files": files},
                         "seconds": {"total": correction.total_s, "gate": correction.gate_s,
-                                    "inference": correction.inference_s}})
+                                    "inference": correction.inference_s},
+                        **({} if correction.calibration is None else {"footprint": footprint_record(correction)})})
+
+
+def footprint_record(correction: Correction) -> dict[str, object]:
+    """The scan's own footprint estimate, and the pixels it decided: corrected with it, or left as measured."""
+    counts = correction.counts()
+    estimate = correction.calibration
+    return {"mode": "auto", **estimate.to_dict(),
+            "pixels_corrected_with_it": counts["corrected"] if estimate.significant else 0,
+            "pixels_left_uncalibrated": counts["uncalibrated"]}
 
 
 def batch_report(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path | None = None) -> Report:

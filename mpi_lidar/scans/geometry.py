@@ -79,7 +79,7 @@ def block_size_pixels(depth: NDArray, rays: NDArray, block_m: float) -> int:
     return int(np.clip(round(block_m / pitch_m), 4, 64))
 
 
-def _blocks(values: NDArray, b: int) -> NDArray:
+def to_blocks(values: NDArray, b: int) -> NDArray:
     """(H, W, ...) -> (Hb, Wb, b*b, ...), padded with NaN to whole blocks."""
     h, w = values.shape[:2]
     hb, wb = -(-h // b), -(-w // b)
@@ -100,7 +100,7 @@ def fit_block_planes(points: NDArray, b: int, min_share: float = 0.3
     (Hb, Wb, b*b), a usable flag (Hb, Wb) (enough finite inliers: ``min_share`` of the block) and the
     RMS distance of the inliers from their plane (Hb, Wb) [m], the depth noise the plane has to beat.
     """
-    p = _blocks(np.asarray(points, dtype=np.float64), b)
+    p = to_blocks(np.asarray(points, dtype=np.float64), b)
     keep = np.isfinite(p).all(-1)
     # Start from the points near the block's median range: a far background cannot tilt the first fit.
     distance = np.where(keep, np.linalg.norm(np.nan_to_num(p), axis=-1), np.nan)
@@ -148,56 +148,130 @@ def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAU
     :mod:`mpi_lidar.physics.coupling`; r clamped below by the block size, the sum capped at 1). A plane, a
     convex surface or open sky has no facing pair: zero everywhere. Block values are interpolated bilinearly to pixels.
     Occlusion between A and B is ignored, and surfaces outside the scan's field of view are not known.
+    Everything but the footprint is in :func:`facing_blocks`; this is ``facing_blocks(...).potential(A_fp)``.
     """
-    from scipy.ndimage import map_coordinates
+    return facing_blocks(depth, rays, block_m=block_m, max_range_m=max_range_m,
+                         min_cos=min_cos).potential(footprint_area_m2)
+
+
+@dataclass(frozen=True)
+class FacingPairs:
+    """Block pairs (A, B) that face each other, with what the coupling kernel needs of each (P,).
+
+    ``a`` and ``b`` index the usable blocks (:attr:`FacingBlocks.index`); the cosines, B's area [m^2], the
+    clamped distance [m] and A's incidence cosine are the arguments of
+    :func:`mpi_lidar.physics.coupling.footprint_coupling`; ``distance_m`` is the unclamped centre distance.
+    """
+
+    a: NDArray[np.intp]
+    b: NDArray[np.intp]
+    cos_a: NDArray[np.float64]
+    cos_b: NDArray[np.float64]
+    area_b_m2: NDArray[np.float64]
+    r_eff_m: NDArray[np.float64]
+    cos_i: NDArray[np.float64]
+    distance_m: NDArray[np.float64]
+
+    def kappa(self, footprint_area_m2: float) -> NDArray[np.float64]:
+        """kappa_B of every pair for the footprint A_fp [m^2] (white surfaces)."""
+        return footprint_coupling(self.cos_a, self.cos_b, self.area_b_m2, self.r_eff_m, self.cos_i,
+                                  footprint_area_m2)
+
+
+@dataclass(frozen=True)
+class FacingBlocks:
+    """A scan's block planes and the block pairs that face each other: the potential up to the footprint.
+
+    Block arrays are (Hb, Wb, ...) as :func:`fit_block_planes` returns them; ``index`` holds the flat
+    indices of the usable blocks, in the order the pairs refer to; ``shape`` is the scan's (H, W) and
+    ``finite`` (H, W) marks the pixels with a point.
+    """
+
+    shape: tuple[int, int]
+    block_pixels: int
+    centres: NDArray[np.float64]
+    normals: NDArray[np.float64]
+    keep: NDArray[np.bool_]
+    usable: NDArray[np.bool_]
+    rms_m: NDArray[np.float64]
+    index: NDArray[np.intp]
+    pairs: FacingPairs
+    finite: NDArray[np.bool_]
+
+    def block_grid(self) -> tuple[NDArray, NDArray]:
+        """Block coordinates (H, W) of every pixel centre, for bilinear interpolation of block values."""
+        h, w = self.shape
+        ys = (np.arange(h) + 0.5) / self.block_pixels - 0.5
+        xs = (np.arange(w) + 0.5) / self.block_pixels - 0.5
+        grid = np.meshgrid(ys, xs, indexing="ij")
+        return grid[0], grid[1]
+
+    def to_pixels(self, block_values: NDArray, coordinates: tuple[NDArray, NDArray] | None = None) -> NDArray:
+        """Bilinear interpolation of one value per block (Hb*Wb,) at pixel coordinates (default: every pixel)."""
+        from scipy.ndimage import map_coordinates
+
+        hb, wb = self.usable.shape
+        where = self.block_grid() if coordinates is None else coordinates
+        return map_coordinates(block_values.reshape(hb, wb), where, order=1, mode="nearest")
+
+    def potential(self, footprint_area_m2: float) -> MultipathPotential:
+        """The multipath potential for the receiver footprint A_fp [m^2] (:func:`multipath_potential`)."""
+        hb, wb = self.usable.shape
+        coupling_blocks = np.zeros(hb * wb)
+        weighted_r = np.zeros(hb * wb)
+        if self.pairs.a.size:
+            kappa = self.pairs.kappa(footprint_area_m2)
+            coupling_blocks[self.index] = np.bincount(self.pairs.a, kappa, minlength=self.index.size)
+            weighted_r[self.index] = np.bincount(self.pairs.a, kappa * self.pairs.distance_m,
+                                                 minlength=self.index.size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d_ab_blocks = np.where(coupling_blocks > 0, weighted_r / coupling_blocks, 0.0)
+        coupling_blocks = np.minimum(coupling_blocks, 1.0)
+        grid = self.block_grid()
+        coupling = self.to_pixels(coupling_blocks, grid)
+        bias = self.to_pixels(coupling_blocks * d_ab_blocks, grid)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d_ab = np.where(coupling > 0, bias / np.where(coupling > 0, coupling, 1.0), np.nan)
+        missing = ~self.finite
+        coupling[missing], bias[missing], d_ab[missing] = 0.0, 0.0, np.nan
+        return MultipathPotential(coupling, d_ab, bias, self.block_pixels)
+
+
+def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLOCK_M,
+                  max_range_m: float = DEFAULT_MAX_RANGE_M, min_cos: float = DEFAULT_MIN_COS) -> FacingBlocks:
+    """Block planes of a range map (H, W) [m] along unit rays (H, W, 3) and the block pairs that face each other.
+
+    This is the costly part of :func:`multipath_potential` (plane fits, the partner search); the footprint
+    only scales the pairs' coupling, so one :class:`FacingBlocks` serves every footprint.
+    """
     from scipy.spatial import cKDTree
 
     d = np.asarray(depth, dtype=np.float64)
     d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
     r = np.asarray(rays, dtype=np.float64)
-    h, w = d.shape
     b = block_size_pixels(d, r, block_m)
     points = d[..., None] * r
     centres, normals, keep, usable, rms = fit_block_planes(points, b)
-    hb, wb = usable.shape
     # Pixel footprints on the fitted plane: range^2 times solid angle over the incidence cosine.
     solid_angle = _pixel_solid_angle(r)
-    ray_blocks = _blocks(r, b)
+    ray_blocks = to_blocks(r, b)
     cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(ray_blocks), normals))
-    pixel_area = _blocks(d**2 * solid_angle, b) / np.maximum(cos_i, 0.1)
+    pixel_area = to_blocks(d**2 * solid_angle, b) / np.maximum(cos_i, 0.1)
     area = np.where(keep, np.nan_to_num(pixel_area), 0.0).sum(-1)
     centre_ray = centres / np.maximum(np.linalg.norm(centres, axis=-1, keepdims=True), 1e-12)
     block_cos_i = np.maximum(-np.einsum("hwi,hwi->hw", normals, centre_ray), 1e-3)
     index = np.flatnonzero(usable.ravel())
-    coupling_blocks = np.zeros(hb * wb)
-    weighted_r = np.zeros(hb * wb)
+    empty = np.zeros(0)
+    pairs = FacingPairs(np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), empty, empty, empty, empty, empty,
+                        empty)
     if index.size >= 2:
         c, n = centres.reshape(-1, 3)[index], normals.reshape(-1, 3)[index]
         a_blk, cos_blk, noise = area.ravel()[index], block_cos_i.ravel()[index], rms.ravel()[index]
-        pairs = cKDTree(c).query_pairs(max_range_m, output_type="ndarray")
-        if pairs.size:
-            i, j = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
-            kappa, dist = _pair_coupling(c[i], n[i], cos_blk[i], a_blk[i], c[j], n[j], a_blk[j],
-                                         noise[i] + noise[j], footprint_area_m2, min_cos)
-            coupling_blocks[index] = np.bincount(i, kappa, minlength=index.size)
-            weighted_r[index] = np.bincount(i, kappa * dist, minlength=index.size)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d_ab_blocks = np.where(coupling_blocks > 0, weighted_r / coupling_blocks, 0.0)
-    coupling_blocks = np.minimum(coupling_blocks, 1.0)
-    ys = (np.arange(h) + 0.5) / b - 0.5
-    xs = (np.arange(w) + 0.5) / b - 0.5
-    grid = np.meshgrid(ys, xs, indexing="ij")
-
-    def to_pixels(values: NDArray) -> NDArray:
-        return map_coordinates(values.reshape(hb, wb), grid, order=1, mode="nearest")
-
-    coupling = to_pixels(coupling_blocks)
-    bias = to_pixels(coupling_blocks * d_ab_blocks)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d_ab = np.where(coupling > 0, bias / np.where(coupling > 0, coupling, 1.0), np.nan)
-    missing = ~np.isfinite(d)
-    coupling[missing], bias[missing], d_ab[missing] = 0.0, 0.0, np.nan
-    return MultipathPotential(coupling, d_ab, bias, b)
+        found = cKDTree(c).query_pairs(max_range_m, output_type="ndarray")
+        if found.size:
+            i, j = np.concatenate([found[:, 0], found[:, 1]]), np.concatenate([found[:, 1], found[:, 0]])
+            pairs = _facing_pairs(i, j, c, n, cos_blk, a_blk, noise[i] + noise[j], min_cos)
+    return FacingBlocks(d.shape, b, centres, normals, keep, usable, rms, index, pairs, np.isfinite(d))
 
 
 def _pair_coupling(centre_a: NDArray, normal_a: NDArray, cos_i: NDArray, area_a: NDArray, centre_b: NDArray,
@@ -210,12 +284,30 @@ def _pair_coupling(centre_a: NDArray, normal_a: NDArray, cos_i: NDArray, area_a:
     ``noise_m`` (the two fits' summed residual RMS) [m]; r is clamped below by the larger block's side.
     Centres (P, 3) [m], unit normals (P, 3), incidence cosines at A (P,) and block areas (P,) [m^2].
     """
+    dist, facing, r_eff, cos_a, cos_b = _pair_terms(centre_a, normal_a, area_a, centre_b, normal_b, area_b,
+                                                    noise_m, min_cos)
+    return np.where(facing, footprint_coupling(cos_a, cos_b, area_b, r_eff, cos_i, footprint_area_m2), 0.0), dist
+
+
+def _pair_terms(centre_a: NDArray, normal_a: NDArray, area_a: NDArray, centre_b: NDArray, normal_b: NDArray,
+                area_b: NDArray, noise_m: NDArray, min_cos: float) -> tuple[NDArray, ...]:
+    """Distance, facing mask, clamped distance and the two cosines of block pairs (P,) (:func:`_pair_coupling`)."""
     dist, cos_a, cos_b = pair_geometry(centre_a, normal_a, centre_b, normal_b)
     # Each centre must stand clear of the other's plane by more than the fits' noise can explain.
     margin = 3.0 * noise_m
     facing = (cos_a > min_cos) & (cos_b > min_cos) & (cos_a * dist > margin) & (cos_b * dist > margin)
     r_eff = np.maximum(dist, np.sqrt(np.maximum(area_b, area_a)))
-    return np.where(facing, footprint_coupling(cos_a, cos_b, area_b, r_eff, cos_i, footprint_area_m2), 0.0), dist
+    return dist, facing, r_eff, cos_a, cos_b
+
+
+def _facing_pairs(i: NDArray, j: NDArray, centres: NDArray, normals: NDArray, cos_i: NDArray, area: NDArray,
+                  noise_m: NDArray, min_cos: float) -> FacingPairs:
+    """The pairs (i, j) of usable blocks that face each other, in their original order."""
+    dist, facing, r_eff, cos_a, cos_b = _pair_terms(centres[i], normals[i], area[i], centres[j], normals[j],
+                                                    area[j], noise_m, min_cos)
+    keep = np.flatnonzero(facing)
+    return FacingPairs(i[keep], j[keep], cos_a[keep], cos_b[keep], area[j][keep], r_eff[keep], cos_i[i][keep],
+                       dist[keep])
 
 
 def _pixel_solid_angle(rays: NDArray) -> NDArray[np.float64]:

@@ -217,8 +217,8 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model
 
 
 def test_flag__existing_codes_are_stable():
-    assert [int(f) for f in Flag] == list(range(8))
-    assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0
+    assert [int(f) for f in Flag] == list(range(9))
+    assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0 and Flag.UNCALIBRATED == 8
 
 
 def test_batch_report__gated_out_counts_both_skip_flags():

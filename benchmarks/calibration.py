@@ -1,0 +1,209 @@
+"""Per-scan self-calibration of the receiver footprint A_fp: does "auto" correct as well as the true footprint?
+
+Run: .venv/bin/python -m benchmarks.calibration --model DIR [--quick] [--seed 0]
+Renders every scene of the set with each true footprint A_fp (coupling gain A_fp / pi r^2, r the default
+footprint radius), corrects it with the true A_fp and with ``footprint_area_m2="auto"`` (the scan measures
+its own footprint), and prints one markdown row per scene and footprint: MAE of the 31.25 MHz depth on the
+usable pixels before and after both corrections, the same within 20 cm of the corner edge (corners only),
+and the footprint the scan measured against the true one. A summary checks the targets: "auto" never worse
+than raw by more than 0.05 mm, at the edge within 10 % of the true-A_fp correction and at least 40 % better
+than raw where the raw edge error is above 3 mm, and the estimate within a factor 1.5 on corners whose raw
+edge error is above 2 mm. ``--quick`` runs two scenes at two footprints (for a test).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import platform
+import time
+from collections.abc import Callable
+from datetime import date
+from typing import Any
+
+import numpy as np
+
+from benchmarks.scenes import _edge, edge_region, mae_mm
+from mpi_lidar.config import Config
+from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, correct_scan
+from mpi_lidar.learning.model import CorrectionModel, load_model
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.simulation.scenes import (
+    DEFAULT_FOOTPRINT_RADIUS_M,
+    Scene,
+    corner,
+    cylinder_scene,
+    flat_wall,
+    multi_object,
+    render,
+)
+
+Case = tuple[str, Callable[[], Scene], tuple[float, float] | None]  # label, factory, (x, z) of the corner edge
+
+# (angle [deg], edge distance [m], albedo): a spread over the three axes rather than their full product.
+CORNERS = ((60, 1.4, 0.5), (60, 2.4, 0.9), (90, 1.4, 0.9), (90, 2.0, 0.1), (90, 2.4, 0.5), (120, 1.4, 0.9),
+           (120, 2.0, 0.5))
+FOOTPRINTS_M2 = (0.001, 0.004, 0.016, 0.041, 0.1)
+QUICK_FOOTPRINTS_M2 = (0.002, 0.041)
+
+# Targets of the summary.
+MAX_AUTO_HARM_MM = 0.05
+MAX_EDGE_RATIO = 1.10
+STRONG_EDGE_MM = 3.0
+MIN_EDGE_REDUCTION = 0.40
+ESTIMATE_EDGE_MM = 2.0
+MAX_ESTIMATE_FACTOR = 1.5
+
+HEADER = ("| scene | true A_fp [m^2] | raw MAE [mm] | corrected, true A_fp [mm] | corrected, auto [mm] | edge raw [mm] "
+          "| edge true A_fp [mm] | edge auto [mm] | estimated A_fp [m^2] (+-sigma) | estimate / true | significant |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def corner_case(angle: float, distance: float, albedo: float) -> Case:
+    return (f"corner {angle:g} deg, {distance:g} m, albedo {albedo:g}",
+            lambda: corner(float(angle), distance, albedo), _edge(distance))
+
+
+def scene_cases(quick: bool) -> list[Case]:
+    """The scenes of the run: corners (with an edge region) and scenes without facing surfaces or with several."""
+    if quick:
+        return [corner_case(90, 2.0, 0.5), ("flat wall 0 deg", lambda: flat_wall(0.0), None)]
+    cases = [corner_case(*spec) for spec in CORNERS]
+    cases += [(f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt)), None) for tilt in (0, 45)]
+    return [*cases, ("cylinder", cylinder_scene, None), ("multi-object (Fig. 8)", multi_object, None)]
+
+
+def coupling_gain(footprint_m2: float) -> float:
+    """The renderer's coupling gain that gives the footprint A_fp = gain pi r^2 at the default radius."""
+    return footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
+
+
+def usable_pixels(scan: Scan, *flag_maps: np.ndarray) -> np.ndarray:
+    """Pixels valid in every correction and with a finite reference: all MAEs of a row share them."""
+    invalid = [int(f) for f in INVALID_FLAGS]
+    usable = np.isfinite(scan.reference_depth)
+    for flags in flag_maps:
+        usable &= ~np.isin(flags, invalid)
+    return usable
+
+
+def measure_row(label: str, scan: Scan, edge: tuple[float, float] | None, model: CorrectionModel,
+                true_m2: float) -> dict[str, Any]:
+    """Raw, true-A_fp and auto MAEs of one rendered scan, and the footprint it measured."""
+    known = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=true_m2))
+    auto = correct_scan(scan, model, CorrectionOptions(footprint_area_m2="auto"))
+    usable = usable_pixels(scan, known.flags, auto.flags)
+    near = usable & edge_region(scan, edge) if edge else np.zeros_like(usable)
+    raw, reference = scan.depth[-1], scan.reference_depth
+    estimate = auto.calibration
+    row: dict[str, Any] = {"scene": label, "corner": edge is not None, "true_m2": true_m2}
+    for name, depth in (("raw", raw), ("true", known.depth), ("auto", auto.depth)):
+        row[f"{name}_mm"] = mae_mm(depth, reference, usable)
+        row[f"edge_{name}_mm"] = mae_mm(depth, reference, near) if edge else float("nan")
+    row["estimate_m2"] = estimate.area_m2 if estimate is not None else float("nan")
+    row["sigma_m2"] = estimate.sigma_m2 if estimate is not None else float("inf")
+    row["significant"] = bool(estimate is not None and estimate.significant)
+    row["pixels"] = estimate.pixels if estimate is not None else 0
+    return row
+
+
+def run(model_path: str, quick: bool = False, seed: int = 0,
+        on_row: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+    """One row per scene and true footprint (see :func:`measure_row`); ``on_row`` sees each as it is done."""
+    model = load_model(model_path)
+    config = Config()
+    rows = []
+    for scene_index, (label, factory, edge) in enumerate(scene_cases(quick)):
+        scene = factory()  # the geometry does not depend on the footprint: build it once
+        for footprint_index, true_m2 in enumerate(QUICK_FOOTPRINTS_M2 if quick else FOOTPRINTS_M2):
+            rng = np.random.default_rng([seed, scene_index, footprint_index])
+            scan = render(scene, config, rng, coupling_gain=coupling_gain(true_m2))
+            rows.append(measure_row(label, scan, edge, model, true_m2))
+            if on_row is not None:
+                on_row(rows[-1])
+    return rows
+
+
+def _mm(value: float) -> str:
+    return "" if math.isnan(value) else f"{value:.3f}"
+
+
+def format_row(row: dict[str, Any]) -> str:
+    ratio = row["estimate_m2"] / row["true_m2"]
+    cells = [row["scene"], f"{row['true_m2']:g}", _mm(row["raw_mm"]), _mm(row["true_mm"]), _mm(row["auto_mm"]),
+             _mm(row["edge_raw_mm"]), _mm(row["edge_true_mm"]), _mm(row["edge_auto_mm"]),
+             f"{row['estimate_m2']:.4g} (+-{row['sigma_m2']:.2g})", f"{ratio:.2f}",
+             "yes" if row["significant"] else "no"]
+    return "| " + " | ".join(cells) + " |"
+
+
+def _verdict(met: bool) -> str:
+    return "met" if met else "NOT met"
+
+
+def estimate_factor(row: dict[str, Any]) -> float:
+    """max(est / true, true / est); inf where nothing (or nothing positive) was measured."""
+    estimate = row["estimate_m2"]
+    if not np.isfinite(estimate) or estimate <= 0:
+        return float("inf")
+    return max(estimate / row["true_m2"], row["true_m2"] / estimate)
+
+
+def worst(values: list[tuple[float, str]], highest: bool = True) -> tuple[float, str] | None:
+    """The worst (value, scene) of a list (the highest, or the lowest), None when empty."""
+    if not values:
+        return None
+    return max(values) if highest else min(values)
+
+
+def summary_line(number: str, text: str, found: tuple[float, str] | None, target: str,
+                 met: Callable[[float], bool], unit: str = "") -> str:
+    if found is None:
+        return f"{number}. {text}: no rows qualify (n/a)"
+    value, where = found
+    shown = f"{value:.1f}" if unit == " %" else f"{value:.3f}"
+    return f"{number}. {text}: {shown}{unit} ({where}) against {target}: {_verdict(met(value))}"
+
+
+def summary(rows: list[dict[str, Any]]) -> list[str]:
+    """The summary block: each target, the worst row's number, met / NOT met."""
+    def name(row: dict[str, Any]) -> str:
+        return f"{row['scene']}, A_fp {row['true_m2']:g}"
+
+    harm = worst([(r["auto_mm"] - r["raw_mm"], name(r)) for r in rows])
+    edged = [r for r in rows if r["corner"] and not math.isnan(r["edge_raw_mm"])]
+    ratio = worst([(r["edge_auto_mm"] / r["edge_true_mm"], name(r)) for r in edged])
+    reduction = worst([(1 - r["edge_auto_mm"] / r["edge_raw_mm"], name(r)) for r in edged
+                       if r["edge_raw_mm"] > STRONG_EDGE_MM], highest=False)
+    factor = worst([(estimate_factor(r), name(r)) for r in edged if r["edge_raw_mm"] > ESTIMATE_EDGE_MM])
+    return [
+        summary_line("1", "worst auto - raw MAE", harm, f"<= {MAX_AUTO_HARM_MM} mm",
+                     lambda v: v <= MAX_AUTO_HARM_MM, " mm"),
+        summary_line("2a", "worst edge auto / edge true A_fp", ratio, f"<= {MAX_EDGE_RATIO:.2f}",
+                     lambda v: v <= MAX_EDGE_RATIO),
+        summary_line("2b", f"worst edge reduction 1 - auto / raw (edge raw > {STRONG_EDGE_MM:g} mm)",
+                     None if reduction is None else (100 * reduction[0], reduction[1]),
+                     f">= {100 * MIN_EDGE_REDUCTION:.0f} %", lambda v: v >= 100 * MIN_EDGE_REDUCTION, " %"),
+        summary_line("3", f"worst max(est/true, true/est) on corners with edge raw > {ESTIMATE_EDGE_MM:g} mm", factor,
+                     f"<= {MAX_ESTIMATE_FACTOR}", lambda v: v <= MAX_ESTIMATE_FACTOR),
+    ]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", required=True, help="Directory of a trained correction model.")
+    parser.add_argument("--quick", action="store_true", help="Two scenes at two footprints only (for a test).")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    print(f"Machine: {platform.node()} ({platform.machine()}), {date.today()}; model {args.model}, "
+          f"seed {args.seed}{', quick' if args.quick else ''}\n")
+    print(HEADER, flush=True)
+    start = time.perf_counter()
+    rows = run(args.model, args.quick, args.seed, on_row=lambda row: print(format_row(row), flush=True))
+    print("\nSummary:\n")
+    print("\n".join(summary(rows)))
+    print(f"\nWall time: {time.perf_counter() - start:.0f} s for {len(rows)} rows")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,430 @@
+"""Self-calibration of the receiver footprint: a scan measures its own multipath strength.
+
+How much light a facing surface sends back scales with one sensor constant, the effective receiver footprint
+A_fp (:mod:`mpi_lidar.physics.coupling`). A scan holds the evidence for it: on two surfaces that face each
+other the raw depth drifts away from the surfaces' planes towards their shared edge, in proportion to A_fp
+and with the shape the geometry predicts, while far from the edge the surfaces are unbiased.
+
+:func:`estimate_footprint` measures A on the flat surfaces of the scan (connected blocks of
+:class:`mpi_lidar.scans.geometry.FacingBlocks` whose planes agree, without the blocks that bend away from
+them: curved surfaces, and the strongest bias right at an edge, where the geometry's own estimate is least
+sure). The model of every pixel and frequency f is the renderer's two-path model at unit footprint:
+ratio = A S_f, S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c}, capped like it at kappa = 1; the
+albedos rho come from each surface's amplitude far from its partners (Gamma = Gamma_R rho cos_i / d^2), so
+dark partners predict less multipath than white ones. Two observables are fitted, each by Gauss-Newton in A
+with the moment model's noise as weights and Huber weights against outliers (mixed pixels, surfaces the
+model does not describe):
+
+- depth: each surface's plane is fitted to its pixels with the least predicted coupling, after the predicted
+  bias is taken off (iterated with A), and the depth of the other pixels over that plane is the bias
+  (c / 4 pi f) arg(1 + ratio);
+- amplitude: the amplitude over the Lambertian direct light of the plane, rho_s |1 + ratio|, with one
+  albedo rho_s per surface eliminated.
+
+The estimate is their mean; its uncertainty combines their statistical ones with half their difference, so a
+scan on which the two disagree (the model does not describe it) is not significant. With a reference depth
+(``reference=True``) the depth residual is measured against it directly and the planes are not needed.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mpi_lidar.config import SensorConfig
+from mpi_lidar.correction.validity import quadrature_noise_v2
+from mpi_lidar.scans.geometry import FacingBlocks, to_blocks
+from mpi_lidar.scans.scan import Scan
+
+# A surface is a connected set of blocks whose normals agree to this [deg] and whose centres lie on each
+# other's planes (a depth step is another surface) ...
+NEIGHBOUR_ANGLE_DEG = 20.0
+# ... and whose blocks bend from the surface's plane by less than this [deg]; bending blocks are left out.
+SURFACE_ANGLE_DEG = 12.0
+MIN_SURFACE_BLOCKS = 3
+# Pixels the fit uses at most: a subsample on a regular stride keeps the cost a small share of correction.
+MAX_FIT_PIXELS = 60_000
+# The estimate is used only when it is this many standard deviations above zero ...
+MIN_SIGNIFICANCE = 3.0
+# ... and rests on at least this many pixels with a facing partner.
+MIN_INFORMATIVE_PIXELS = 200
+HUBER_K = 2.0
+# Rows whose predicted multipath ratio A K exceeds this are left out of the fit: closer to an edge the
+# block geometry (3 cm planes, r clamped at the block size, the cap at kappa = 1) is least faithful.
+MAX_FIT_COUPLING = 0.15
+MAX_ITERATIONS = 20
+PLAIN_ITERATIONS = 4
+# Share of each surface's pixels, those with the least predicted coupling, that fix its plane.
+ANCHOR_SHARE = 0.4
+
+
+@dataclass(frozen=True)
+class FootprintEstimate:
+    """The footprint a scan (or several) measured, and how sure it is.
+
+    ``area_m2`` is the estimate of A_fp [m^2] (NaN where nothing could be measured), ``sigma_m2`` its
+    standard deviation [m^2] (inf then); ``pixels`` the pixels with a facing partner the fit rests on,
+    ``surfaces`` the flat surfaces fitted, ``scans`` how many scans were pooled; ``method`` is "planes"
+    (the scan's own surfaces) or "reference" (raw depth against a reference depth).
+    """
+
+    area_m2: float
+    sigma_m2: float
+    pixels: int
+    surfaces: int
+    method: str = "planes"
+    scans: int = 1
+
+    @property
+    def significance(self) -> float:
+        """Estimate over its standard deviation (0 where nothing was measured)."""
+        if not np.isfinite(self.area_m2) or not np.isfinite(self.sigma_m2) or self.sigma_m2 <= 0:
+            return 0.0
+        return self.area_m2 / self.sigma_m2
+
+    @property
+    def significant(self) -> bool:
+        """Whether the estimate may decide pixels: clearly above zero, on enough pixels."""
+        return self.significance >= MIN_SIGNIFICANCE and self.pixels >= MIN_INFORMATIVE_PIXELS
+
+    def upper_m2(self) -> float:
+        """Upper bound [m^2]: the estimate plus two standard deviations (inf where nothing was measured)."""
+        if not np.isfinite(self.sigma_m2):
+            return float("inf")
+        return max(self.area_m2, 0.0) + 2.0 * self.sigma_m2
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready summary (non-finite numbers as None)."""
+        out: dict[str, object] = {k: (v if not isinstance(v, float) or np.isfinite(v) else None)
+                                  for k, v in asdict(self).items()}
+        out.update(significance=round(self.significance, 2), significant=self.significant)
+        return out
+
+
+NOTHING_MEASURED = FootprintEstimate(float("nan"), float("inf"), 0, 0)
+
+
+def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor: SensorConfig, *,
+                       reference: bool = False, max_pixels: int = MAX_FIT_PIXELS) -> FootprintEstimate:
+    """The receiver footprint A_fp [m^2] that best explains the scan's depth near facing surfaces.
+
+    ``blocks`` is the scan's :func:`mpi_lidar.scans.geometry.facing_blocks` (from its highest-frequency
+    depth), ``valid`` a bool (H*W,) of the pixels whose measurements can be trusted. With ``reference``
+    the scan's reference depth replaces the fitted planes (it must have one).
+    """
+    if blocks.pairs.a.size == 0:
+        return NOTHING_MEASURED
+    rays = scan.rays()
+    components, labels = surface_labels(blocks)
+    white = blocks.pairs.kappa(1.0)
+    unit_white = np.bincount(blocks.index[blocks.pairs.a], white, minlength=blocks.usable.size)
+    albedo = surface_albedo(block_albedo(scan, blocks, sensor), components, unit_white)
+    unit_phasor, unit_kappa = block_unit_phasors(blocks, albedo, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
+    if reference:
+        labels = np.where(blocks.usable.ravel(), 0, -1)
+    pixels = _fit_pixels(blocks, labels, unit_kappa, valid, max_pixels)
+    if pixels.size == 0:
+        return NOTHING_MEASURED
+    ys, xs = np.divmod(pixels, blocks.shape[1])
+    coordinates = ((ys + 0.5) / blocks.block_pixels - 0.5, (xs + 0.5) / blocks.block_pixels - 0.5)
+    phasor = np.stack([blocks.to_pixels(unit_phasor[:, k].real, coordinates)
+                       + 1j * blocks.to_pixels(unit_phasor[:, k].imag, coordinates)
+                       for k in range(unit_phasor.shape[1])], axis=1)
+    kappa = blocks.to_pixels(unit_kappa, coordinates)
+    depth = np.asarray(scan.depth, dtype=np.float64)[:, ys, xs].T
+    amplitude = np.asarray(scan.amplitude, dtype=np.float64)[:, ys, xs].T
+    freqs = np.asarray(scan.frequencies_hz, dtype=np.float64)
+    metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * freqs)
+    sigma = quadrature_noise_v2(sensor, scan.frequencies_hz, amplitude) / np.maximum(amplitude, 1e-12)
+    sigma = np.maximum(sigma * metres_per_rad, 1e-5)
+    usable = np.isfinite(depth).all(1) & np.isfinite(sigma).all(1)
+    pixel_rays = rays.reshape(-1, 3)[pixels]
+    block_of_pixel = (ys // blocks.block_pixels) * blocks.usable.shape[1] + xs // blocks.block_pixels
+    surface = labels[block_of_pixel]
+    reference_depth = np.asarray(scan.reference_depth, dtype=np.float64).ravel()[pixels] if reference else None
+    problem = _Problem(depth[usable], sigma[usable], phasor[usable], kappa[usable], metres_per_rad,
+                       amplitude[usable] / sensor.gamma_r_v2, pixel_rays[usable], surface[usable],
+                       None if reference_depth is None else reference_depth[usable])
+    return problem.solve("reference" if reference else "planes")
+
+
+def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig) -> NDArray[np.float64]:
+    """Albedo per block (Hb*Wb,) from the amplitude of its inlier pixels: Gamma d^2 / (Gamma_R cos_i).
+
+    The median over the block's inliers of the amplitude (mean over frequencies), clipped to 0.01-1.5;
+    0 for blocks without a plane.
+    """
+    b = blocks.block_pixels
+    depth = np.where(blocks.finite, np.asarray(scan.depth[-1], dtype=np.float64), np.nan)
+    amplitude = np.asarray(scan.amplitude, dtype=np.float64).mean(0)
+    rays = to_blocks(scan.rays(), b)
+    cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(rays), blocks.normals))
+    ratio = to_blocks(amplitude * depth**2, b) / (sensor.gamma_r_v2 * np.maximum(cos_i, 0.1))
+    with warnings.catch_warnings():  # blocks without inliers have no median
+        warnings.simplefilter("ignore", RuntimeWarning)
+        albedo = np.nanmedian(np.where(blocks.keep, ratio, np.nan), axis=-1)
+    albedo = np.where(blocks.usable & np.isfinite(albedo), np.clip(albedo, 0.01, 1.5), 0.0)
+    return albedo.ravel()
+
+
+def surface_albedo(albedo: NDArray, components: NDArray, unit_kappa: NDArray) -> NDArray[np.float64]:
+    """One albedo per connected surface (Hb*Wb,): the median over its blocks with the least coupling.
+
+    Multipath adds light (Gamma = Gamma_D |1 + ratio|), most near an edge, so a block's own amplitude
+    overstates its albedo just where the partners that matter lie; the surface's far blocks do not.
+    Blocks outside any surface keep their own estimate.
+    """
+    out = albedo.copy()
+    for label in np.unique(components[components >= 0]):
+        members = np.flatnonzero(components == label)
+        far = members[unit_kappa[members] <= np.quantile(unit_kappa[members], ANCHOR_SHARE)]
+        out[members] = np.median(albedo[far])
+    return out
+
+
+def block_unit_phasors(blocks: FacingBlocks, albedo: NDArray, frequencies_hz: tuple[float, ...],
+                       speed_of_light_m_per_s: float) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+    """Per block (Hb*Wb,): the multipath phasor S_f at unit footprint (Hb*Wb, F) and the white kappa (Hb*Wb,).
+
+    S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c} with kappa_B at A_fp = 1 m^2: the ratio
+    Gamma_M / Gamma_D of the two-path model is A_fp S_f, and the white kappa sum K caps it like the
+    renderer does (at A_fp K > 1 the multipath is scaled by 1 / (A_fp K)).
+    """
+    pairs = blocks.pairs
+    n_blocks = blocks.usable.size
+    kappa = pairs.kappa(1.0)
+    block_a, block_b = blocks.index[pairs.a], blocks.index[pairs.b]
+    weight = kappa * albedo[block_a] * albedo[block_b]
+    freqs = np.asarray(frequencies_hz, dtype=np.float64)
+    phase = 4 * np.pi * pairs.distance_m[:, None] * freqs[None, :] / speed_of_light_m_per_s
+    phasor = np.zeros((n_blocks, freqs.size), dtype=np.complex128)
+    for k in range(freqs.size):
+        phasor[:, k] = (np.bincount(block_a, weight * np.cos(phase[:, k]), minlength=n_blocks)
+                        + 1j * np.bincount(block_a, weight * np.sin(phase[:, k]), minlength=n_blocks))
+    return phasor, np.bincount(block_a, kappa, minlength=n_blocks)
+
+
+def surface_labels(blocks: FacingBlocks) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Connected surfaces of the blocks, and the flat surfaces among them: two labels (Hb*Wb,), -1 where none.
+
+    Neighbouring blocks join when their normals agree to ``NEIGHBOUR_ANGLE_DEG`` and each centre lies on
+    the other's plane to three times the fits' noise plus a fifth of their distance (a depth step is
+    another surface). Within a surface, blocks that bend from its mean normal by more than
+    ``SURFACE_ANGLE_DEG`` are dropped, and surfaces of fewer than ``MIN_SURFACE_BLOCKS`` blocks are dropped.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    hb, wb = blocks.usable.shape
+    flat = np.arange(hb * wb).reshape(hb, wb)
+    normals, centres = blocks.normals.reshape(-1, 3), blocks.centres.reshape(-1, 3)
+    usable, rms = blocks.usable.ravel(), blocks.rms_m.ravel()
+    edges = []
+    for a, b in ((flat[:, :-1], flat[:, 1:]), (flat[:-1, :], flat[1:, :])):
+        a, b = a.ravel(), b.ravel()
+        offset = centres[b] - centres[a]
+        gap = np.linalg.norm(offset, axis=1)
+        tolerance = 3 * (rms[a] + rms[b]) + 0.2 * gap
+        agree = (usable[a] & usable[b]
+                 & (np.einsum("ij,ij->i", normals[a], normals[b]) > np.cos(np.deg2rad(NEIGHBOUR_ANGLE_DEG)))
+                 & (np.abs(np.einsum("ij,ij->i", normals[a], offset)) <= tolerance)
+                 & (np.abs(np.einsum("ij,ij->i", normals[b], offset)) <= tolerance))
+        edges.append((a[agree], b[agree]))
+    rows = np.concatenate([e[0] for e in edges])
+    cols = np.concatenate([e[1] for e in edges])
+    graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(hb * wb, hb * wb))
+    _, labels = connected_components(graph, directed=False)
+    labels = np.where(usable, labels, -1)
+    components = labels.copy()
+    # Mean normal per surface; blocks bending away from it are left out, then small surfaces.
+    valid = labels >= 0
+    sums = np.zeros((labels.max() + 2, 3))
+    np.add.at(sums, labels[valid], normals[valid])
+    mean = sums / np.maximum(np.linalg.norm(sums, axis=1, keepdims=True), 1e-12)
+    bends = np.einsum("ij,ij->i", normals, mean[labels]) < np.cos(np.deg2rad(SURFACE_ANGLE_DEG))
+    labels = np.where(valid & ~bends, labels, -1)
+    counts = np.bincount(labels[labels >= 0], minlength=labels.max() + 2)
+    return components, np.where((labels >= 0) & (counts[labels] >= MIN_SURFACE_BLOCKS), labels, -1)
+
+
+def _fit_pixels(blocks: FacingBlocks, labels: NDArray, unit_kappa: NDArray, valid: NDArray, max_pixels: int
+                ) -> NDArray[np.intp]:
+    """Flat indices of the pixels the fit uses: valid inliers of surfaces that have a facing partner.
+
+    A surface without any facing partner cannot tell the footprint and is left out; at most
+    ``max_pixels``, on a regular stride.
+    """
+    h, w = blocks.shape
+    b = blocks.block_pixels
+    hb, wb = blocks.usable.shape
+    informative = np.unique(labels[(unit_kappa > 0) & (labels >= 0)])
+    if informative.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    surface_blocks = np.isin(labels, informative).reshape(hb, wb)
+    inlier = blocks.keep & surface_blocks[..., None]
+    # Back from (Hb, Wb, b*b) to pixels (H, W): the inverse of geometry.to_blocks.
+    grid = inlier.reshape(hb, wb, b, b).swapaxes(1, 2).reshape(hb * b, wb * b)[:h, :w]
+    chosen = np.flatnonzero(grid.ravel() & np.asarray(valid, dtype=bool).ravel() & blocks.finite.ravel())
+    if chosen.size > max_pixels:
+        chosen = chosen[np.linspace(0, chosen.size - 1, max_pixels).astype(np.intp)]
+    return chosen
+
+
+class _Problem:
+    """Weighted least squares for planes per surface and one footprint A shared by all pixels and frequencies.
+
+    Rows are (pixel, frequency); ``depth``, ``sigma`` (n, F) [m], ``phasor`` (n, F) the unit-footprint
+    multipath phasor, ``kappa`` (n,) the white coupling at unit footprint, ``rays`` (n, 3), ``surface`` (n,)
+    labels, and ``reference`` (n,) [m] in place of planes where given.
+    """
+
+    def __init__(self, depth: NDArray, sigma: NDArray, phasor: NDArray, kappa: NDArray, metres_per_rad: NDArray,
+                 relative_amplitude: NDArray, rays: NDArray, surface: NDArray, reference: NDArray | None):
+        self.depth, self.sigma, self.phasor, self.kappa = depth, sigma, phasor, kappa
+        self.log_amplitude = np.log(np.maximum(relative_amplitude, 1e-12))
+        self.sigma_log = sigma / metres_per_rad
+        self.metres_per_rad, self.rays, self.reference = metres_per_rad, rays, reference
+        _, self.surface = np.unique(surface, return_inverse=True)
+        self.surfaces = int(self.surface.max()) + 1 if surface.size else 0
+
+    def bias(self, area: float) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        """Predicted depth bias (n, F) [m] at footprint ``area``, its derivative in the footprint, the
+        amplitude gain |1 + ratio| (n, F) and the derivative of its logarithm."""
+        scale = 1.0 / np.maximum(abs(area) * self.kappa, 1.0)[:, None]
+        ratio = area * self.phasor * scale
+        bias = np.angle(1.0 + ratio) * self.metres_per_rad
+        capped = (abs(area) * self.kappa > 1.0)[:, None] | (np.abs(1.0 + ratio) < 1e-9)
+        safe = np.where(capped, 1.0, 1.0 + ratio)
+        relative = self.phasor * scale / safe
+        slope = np.where(capped, 0.0, relative.imag) * self.metres_per_rad
+        return bias, slope, np.abs(safe), np.where(capped, 0.0, relative.real)
+
+    def solve(self, method: str) -> FootprintEstimate:
+        """The footprint from the depth residuals and, without a reference, from the amplitude residuals.
+
+        The two observables rest on different assumptions (planar surfaces; Lambertian surfaces of one
+        albedo each), so the estimate is their mean and its uncertainty includes half their difference.
+        """
+        depth = self._solve(method, use_depth=True, use_amplitude=False)
+        if self.reference is not None or not np.isfinite(depth.area_m2):
+            return depth
+        amplitude = self._solve(method, use_depth=False, use_amplitude=True)
+        if not np.isfinite(amplitude.area_m2):
+            return depth
+        area = 0.5 * (depth.area_m2 + amplitude.area_m2)
+        statistical = 0.5 * np.hypot(depth.sigma_m2, amplitude.sigma_m2)
+        disagreement = 0.5 * abs(depth.area_m2 - amplitude.area_m2)
+        return FootprintEstimate(float(area), float(np.hypot(statistical, disagreement)), depth.pixels,
+                                 depth.surfaces, method)
+
+    def _solve(self, method: str, use_depth: bool, use_amplitude: bool) -> FootprintEstimate:
+        n = self.depth.shape[0]
+        informative = int((self.kappa > 0).sum())
+        if n < 10 or informative == 0:
+            return FootprintEstimate(float("nan"), float("inf"), informative, self.surfaces, method)
+        anchor = self._anchor_rows() if self.reference is None else np.zeros(n, dtype=bool)
+        fit_rows = (self.kappa > 0) & ~anchor
+        area = 0.0
+        robust_depth, robust_amplitude = np.ones_like(self.depth), np.ones_like(self.depth)
+        spread, information = 1.0, 0.0
+        for iteration in range(MAX_ITERATIONS):
+            bias, slope, gain, gain_slope = self.bias(area)
+            planes = None
+            if self.reference is None:
+                surface_range, planes = self._plane_range(bias, anchor)
+            else:
+                surface_range = self.reference
+            trusted = (abs(area) * self.kappa <= MAX_FIT_COUPLING)[:, None]
+            residual = self.depth - surface_range[:, None] - bias
+            z = residual / self.sigma
+            if use_depth:
+                spread = 1.4826 * float(np.median(np.abs(z[fit_rows]))) or 1.0
+            if iteration >= PLAIN_ITERATIONS:  # before A is near, the multipath itself looks like an outlier
+                robust_depth = _huber(z, spread)
+            weight = np.where(trusted & fit_rows[:, None], robust_depth / self.sigma**2, 0.0)
+            numerator = float((weight * slope * residual).sum()) if use_depth else 0.0
+            information = float((weight * slope**2).sum()) if use_depth else 0.0
+            if planes is not None and use_amplitude:
+                step_terms = self._amplitude_terms(planes, surface_range, gain, gain_slope, trusted,
+                                                   robust_amplitude, iteration)
+                numerator += step_terms[0]
+                information += step_terms[1]
+                robust_amplitude, spread = step_terms[2], step_terms[3]
+            if information <= 0:  # nothing left to measure A on (every row capped or outside the fit)
+                return FootprintEstimate(float("nan"), float("inf"), informative, self.surfaces, method)
+            step = numerator / information
+            area += step
+            if iteration >= PLAIN_ITERATIONS and abs(step) <= 1e-4 * max(abs(area), 1e-4):
+                break
+        sigma_area = spread / np.sqrt(information) if information > 0 else float("inf")
+        return FootprintEstimate(float(area), float(sigma_area), informative, self.surfaces, method)
+
+    def _amplitude_terms(self, planes: NDArray, surface_range: NDArray, gain: NDArray, gain_slope: NDArray,
+                         trusted: NDArray, robust: NDArray, iteration: int) -> tuple[float, float, NDArray, float]:
+        """Gauss-Newton sums (numerator, information) of the amplitude rows, their Huber weights and spread."""
+        # Lambertian direct light: amplitude / Gamma_R = rho cos_i / t^2 with cos_i = 1 / (t |u|).
+        log_direct = -np.log(surface_range**3 * np.linalg.norm(planes[self.surface], axis=1))
+        residual = self.log_amplitude - log_direct[:, None] - np.log(gain)
+        weight = np.where(trusted, robust / self.sigma_log**2, 0.0)
+        # Eliminate log rho per surface: weighted means.
+        pixel_weight = weight.sum(1)
+        total = np.maximum(np.bincount(self.surface, pixel_weight, minlength=self.surfaces), 1e-300)
+        mean_residual = np.bincount(self.surface, (weight * residual).sum(1), minlength=self.surfaces) / total
+        mean_slope = np.bincount(self.surface, (weight * gain_slope).sum(1), minlength=self.surfaces) / total
+        residual = residual - mean_residual[self.surface][:, None]
+        slope = gain_slope - mean_slope[self.surface][:, None]
+        z = residual / self.sigma_log
+        spread = 1.4826 * float(np.median(np.abs(z))) or 1.0
+        if iteration >= PLAIN_ITERATIONS:
+            robust = _huber(z, spread)
+        return float((weight * slope * residual).sum()), float((weight * slope**2).sum()), robust, spread
+
+    def _anchor_rows(self) -> NDArray[np.bool_]:
+        """Pixels that fix each surface's plane: its share ``ANCHOR_SHARE`` with the least coupling."""
+        anchor = np.zeros(self.kappa.size, dtype=bool)
+        for label in range(self.surfaces):
+            members = np.flatnonzero(self.surface == label)
+            limit = np.quantile(self.kappa[members], ANCHOR_SHARE)
+            anchor[members[self.kappa[members] <= limit]] = True
+        return anchor
+
+    def _plane_range(self, bias: NDArray, anchor: NDArray) -> tuple[NDArray, NDArray]:
+        """Range (n,) [m] of each pixel's surface plane, fitted to the anchors' depth less the predicted bias.
+
+        The plane u . ray = 1 / range is a weighted least-squares fit per surface of the inverse-variance
+        mean depth over the frequencies, each anchor weighted by its range noise (d(1/r) = dr / r^2).
+        """
+        inverse_variance = self.sigma**-2
+        depth = ((self.depth - bias) * inverse_variance).sum(1) / inverse_variance.sum(1)
+        weight = np.where(anchor, depth**4 * inverse_variance.sum(1), 0.0)
+        outer = np.einsum("ni,nj->nij", self.rays, self.rays).reshape(-1, 9) * weight[:, None]
+        matrices = _sum_by(self.surface, outer, self.surfaces).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
+        vectors = _sum_by(self.surface, self.rays * (weight / depth)[:, None], self.surfaces)
+        planes = np.linalg.solve(matrices, vectors[..., None])[..., 0]
+        return 1.0 / np.einsum("ni,ni->n", self.rays, planes[self.surface]), planes
+
+
+def _huber(z: NDArray, spread: float) -> NDArray:
+    """Huber weights of standardized residuals, zero beyond six robust spreads."""
+    return np.where(np.abs(z) > 6 * spread, 0.0, np.minimum(1.0, HUBER_K * spread / np.maximum(np.abs(z), 1e-12)))
+
+
+def _sum_by(labels: NDArray, values: NDArray, count: int) -> NDArray:
+    """Sums of the rows of ``values`` (n, k) per label (count, k)."""
+    return np.stack([np.bincount(labels, values[:, k], minlength=count) for k in range(values.shape[1])], axis=1)
+
+
+def pool_estimates(estimates: list[FootprintEstimate]) -> FootprintEstimate:
+    """One footprint from several scans' estimates: their inverse-variance mean (scans without one add nothing)."""
+    usable = [e for e in estimates if np.isfinite(e.area_m2) and np.isfinite(e.sigma_m2) and e.sigma_m2 > 0]
+    methods = sorted({e.method for e in estimates}) or ["planes"]
+    if not usable:
+        return FootprintEstimate(float("nan"), float("inf"), sum(e.pixels for e in estimates),
+                                 sum(e.surfaces for e in estimates), "+".join(methods), len(estimates))
+    weights = np.array([e.sigma_m2**-2 for e in usable])
+    area = float(np.sum(weights * [e.area_m2 for e in usable]) / weights.sum())
+    return FootprintEstimate(area, float(weights.sum() ** -0.5), sum(e.pixels for e in estimates),
+                             sum(e.surfaces for e in estimates), "+".join(methods), len(estimates))

@@ -1,0 +1,170 @@
+"""Self-calibration of the footprint: against the renderer's true footprint, and what correction does with it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import zarr
+
+from mpi_lidar.config import Config
+from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction.calibration import FootprintEstimate, estimate_footprint, pool_estimates
+from mpi_lidar.correction.profile import SensorProfile, read_profile, write_profile
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.scans.geometry import facing_blocks
+from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render
+from mpi_lidar.workflows.calibrate import calibrate_scans, scan_footprint
+from tests.cli_runner import assert_one_error_line, call_main
+from tests.model_factory import tiny_model
+
+
+@pytest.fixture(scope="module")
+def tiny_geometric_model_dir(tmp_path_factory):
+    return tiny_model(tmp_path_factory.mktemp("calibration") / "model", geometric=True)
+
+
+@pytest.fixture(scope="module")
+def tiny_geometric_model(tiny_geometric_model_dir):
+    return load_model(tiny_geometric_model_dir)
+
+
+def rendered(scene, footprint_m2: float, seed: int = 1, noise: float = 1.0):
+    """A render whose true receiver footprint is ``footprint_m2`` (A_fp = gain pi r^2)."""
+    config = Config().replace(simulator={"noise_scale": noise})
+    gain = footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
+    return render(scene, config, np.random.default_rng(seed), coupling_gain=gain)
+
+
+def estimate(scan, reference: bool = False) -> FootprintEstimate:
+    valid = np.isfinite(scan.depth[-1]).ravel()
+    blocks = facing_blocks(np.where(valid.reshape(scan.shape), scan.depth[-1], np.nan), scan.rays())
+    return estimate_footprint(scan, blocks, valid, Config().sensor, reference=reference)
+
+
+@pytest.mark.parametrize("true_m2", [0.004, 0.041])
+def test_estimate__against_a_reference_depth_finds_the_renders_footprint(true_m2):
+    # The renderer's own footprint is the independent truth; against the exact reference depth only the
+    # scan's geometry (3 cm planes, the field of view) separates the model from the render.
+    found = estimate(rendered(corner(90.0, 2.0, 0.8), true_m2), reference=True)
+    assert found.significant and found.method == "reference"
+    assert found.area_m2 == pytest.approx(true_m2, rel=0.25)
+
+
+def test_estimate__from_the_scans_own_surfaces_at_a_small_footprint():
+    found = estimate(rendered(corner(90.0, 2.0, 0.8), 0.002))
+    assert found.significant and found.surfaces >= 2 and found.pixels > 5000
+    assert 1 / 1.5 <= found.area_m2 / 0.002 <= 1.5
+
+
+def test_estimate__a_flat_wall_measures_nothing_usable():
+    found = estimate(rendered(flat_wall(0.0), 0.041))
+    assert not found.significant
+
+
+def test_pool__is_the_inverse_variance_mean():
+    a, b = FootprintEstimate(0.01, 0.001, 100, 2), FootprintEstimate(0.02, 0.002, 300, 2)
+    pooled = pool_estimates([a, b, FootprintEstimate(float("nan"), float("inf"), 0, 0)])
+    weights = np.array([1e6, 0.25e6])
+    assert pooled.area_m2 == pytest.approx((weights * [0.01, 0.02]).sum() / weights.sum())
+    assert pooled.sigma_m2 == pytest.approx(weights.sum() ** -0.5)
+    assert pooled.scans == 3 and pooled.pixels == 400
+
+
+def test_correct__auto_on_a_flat_wall_keeps_every_raw_depth(tiny_geometric_model):
+    scan = rendered(flat_wall(20.0), 0.041)
+    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto"))
+    valid = correction.flags != Flag.NOT_FINITE
+    assert np.array_equal(correction.depth[valid], scan.depth[-1][valid])
+    assert correction.counts()["corrected"] == 0
+
+
+def test_correct__an_estimate_that_is_not_significant_leaves_its_pixels_as_measured(tiny_geometric_model):
+    # A dark corner (albedo 0.1) at high noise: the multipath is too weak to measure the footprint on.
+    scan = rendered(corner(90.0, 2.0, 0.1), 0.041, noise=3.0)
+    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto",
+                                                                           min_multipath_bias_m=1e-4))
+    assert correction.calibration is not None and not correction.calibration.significant
+    assert correction.counts()["corrected"] == 0 and correction.counts()["uncalibrated"] > 0
+    left = np.isin(correction.flags, [Flag.UNCALIBRATED, Flag.NO_MULTIPATH])
+    assert np.array_equal(correction.depth[left], scan.depth[-1][left])
+    assert any("not significant" in note and "uncalibrated" in note for note in correction.notes)
+
+
+def test_correct__a_significant_estimate_is_used_and_reported(tiny_geometric_model):
+    scan = rendered(corner(90.0, 2.0, 0.8), 0.02)
+    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto"))
+    assert correction.calibration.significant and correction.counts()["corrected"] > 0
+    given = correct_scan(scan, tiny_geometric_model,
+                         CorrectionOptions(footprint_area_m2=correction.calibration.area_m2))
+    assert np.array_equal(given.depth, correction.depth, equal_nan=True)  # auto is the number it found
+
+
+def test_options__footprint_accepts_auto_or_a_positive_number():
+    assert CorrectionOptions.from_cli(footprint_area_m2="AUTO").self_calibrating
+    assert CorrectionOptions.from_cli(footprint_area_m2="0.02").footprint_area_m2 == 0.02
+    assert CorrectionOptions().self_calibrating
+    for bad in ("wide", "-1", "0"):
+        with pytest.raises(MpiLidarError, match="footprint_area_m2"):
+            CorrectionOptions.from_cli(footprint_area_m2=bad)
+
+
+def test_profile__round_trip_and_no_overwrite(tmp_path):
+    profile = SensorProfile.from_estimate(FootprintEstimate(0.02, 0.001, 900, 2, "reference", 3), ["a", "b"],
+                                          saturation_amplitude_v2=0.5, min_amplitude_sigmas=4.0)
+    path = write_profile(profile, tmp_path / "sensor.toml")
+    assert read_profile(path) == profile
+    with pytest.raises(MpiLidarError, match="already exists"):
+        write_profile(profile, path)
+    assert read_profile(path) == profile
+
+
+@pytest.mark.parametrize("text, fragment", [("footprint_area_m2 = \n", "not valid TOML"),
+                                            ("footprint_area_m2 = -1.0\n", "invalid"),
+                                            ("footprint = 0.02\n", "invalid")])
+def test_profile__bad_files_are_one_line_errors(tmp_path, monkeypatch, capsys, text, fragment):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    scan = tmp_path / "none.scan.zarr"
+    code, _, stderr = call_main(monkeypatch, capsys, "correct", str(scan), "--model", str(tmp_path), "--out",
+                                str(tmp_path / "out"), "--sensor", str(bad))
+    assert code == 2 and fragment in stderr and str(bad) in stderr
+    assert_one_error_line(stderr)
+    assert not (tmp_path / "out").exists()
+
+
+def test_calibrate__pools_scans_writes_a_profile_that_correct_records(tmp_path, tiny_geometric_model_dir,
+                                                                      monkeypatch, capsys):
+    from mpi_lidar.scans.scan import write_scan
+
+    for seed in (1, 2):
+        write_scan(rendered(corner(90.0, 2.0, 0.8), 0.02, seed=seed), tmp_path / "scans" / f"c{seed}.scan.zarr")
+    profile, results = calibrate_scans([str(tmp_path / "scans")], tmp_path / "sensor.toml")
+    assert len(results) == 2 and all(r.estimate.method == "reference" for r in results)
+    assert profile.footprint_area_m2 == pytest.approx(0.02, rel=0.3)
+    assert read_profile(tmp_path / "sensor.toml").footprint_area_m2 == profile.footprint_area_m2
+    code, _, stderr = call_main(monkeypatch, capsys, "correct", str(tmp_path / "scans" / "c1.scan.zarr"), "--model",
+                                str(tiny_geometric_model_dir), "--out", str(tmp_path / "out"), "--sensor",
+                                str(tmp_path / "sensor.toml"), "--workers", "0")
+    assert code == 0, stderr
+    attrs = zarr.open_group(str(tmp_path / "out" / "c1" / "corrected.zarr"), mode="r").attrs
+    assert attrs["options"]["footprint_area_m2"] == profile.footprint_area_m2
+    assert attrs["options"]["sensor_profile_sha256"] == profile.record()["sha256"]
+
+
+def test_calibrate__refuses_scans_without_facing_surfaces(tmp_path, monkeypatch, capsys):
+    from mpi_lidar.scans.scan import write_scan
+
+    write_scan(rendered(flat_wall(0.0), 0.041), tmp_path / "wall.scan.zarr")
+    code, _, stderr = call_main(monkeypatch, capsys, "calibrate", str(tmp_path / "wall.scan.zarr"), "--out",
+                                str(tmp_path / "sensor.toml"), "--no-reference")
+    assert code == 2 and "no significant footprint" in stderr
+    assert_one_error_line(stderr)
+    assert not (tmp_path / "sensor.toml").exists()
+
+
+def test_scan_footprint__a_scan_without_geometry_measures_nothing():
+    from dataclasses import replace
+
+    scan = replace(rendered(corner(90.0, 2.0, 0.8), 0.02), azimuth_rad=None, elevation_rad=None)
+    assert not np.isfinite(scan_footprint(scan, CorrectionOptions(), Config().sensor).area_m2)
