@@ -277,7 +277,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "auto: each scan measures its own from its facing surfaces, and pixels that depend on an "
                    "estimate that is not significant are left as measured (flag uncalibrated). "
                    "(default: the --sensor profile's, else auto)")
-@click.option("--sensor", "sensor_file", type=click.Path(path_type=Path), default=None,
+@click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None,
               help="Sensor profile (sensor.toml from mpi-lidar calibrate): footprint and the saturation and "
                    "no-return thresholds; --footprint-area-m2 overrides its footprint.")
 @click.option("--max-invalid-share", type=click.FloatRange(0, 1), default=None,
@@ -301,7 +301,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "megapixel; a cluster takes about 10 s to start), else 2 workers.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
-            footprint_area_m2: str | None, sensor_file: Path | None, max_invalid_share: float | None,
+            footprint_area_m2: str | None, sensor: Path | None, max_invalid_share: float | None,
             fail_on: tuple[str, ...],
             outputs: str, point_clouds: tuple[str, ...], workers: int | None, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
@@ -327,7 +327,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     from mpi_lidar.workflows.executor import InProcess, dask_executor
 
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
-                                         max_invalid_share=max_invalid_share, **_profile_options(sensor_file))
+                                         max_invalid_share=max_invalid_share, **_profile_options(sensor))
     started = time.perf_counter()
     here = not scheduler and (workers == 0 if workers is not None else runs_in_process(list(scans)))
     total = len(expand_archive(list(scans)))

@@ -46,7 +46,7 @@ NEIGHBOUR_ANGLE_DEG = 20.0
 SURFACE_ANGLE_DEG = 12.0
 MIN_SURFACE_BLOCKS = 3
 # Pixels the fit uses at most: a subsample on a regular stride keeps the cost a small share of correction.
-MAX_FIT_PIXELS = 60_000
+MAX_FIT_PIXELS = 20_000
 # The estimate is used only when it is this many standard deviations above zero ...
 MIN_SIGNIFICANCE = 3.0
 # ... and rests on at least this many pixels with a facing partner.

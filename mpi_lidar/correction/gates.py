@@ -114,7 +114,7 @@ class GeometryGate(Gate):
         blocks = geometry.facing_blocks(valid_depth.reshape(scan.shape), rays, block_m=self.block_m,
                                         max_range_m=self.partner_range_m)
         if self.footprint_area_m2 != AUTO:
-            return blocks.potential(float(self.footprint_area_m2))
+            return blocks.potential(self.footprint_area_m2)
         from mpi_lidar.correction.calibration import estimate_footprint
 
         estimate = estimate_footprint(scan, blocks, np.isfinite(valid_depth), self.sensor)

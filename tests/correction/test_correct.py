@@ -243,9 +243,14 @@ def test_scan_status__degraded_then_unchanged_then_corrected():
 
 
 def test_correction_options__max_invalid_share_is_bounded_and_not_hashed():
-    # the hash of the defaults before max_invalid_share existed: outputs written then are still recognised
-    assert CorrectionOptions().sha256() == "60f34a4236aaaebe7317d65a6b26b44fb18bdd6d4b7e20a9cb91fc30bd1028ed"
+    # the hash of the defaults before max_invalid_share and the self-calibrating footprint existed: outputs
+    # written then are still recognised when the old footprint is given
+    from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
+
+    old_defaults = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
+    assert old_defaults.sha256() == "60f34a4236aaaebe7317d65a6b26b44fb18bdd6d4b7e20a9cb91fc30bd1028ed"
     assert CorrectionOptions(max_invalid_share=0.9).sha256() == CorrectionOptions().sha256()
+    assert CorrectionOptions().sha256() != old_defaults.sha256()  # auto changes pixels: not the same identity
     assert CorrectionOptions.from_cli(max_invalid_share=0.25).max_invalid_share == 0.25
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(MpiLidarError, match="max_invalid_share"):

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import matplotlib
 
+from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
+
 matplotlib.use("Agg")
 
 import json
@@ -113,7 +115,8 @@ def test_maps_figure__archived_scan_shows_what_correction_did_in_degrees(model_d
     from mpi_lidar import correct_scan, load_model
 
     scan = archived[0]
-    correction = correct_scan(scan, load_model(model_dir), CorrectionOptions(gate="geometry", min_multipath_bias_m=0.0))
+    options = CorrectionOptions(gate="geometry", min_multipath_bias_m=0.0, footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
+    correction = correct_scan(scan, load_model(model_dir), options)
     assert correction.multipath_bias_m is not None
     fig = maps_figure(scan, correction)
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
