@@ -43,7 +43,7 @@ from mpi_lidar.scans.scan import Scan
 # other's planes (a depth step is another surface) ...
 NEIGHBOUR_ANGLE_DEG = 20.0
 # ... and whose blocks bend from the surface's plane by less than this [deg]; bending blocks are left out.
-SURFACE_ANGLE_DEG = 12.0
+SURFACE_ANGLE_DEG = 25.0
 MIN_SURFACE_BLOCKS = 3
 # Pixels the fit uses at most: a subsample on a regular stride keeps the cost a small share of correction.
 MAX_FIT_PIXELS = 20_000
@@ -52,13 +52,19 @@ MIN_SIGNIFICANCE = 3.0
 # ... and rests on at least this many pixels with a facing partner.
 MIN_INFORMATIVE_PIXELS = 200
 HUBER_K = 2.0
+# Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
+SYSTEMATIC_SHARE = 0.25
+AMPLITUDE_AGREEMENT = 3.0
 # Rows whose predicted multipath ratio A K exceeds this are left out of the fit: closer to an edge the
 # block geometry (3 cm planes, r clamped at the block size, the cap at kappa = 1) is least faithful.
-MAX_FIT_COUPLING = 0.15
+MAX_FIT_COUPLING = 2.0
 MAX_ITERATIONS = 20
+# 1 / sqrt(kappa) [m^-1 ...] standing in for a block without coupling when coupling is interpolated.
+NO_COUPLING_ROOT = 1e3
 PLAIN_ITERATIONS = 4
 # Share of each surface's pixels, those with the least predicted coupling, that fix its plane.
 ANCHOR_SHARE = 0.4
+MIN_ANCHOR_PIXELS = 50
 
 
 @dataclass(frozen=True)
@@ -130,10 +136,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         return NOTHING_MEASURED
     ys, xs = np.divmod(pixels, blocks.shape[1])
     coordinates = ((ys + 0.5) / blocks.block_pixels - 0.5, (xs + 0.5) / blocks.block_pixels - 0.5)
-    phasor = np.stack([blocks.to_pixels(unit_phasor[:, k].real, coordinates)
-                       + 1j * blocks.to_pixels(unit_phasor[:, k].imag, coordinates)
-                       for k in range(unit_phasor.shape[1])], axis=1)
-    kappa = blocks.to_pixels(unit_kappa, coordinates)
+    phasor, kappa = _pixel_phasors(blocks, unit_phasor, unit_kappa, coordinates)
     depth = np.asarray(scan.depth, dtype=np.float64)[:, ys, xs].T
     amplitude = np.asarray(scan.amplitude, dtype=np.float64)[:, ys, xs].T
     freqs = np.asarray(scan.frequencies_hz, dtype=np.float64)
@@ -205,6 +208,25 @@ def block_unit_phasors(blocks: FacingBlocks, albedo: NDArray, frequencies_hz: tu
         phasor[:, k] = (np.bincount(block_a, weight * np.cos(phase[:, k]), minlength=n_blocks)
                         + 1j * np.bincount(block_a, weight * np.sin(phase[:, k]), minlength=n_blocks))
     return phasor, np.bincount(block_a, kappa, minlength=n_blocks)
+
+
+def _pixel_phasors(blocks: FacingBlocks, unit_phasor: NDArray, unit_kappa: NDArray,
+                   coordinates: tuple[NDArray, NDArray]) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+    """Unit-footprint phasors (n, F) and white kappa (n,) at pixel coordinates, from the block values.
+
+    Near an edge the coupling falls as 1 / a^2 with the distance a from it, so a linear interpolation between
+    block centres would overstate it between them; 1 / sqrt(kappa) is linear in a and is interpolated instead,
+    and the phasor as kappa times its (smooth) ratio to kappa.
+    """
+    has = unit_kappa > 0
+    inverse_root = blocks.to_pixels(np.where(has, np.where(has, unit_kappa, 1.0) ** -0.5, NO_COUPLING_ROOT),
+                                    coordinates)
+    kappa = np.where(inverse_root < NO_COUPLING_ROOT, inverse_root ** -2.0, 0.0)
+    ratio = np.where(has[:, None], unit_phasor / np.where(has, unit_kappa, 1.0)[:, None], 0.0)
+    phasor = np.stack([blocks.to_pixels(ratio[:, k].real, coordinates) + 1j * blocks.to_pixels(ratio[:, k].imag,
+                                                                                               coordinates)
+                       for k in range(ratio.shape[1])], axis=1)
+    return phasor * kappa[:, None], kappa
 
 
 def surface_labels(blocks: FacingBlocks) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -289,6 +311,7 @@ class _Problem:
         self.metres_per_rad, self.rays, self.reference = metres_per_rad, rays, reference
         _, self.surface = np.unique(surface, return_inverse=True)
         self.surfaces = int(self.surface.max()) + 1 if surface.size else 0
+        self.anchor = self._anchor_rows()
 
     def bias(self, area: float) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         """Predicted depth bias (n, F) [m] at footprint ``area``, its derivative in the footprint, the
@@ -303,29 +326,38 @@ class _Problem:
         return bias, slope, np.abs(safe), np.where(capped, 0.0, relative.real)
 
     def solve(self, method: str) -> FootprintEstimate:
-        """The footprint from the depth residuals and, without a reference, from the amplitude residuals.
+        """The footprint from the depth residuals, over the fitted planes or against the reference depth.
 
-        The two observables rest on different assumptions (planar surfaces; Lambertian surfaces of one
-        albedo each), so the estimate is their mean and its uncertainty includes half their difference.
+        The statistical uncertainty is combined with a systematic one, ``SYSTEMATIC_SHARE`` of the estimate:
+        the spread of the estimate over rendered scenes the scan's geometry describes only in part (partners
+        beyond the field of view, 3 cm blocks).
         """
-        depth = self._solve(method, use_depth=True, use_amplitude=False)
-        if self.reference is not None or not np.isfinite(depth.area_m2):
-            return depth
-        amplitude = self._solve(method, use_depth=False, use_amplitude=True)
-        if not np.isfinite(amplitude.area_m2):
-            return depth
-        area = 0.5 * (depth.area_m2 + amplitude.area_m2)
-        statistical = 0.5 * np.hypot(depth.sigma_m2, amplitude.sigma_m2)
-        disagreement = 0.5 * abs(depth.area_m2 - amplitude.area_m2)
-        return FootprintEstimate(float(area), float(np.hypot(statistical, disagreement)), depth.pixels,
-                                 depth.surfaces, method)
+        problem = self if self.reference is not None else self._anchored()
+        found = problem._solve(method, use_depth=True, use_amplitude=False)
+        if not np.isfinite(found.area_m2):
+            return found
+        sigma = float(np.hypot(found.sigma_m2, SYSTEMATIC_SHARE * found.area_m2))
+        if self.reference is None and not problem._amplitude_agrees(method, found.area_m2):
+            sigma = max(sigma, abs(found.area_m2))  # the scan is not what the model describes: not significant
+        return FootprintEstimate(found.area_m2, sigma, found.pixels, found.surfaces, method)
+
+    def _amplitude_agrees(self, method: str, area: float) -> bool:
+        """Whether the amplitude tells the same footprint as the depth, to a factor ``AMPLITUDE_AGREEMENT``.
+
+        Multipath adds light as well as range. A scan whose depth residuals suggest a footprint its
+        amplitude does not show (a dark corner, where the predicted bias is tiny and any residual the
+        planes leave looks like multipath) is not described by the model.
+        """
+        check = self._solve(method, use_depth=False, use_amplitude=True).area_m2
+        return bool(np.isfinite(check) and area > 0 and check > 0
+                    and 1 / AMPLITUDE_AGREEMENT <= check / area <= AMPLITUDE_AGREEMENT)
 
     def _solve(self, method: str, use_depth: bool, use_amplitude: bool) -> FootprintEstimate:
         n = self.depth.shape[0]
         informative = int((self.kappa > 0).sum())
         if n < 10 or informative == 0:
             return FootprintEstimate(float("nan"), float("inf"), informative, self.surfaces, method)
-        anchor = self._anchor_rows() if self.reference is None else np.zeros(n, dtype=bool)
+        anchor = self.anchor if self.reference is None else np.zeros(n, dtype=bool)
         fit_rows = (self.kappa > 0) & ~anchor
         area = 0.0
         robust_depth, robust_amplitude = np.ones_like(self.depth), np.ones_like(self.depth)
@@ -337,8 +369,9 @@ class _Problem:
                 surface_range, planes = self._plane_range(bias, anchor)
             else:
                 surface_range = self.reference
-            trusted = (abs(area) * self.kappa <= MAX_FIT_COUPLING)[:, None]
-            residual = self.depth - surface_range[:, None] - bias
+            # A surface whose plane could not be fitted (too few anchors) has no range: its rows are left out.
+            trusted = ((abs(area) * self.kappa <= MAX_FIT_COUPLING) & np.isfinite(surface_range))[:, None]
+            residual = np.where(trusted, self.depth - np.nan_to_num(surface_range)[:, None] - bias, 0.0)
             z = residual / self.sigma
             if use_depth:
                 spread = 1.4826 * float(np.median(np.abs(z[fit_rows]))) or 1.0
@@ -366,8 +399,9 @@ class _Problem:
                          trusted: NDArray, robust: NDArray, iteration: int) -> tuple[float, float, NDArray, float]:
         """Gauss-Newton sums (numerator, information) of the amplitude rows, their Huber weights and spread."""
         # Lambertian direct light: amplitude / Gamma_R = rho cos_i / t^2 with cos_i = 1 / (t |u|).
-        log_direct = -np.log(surface_range**3 * np.linalg.norm(planes[self.surface], axis=1))
-        residual = self.log_amplitude - log_direct[:, None] - np.log(gain)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_direct = -np.log(surface_range**3 * np.linalg.norm(planes[self.surface], axis=1))
+        residual = np.where(trusted, self.log_amplitude - np.nan_to_num(log_direct)[:, None] - np.log(gain), 0.0)
         weight = np.where(trusted, robust / self.sigma_log**2, 0.0)
         # Eliminate log rho per surface: weighted means.
         pixel_weight = weight.sum(1)
@@ -382,14 +416,25 @@ class _Problem:
             robust = _huber(z, spread)
         return float((weight * slope * residual).sum()), float((weight * slope**2).sum()), robust, spread
 
+    def _anchored(self) -> _Problem:
+        """This problem without the surfaces that have too few anchors to fix a plane.
+
+        A strip along an edge that the multipath bent away from its surface has pixels close to their
+        partners only: it has no plane to measure the bias against.
+        """
+        anchor = self._anchor_rows()
+        anchors = np.bincount(self.surface, anchor, minlength=self.surfaces)
+        keep = anchors[self.surface] >= MIN_ANCHOR_PIXELS
+        kept = _Problem(self.depth[keep], self.sigma[keep], self.phasor[keep], self.kappa[keep], self.metres_per_rad,
+                        np.exp(self.log_amplitude[keep]), self.rays[keep], self.surface[keep], None)
+        kept.anchor = anchor[keep]
+        return kept
+
     def _anchor_rows(self) -> NDArray[np.bool_]:
-        """Pixels that fix each surface's plane: its share ``ANCHOR_SHARE`` with the least coupling."""
-        anchor = np.zeros(self.kappa.size, dtype=bool)
-        for label in range(self.surfaces):
-            members = np.flatnonzero(self.surface == label)
-            limit = np.quantile(self.kappa[members], ANCHOR_SHARE)
-            anchor[members[self.kappa[members] <= limit]] = True
-        return anchor
+        """Pixels that fix the surfaces' planes: the share ``ANCHOR_SHARE`` of all with the least coupling."""
+        if self.kappa.size == 0:
+            return np.zeros(0, dtype=bool)
+        return self.kappa <= np.quantile(self.kappa, ANCHOR_SHARE)
 
     def _plane_range(self, bias: NDArray, anchor: NDArray) -> tuple[NDArray, NDArray]:
         """Range (n,) [m] of each pixel's surface plane, fitted to the anchors' depth less the predicted bias.
@@ -404,7 +449,9 @@ class _Problem:
         matrices = _sum_by(self.surface, outer, self.surfaces).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
         vectors = _sum_by(self.surface, self.rays * (weight / depth)[:, None], self.surfaces)
         planes = np.linalg.solve(matrices, vectors[..., None])[..., 0]
-        return 1.0 / np.einsum("ni,ni->n", self.rays, planes[self.surface]), planes
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inverse_range = np.einsum("ni,ni->n", self.rays, planes[self.surface])
+            return np.where(inverse_range > 0, 1.0 / inverse_range, np.nan), planes
 
 
 def _huber(z: NDArray, spread: float) -> NDArray:

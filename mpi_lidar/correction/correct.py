@@ -126,7 +126,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         predict = not (model.geometric and potential is None)
         if not predict:
             notes = (NO_GEOMETRY_INPUTS_NOTE,)
-        if calibration is not None and np.isfinite(calibration.area_m2):  # nothing to say where nothing faces
+        if calibration is not None and calibration.pixels > 0:  # nothing to say where nothing faces
             notes += (calibration_note(calibration, int((flags == Flag.UNCALIBRATED).sum())),)
     gate_s = time.perf_counter() - gate_started
     depth = usable_depth  # the gate is done with it (the geometry gate copied it): filled in place, no copy
@@ -152,6 +152,10 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
 
 def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
     """What a report says of a scan's own footprint estimate and of the pixels it decided."""
+    if not np.isfinite(estimate.area_m2):
+        return (f"footprint auto: could not be measured on the {estimate.pixels:,} pixels with facing partners, "
+                f"not significant: {uncalibrated:,} pixels that could hold multipath above the gate's threshold "
+                "were left as measured (flag uncalibrated)")
     measured = (f"footprint auto: {estimate.area_m2:.4g} +- {estimate.sigma_m2:.2g} m^2 from {estimate.pixels:,} "
                 f"pixels on {estimate.surfaces} surfaces")
     if estimate.significant:
