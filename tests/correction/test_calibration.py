@@ -168,3 +168,14 @@ def test_scan_footprint__a_scan_without_geometry_measures_nothing():
 
     scan = replace(rendered(corner(90.0, 2.0, 0.8), 0.02), azimuth_rad=None, elevation_rad=None)
     assert not np.isfinite(scan_footprint(scan, CorrectionOptions(), Config().sensor).area_m2)
+
+
+def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(tiny_geometric_model_dir):
+    from benchmarks.calibration import run
+
+    rows = run(str(tiny_geometric_model_dir), quick=True)
+    assert len(rows) == 4 and {row["true_m2"] for row in rows} == {0.002, 0.041}
+    for row in rows:
+        assert row["auto_mm"] <= row["raw_mm"] + 0.05  # auto never does harm on these
+    wall = [row for row in rows if not row["corner"]]
+    assert all(row["auto_mm"] == row["raw_mm"] for row in wall)
