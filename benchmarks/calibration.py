@@ -56,7 +56,8 @@ ESTIMATE_EDGE_MM = 2.0
 MAX_ESTIMATE_FACTOR = 1.5
 
 HEADER = ("| scene | true A_fp [m^2] | raw MAE [mm] | corrected, true A_fp [mm] | corrected, auto [mm] | edge raw [mm] "
-          "| edge true A_fp [mm] | edge auto [mm] | edge multipath [mm] | estimated A_fp [m^2] (+-sigma) | estimate / true | significant |\n"
+          "| edge true A_fp [mm] | edge auto [mm] | edge multipath [mm] | estimated A_fp [m^2] (+-sigma) "
+          "| estimate / true | significant |\n"
           "|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
