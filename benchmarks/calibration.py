@@ -1,6 +1,7 @@
 """Per-scan self-calibration of the receiver footprint A_fp: does "auto" correct as well as the true footprint?
 
 Run: .venv/bin/python -m benchmarks.calibration --model DIR [--quick] [--seed 0]
+ or: .venv/bin/python -m benchmarks.calibration --model DIR --cost  (CPU the calibration adds to 1000 x 1000)
 Renders every scene of the set with each true footprint A_fp (coupling gain A_fp / pi r^2, r the default
 footprint radius), corrects it with the true A_fp and with ``footprint_area_m2="auto"`` (the scan measures
 its own footprint), and prints one markdown row per scene and footprint: MAE of the 31.25 MHz depth on the
@@ -29,6 +30,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.scans.scan import Scan
+from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 from mpi_lidar.simulation.scenes import (
     DEFAULT_FOOTPRINT_RADIUS_M,
     Scene,
@@ -195,12 +197,39 @@ def summary(rows: list[dict[str, Any]]) -> list[str]:
     ]
 
 
+def calibration_cost(model_path: str, side: int = 1000, repeats: int = 3) -> list[str]:
+    """CPU seconds of correcting a side x side cornered board with the footprint given and with auto (median of
+    ``repeats``), and the share the self-calibration adds."""
+    from mpi_lidar.simulation.scenes import cornered_board
+
+    model = load_model(model_path)
+    scan = render(cornered_board(height=side, width=side), Config(), np.random.default_rng(0), patch_spacing_m=0.05)
+    seconds: dict[str, float] = {}
+    for footprint in (DEFAULT_FOOTPRINT_AREA_M2, "auto"):
+        runs = []
+        for _ in range(repeats):
+            started = time.process_time()
+            correct_scan(scan, model, CorrectionOptions(footprint_area_m2=footprint))
+            runs.append(time.process_time() - started)
+        seconds[str(footprint)] = float(np.median(runs))
+    given, auto = seconds[str(DEFAULT_FOOTPRINT_AREA_M2)], seconds["auto"]
+    share = auto / given - 1
+    return [f"Correction of a {side} x {side} cornered board: footprint given {given:.2f} CPU s, auto {auto:.2f} "
+            f"CPU s (median of {repeats}): calibration adds {100 * share:.0f} % against <= 20 %: "
+            f"{_verdict(share <= 0.20)}"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", required=True, help="Directory of a trained correction model.")
     parser.add_argument("--quick", action="store_true", help="Two scenes at two footprints only (for a test).")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cost", action="store_true",
+                        help="Only the CPU time the calibration adds to correcting a 1000 x 1000 scan.")
     args = parser.parse_args()
+    if args.cost:
+        print("\n".join(calibration_cost(args.model)))
+        return
     print(f"Machine: {platform.node()} ({platform.machine()}), {date.today()}; model {args.model}, "
           f"seed {args.seed}{', quick' if args.quick else ''}\n")
     print(HEADER, flush=True)

@@ -59,6 +59,7 @@ AMPLITUDE_AGREEMENT = 3.0
 # block geometry (3 cm planes, r clamped at the block size, the cap at kappa = 1) is least faithful.
 MAX_FIT_COUPLING = 2.0
 MAX_ITERATIONS = 20
+ALBEDO_ITERATIONS = 2
 # 1 / sqrt(kappa) [m^-1 ...] standing in for a block without coupling when coupling is interpolated.
 NO_COUPLING_ROOT = 1e3
 PLAIN_ITERATIONS = 4
@@ -125,10 +126,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         return NOTHING_MEASURED
     rays = scan.rays()
     components, labels = surface_labels(blocks)
-    white = blocks.pairs.kappa(1.0)
-    unit_white = np.bincount(blocks.index[blocks.pairs.a], white, minlength=blocks.usable.size)
-    albedo = surface_albedo(block_albedo(scan, blocks, sensor), components, unit_white)
-    unit_phasor, unit_kappa = block_unit_phasors(blocks, albedo, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
+    unit_kappa = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
     if reference:
         labels = np.where(blocks.usable.ravel(), 0, -1)
     pixels = _fit_pixels(blocks, labels, unit_kappa, valid, max_pixels)
@@ -136,7 +134,6 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         return NOTHING_MEASURED
     ys, xs = np.divmod(pixels, blocks.shape[1])
     coordinates = ((ys + 0.5) / blocks.block_pixels - 0.5, (xs + 0.5) / blocks.block_pixels - 0.5)
-    phasor, kappa = _pixel_phasors(blocks, unit_phasor, unit_kappa, coordinates)
     depth = np.asarray(scan.depth, dtype=np.float64)[:, ys, xs].T
     amplitude = np.asarray(scan.amplitude, dtype=np.float64)[:, ys, xs].T
     freqs = np.asarray(scan.frequencies_hz, dtype=np.float64)
@@ -148,10 +145,25 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     block_of_pixel = (ys // blocks.block_pixels) * blocks.usable.shape[1] + xs // blocks.block_pixels
     surface = labels[block_of_pixel]
     reference_depth = np.asarray(scan.reference_depth, dtype=np.float64).ravel()[pixels] if reference else None
-    problem = _Problem(depth[usable], sigma[usable], phasor[usable], kappa[usable], metres_per_rad,
-                       amplitude[usable] / sensor.gamma_r_v2, pixel_rays[usable], surface[usable],
-                       None if reference_depth is None else reference_depth[usable])
-    return problem.solve("reference" if reference else "planes")
+    # Multipath adds light, so the amplitude overstates the albedo most where the partners that matter lie
+    # (the strip along an edge); each estimate of A takes that excess off the albedos for the next.
+    measured_albedo = block_albedo(scan, blocks, sensor)
+    albedo = surface_albedo(measured_albedo, components, unit_kappa)
+    found = NOTHING_MEASURED
+    for iteration in range(ALBEDO_ITERATIONS):
+        unit_phasor, _ = block_unit_phasors(blocks, albedo, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
+        phasor, kappa = _pixel_phasors(blocks, unit_phasor, unit_kappa, coordinates)
+        problem = _Problem(depth[usable], sigma[usable], phasor[usable], kappa[usable], metres_per_rad,
+                           amplitude[usable] / sensor.gamma_r_v2, pixel_rays[usable], surface[usable],
+                           None if reference_depth is None else reference_depth[usable])
+        last = iteration == ALBEDO_ITERATIONS - 1
+        found = problem.solve("reference" if reference else "planes", check=last)
+        if last or not np.isfinite(found.area_m2) or found.area_m2 <= 0:
+            break
+        area = found.area_m2
+        gain = np.abs(1.0 + area * unit_phasor[:, -1] / np.maximum(area * unit_kappa, 1.0))
+        albedo = surface_albedo(measured_albedo / gain, components, unit_kappa)
+    return found
 
 
 def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig) -> NDArray[np.float64]:
@@ -312,6 +324,7 @@ class _Problem:
         _, self.surface = np.unique(surface, return_inverse=True)
         self.surfaces = int(self.surface.max()) + 1 if surface.size else 0
         self.anchor = self._anchor_rows()
+        self.ray_outer = np.einsum("ni,nj->nij", rays, rays).reshape(-1, 9)  # the planes' normal equations
 
     def bias(self, area: float) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         """Predicted depth bias (n, F) [m] at footprint ``area``, its derivative in the footprint, the
@@ -325,19 +338,20 @@ class _Problem:
         slope = np.where(capped, 0.0, relative.imag) * self.metres_per_rad
         return bias, slope, np.abs(safe), np.where(capped, 0.0, relative.real)
 
-    def solve(self, method: str) -> FootprintEstimate:
+    def solve(self, method: str, check: bool = True) -> FootprintEstimate:
         """The footprint from the depth residuals, over the fitted planes or against the reference depth.
 
         The statistical uncertainty is combined with a systematic one, ``SYSTEMATIC_SHARE`` of the estimate:
         the spread of the estimate over rendered scenes the scan's geometry describes only in part (partners
-        beyond the field of view, 3 cm blocks).
+        beyond the field of view, 3 cm blocks). ``check``: compare with the amplitude (see
+        :meth:`_amplitude_agrees`); an estimate that fails the check is not significant.
         """
         problem = self if self.reference is not None else self._anchored()
         found = problem._solve(method, use_depth=True, use_amplitude=False)
         if not np.isfinite(found.area_m2):
             return found
         sigma = float(np.hypot(found.sigma_m2, SYSTEMATIC_SHARE * found.area_m2))
-        if self.reference is None and not problem._amplitude_agrees(method, found.area_m2):
+        if check and self.reference is None and not problem._amplitude_agrees(method, found.area_m2):
             sigma = max(sigma, abs(found.area_m2))  # the scan is not what the model describes: not significant
         return FootprintEstimate(found.area_m2, sigma, found.pixels, found.surfaces, method)
 
@@ -445,8 +459,8 @@ class _Problem:
         inverse_variance = self.sigma**-2
         depth = ((self.depth - bias) * inverse_variance).sum(1) / inverse_variance.sum(1)
         weight = np.where(anchor, depth**4 * inverse_variance.sum(1), 0.0)
-        outer = np.einsum("ni,nj->nij", self.rays, self.rays).reshape(-1, 9) * weight[:, None]
-        matrices = _sum_by(self.surface, outer, self.surfaces).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
+        matrices = _sum_by(self.surface, self.ray_outer * weight[:, None], self.surfaces).reshape(-1, 3, 3)
+        matrices += 1e-9 * np.eye(3)
         vectors = _sum_by(self.surface, self.rays * (weight / depth)[:, None], self.surfaces)
         planes = np.linalg.solve(matrices, vectors[..., None])[..., 0]
         with np.errstate(divide="ignore", invalid="ignore"):
