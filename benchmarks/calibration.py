@@ -29,8 +29,8 @@ from benchmarks.scenes import _edge, edge_region, mae_mm
 from mpi_lidar.config import Config
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.learning.model import CorrectionModel, load_model
-from mpi_lidar.scans.scan import Scan
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
+from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import (
     DEFAULT_FOOTPRINT_RADIUS_M,
     Scene,
