@@ -268,8 +268,9 @@ def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, t
         assert CliRunner().invoke(cli, arguments).exit_code == 0
         return zarr.open_group(str(out / "corner" / "corrected.zarr"), mode="r")["flags"][:]  # the store name
 
-    default = flags_with()
-    every = flags_with("--min-bias-mm", "0")
+    footprint = ("--footprint-area-m2", "0.041")  # this small scan is too small to measure its own
+    default = flags_with(*footprint)
+    every = flags_with("--min-bias-mm", "0", *footprint)
     blind = flags_with("--footprint-area-m2", "1e-12")
     assert 0 < (default == Flag.CORRECTED).sum() < (every == Flag.CORRECTED).sum()
     assert not (every == Flag.NO_MULTIPATH).any(), "a zero threshold lets every valid pixel through"
