@@ -46,7 +46,7 @@ NEIGHBOUR_ANGLE_DEG = 20.0
 SURFACE_ANGLE_DEG = 25.0
 MIN_SURFACE_BLOCKS = 3
 # Pixels the fit uses at most: a subsample on a regular stride keeps the cost a small share of correction.
-MAX_FIT_PIXELS = 20_000
+MAX_FIT_PIXELS = 12_000
 # The estimate is used only when it is this many standard deviations above zero ...
 MIN_SIGNIFICANCE = 3.0
 # ... and rests on at least this many pixels with a facing partner.
@@ -55,6 +55,7 @@ HUBER_K = 2.0
 # Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
 SYSTEMATIC_SHARE = 0.25
 AMPLITUDE_AGREEMENT = 3.0
+MAX_PLAUSIBLE_M2 = 1.0
 # Rows whose predicted multipath ratio A K exceeds this are left out of the fit: closer to an edge the
 # block geometry (3 cm planes, r clamped at the block size, the cap at kappa = 1) is least faithful.
 MAX_FIT_COUPLING = 2.0
@@ -348,8 +349,9 @@ class _Problem:
         """
         problem = self if self.reference is not None else self._anchored()
         found = problem._solve(method, use_depth=True, use_amplitude=False)
-        if not np.isfinite(found.area_m2):
-            return found
+        if not np.isfinite(found.area_m2) or abs(found.area_m2) > MAX_PLAUSIBLE_M2:
+            # No receiver sees a square metre: such a number comes from a few spurious facing blocks.
+            return FootprintEstimate(float("nan"), float("inf"), found.pixels, found.surfaces, method)
         sigma = float(np.hypot(found.sigma_m2, SYSTEMATIC_SHARE * found.area_m2))
         if check and self.reference is None and not problem._amplitude_agrees(method, found.area_m2):
             sigma = max(sigma, abs(found.area_m2))  # the scan is not what the model describes: not significant
