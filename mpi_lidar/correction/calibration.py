@@ -5,25 +5,24 @@ A_fp (:mod:`mpi_lidar.physics.coupling`). A scan holds the evidence for it: on t
 other the raw depth drifts away from the surfaces' planes towards their shared edge, in proportion to A_fp
 and with the shape the geometry predicts, while far from the edge the surfaces are unbiased.
 
-:func:`estimate_footprint` measures A on the flat surfaces of the scan (connected blocks of
-:class:`mpi_lidar.scans.geometry.FacingBlocks` whose planes agree, without the blocks that bend away from
-them: curved surfaces, and the strongest bias right at an edge, where the geometry's own estimate is least
-sure). The model of every pixel and frequency f is the renderer's two-path model at unit footprint:
-ratio = A S_f, S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c}, capped like it at kappa = 1; the
-albedos rho come from each surface's amplitude far from its partners (Gamma = Gamma_R rho cos_i / d^2), so
-dark partners predict less multipath than white ones. Two observables are fitted, each by Gauss-Newton in A
-with the moment model's noise as weights and Huber weights against outliers (mixed pixels, surfaces the
-model does not describe):
+:func:`estimate_footprint` measures A on the flat surfaces of the scan: connected blocks of
+:class:`mpi_lidar.scans.geometry.FacingBlocks` whose planes agree, without the blocks that bend away from them
+(curved surfaces, the strongest bias right at an edge) and without strips that have no pixels far from their
+partners. The model of every pixel and frequency f is the renderer's two-path model at unit footprint:
+ratio = A S_f, S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c}, capped like it at kappa = 1, with the
+depth bias (c / 4 pi f) arg(1 + ratio). The albedos rho come from each surface's amplitude far from its
+partners (Gamma = Gamma_R rho cos_i / d^2), less the light the multipath adds at the current estimate, so
+dark partners predict less multipath than white ones.
 
-- depth: each surface's plane is fitted to its pixels with the least predicted coupling, after the predicted
-  bias is taken off (iterated with A), and the depth of the other pixels over that plane is the bias
-  (c / 4 pi f) arg(1 + ratio);
-- amplitude: the amplitude over the Lambertian direct light of the plane, rho_s |1 + ratio|, with one
-  albedo rho_s per surface eliminated.
-
-The estimate is their mean; its uncertainty combines their statistical ones with half their difference, so a
-scan on which the two disagree (the model does not describe it) is not significant. With a reference depth
-(``reference=True``) the depth residual is measured against it directly and the planes are not needed.
+Each surface's plane is fitted to the share of its pixels with the least predicted coupling (the anchors),
+after the predicted bias is taken off, and A is fitted to the other pixels' depth over their plane: a
+Gauss-Newton fit weighted by the moment model's noise at each pixel's amplitude, plain least squares for a
+few iterations and then with Huber weights against outliers. The uncertainty is the statistical one (scaled
+by the robust spread of the standardized residuals) combined with a systematic share of the estimate, the
+spread measured on rendered corners. Multipath adds light as well as range: the same model fitted to the
+amplitude (one albedo per surface eliminated) must tell the same footprint to a factor of three, or the
+estimate is not significant. With a reference depth (``reference=True``) the depth residual is measured
+against it directly and the planes are not needed.
 """
 
 from __future__ import annotations
@@ -42,31 +41,38 @@ from mpi_lidar.scans.scan import Scan
 # A surface is a connected set of blocks whose normals agree to this [deg] and whose centres lie on each
 # other's planes (a depth step is another surface) ...
 NEIGHBOUR_ANGLE_DEG = 20.0
-# ... and whose blocks bend from the surface's plane by less than this [deg]; bending blocks are left out.
+# ... and whose blocks bend from the surface's mean normal by less than this [deg]; bending blocks are left out.
 SURFACE_ANGLE_DEG = 25.0
 MIN_SURFACE_BLOCKS = 3
-# Pixels the fit uses at most: a subsample on a regular stride keeps the cost a small share of correction.
+# Share of the pixels, those with the least predicted coupling, that fix the surfaces' planes (anchors); a
+# surface with fewer anchors than this has no plane to measure against.
+ANCHOR_SHARE = 0.4
+MIN_ANCHOR_PIXELS = 50
+# Pixels the fit uses at most: a subsample on a regular stride keeps the cost a small share of correction
+# (the systematic uncertainty below dwarfs the statistical one long before).
 MAX_FIT_PIXELS = 12_000
+# Rows whose predicted multipath ratio A K exceeds this are left out (there the cap at kappa = 1 leaves the
+# depth nothing to say about A).
+MAX_FIT_COUPLING = 2.0
+# 1 / sqrt(kappa) [m / m] standing in for a block without coupling when coupling is interpolated.
+NO_COUPLING_ROOT = 1e3
+# Gauss-Newton: iterations in all, the first of them plain least squares (before A is near, the multipath
+# itself looks like an outlier), then Huber weights at this many robust sigmas (nothing beyond six).
+MAX_ITERATIONS = 20
+PLAIN_ITERATIONS = 4
+HUBER_K = 2.0
+# Estimates of A, each with the albedos less the light the multipath adds at the previous one.
+ALBEDO_ITERATIONS = 2
+# Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
+SYSTEMATIC_SHARE = 0.25
+# The amplitude must tell the same footprint as the depth to this factor.
+AMPLITUDE_AGREEMENT = 3.0
+# No receiver footprint reaches this [m^2]: a larger estimate is no measurement.
+MAX_PLAUSIBLE_M2 = 1.0
 # The estimate is used only when it is this many standard deviations above zero ...
 MIN_SIGNIFICANCE = 3.0
 # ... and rests on at least this many pixels with a facing partner.
 MIN_INFORMATIVE_PIXELS = 200
-HUBER_K = 2.0
-# Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
-SYSTEMATIC_SHARE = 0.25
-AMPLITUDE_AGREEMENT = 3.0
-MAX_PLAUSIBLE_M2 = 1.0
-# Rows whose predicted multipath ratio A K exceeds this are left out of the fit: closer to an edge the
-# block geometry (3 cm planes, r clamped at the block size, the cap at kappa = 1) is least faithful.
-MAX_FIT_COUPLING = 2.0
-MAX_ITERATIONS = 20
-ALBEDO_ITERATIONS = 2
-# 1 / sqrt(kappa) [m^-1 ...] standing in for a block without coupling when coupling is interpolated.
-NO_COUPLING_ROOT = 1e3
-PLAIN_ITERATIONS = 4
-# Share of each surface's pixels, those with the least predicted coupling, that fix its plane.
-ANCHOR_SHARE = 0.4
-MIN_ANCHOR_PIXELS = 50
 
 
 @dataclass(frozen=True)
