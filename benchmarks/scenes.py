@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import platform
 from collections.abc import Callable
-from dataclasses import replace
 from datetime import date
 
 import numpy as np
@@ -26,7 +25,7 @@ import numpy as np
 from mpi_lidar.config import Config
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
 from mpi_lidar.learning.model import load_model
-from mpi_lidar.physics.coupling import footprint_area
+from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_area
 from mpi_lidar.scans.geometry import multipath_potential
 from mpi_lidar.scans.scan import Scan, grid_rays
 from mpi_lidar.simulation.scenes import (
@@ -160,11 +159,10 @@ def main() -> None:
         for path, model in models.items():
             for gate in gates:
                 for threshold in (thresholds if gate == "geometry" else [float("nan")]):
-                    options = CorrectionOptions(gate=gate)
-                    if footprint_area_m2 is not None:
-                        options = replace(options, footprint_area_m2=footprint_area_m2)
-                    if gate == "geometry":
-                        options = replace(options, min_multipath_bias_m=threshold / 1e3)
+                    # The footprint the renders were made with (or the imports' own): section 4 of docs/scenes.md
+                    footprint = footprint_area_m2 or DEFAULT_FOOTPRINT_AREA_M2
+                    bias = {"min_multipath_bias_m": threshold / 1e3} if gate == "geometry" else {}
+                    options = CorrectionOptions(gate=gate, footprint_area_m2=footprint, **bias)
                     correction = correct_scan(scan, model, options)
                     usable = ~np.isin(correction.flags, [int(f) for f in INVALID_FLAGS])
                     usable &= np.isfinite(scan.reference_depth)
