@@ -7,6 +7,7 @@ import json
 from enum import IntEnum, StrEnum
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from mpi_lidar.errors import MpiLidarError
@@ -124,10 +125,16 @@ class CorrectionOptions(BaseModel):
 
 
 def _footprint(value: float | str | None) -> float | str | None:
-    """A footprint given on a command line or in a flow parameter: "auto", a number, or None."""
-    if value is None or isinstance(value, float | int) or str(value).strip().lower() == AUTO:
-        return AUTO if isinstance(value, str) else value
+    """A footprint given on a command line or in a flow parameter: "auto", a positive number, or None."""
+    if value is None:
+        return None
+    if isinstance(value, str) and value.strip().lower() == AUTO:
+        return AUTO
     try:
-        return float(value)
-    except ValueError:
-        raise MpiLidarError(f"footprint_area_m2 must be 'auto' or a positive number in m^2, got {value!r}") from None
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not np.isfinite(number) or number <= 0:
+        raise MpiLidarError(f"footprint_area_m2 must be 'auto' or a positive number of square metres (e.g. 0.02), "
+                            f"got {value!r}")
+    return number
