@@ -21,6 +21,7 @@ from mpi_lidar.learning.features import (
 )
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.learning.train import train_and_save, training_geometry, training_geometry_lazy
+from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.simulation.scenes import corner, render
@@ -30,6 +31,9 @@ FREQS = Config().frequencies_hz
 FAST = {"max_depth": 6, "learning_rate": 0.3, "subsample": 1.0, "colsample_bytree": 1.0, "min_child_weight": 1.0,
         "reg_lambda": 1.0, "gamma": 0.0}
 NO_ERROR = {"coupling_log_median": 0.0, "coupling_log_sd": 0.0, "d_ab_offset_m": 0.0, "d_ab_sd_m": 0.0}
+
+# The footprint the scenes are rendered with: these tests are about the geometric inputs, not their calibration.
+RENDER_FOOTPRINT_M2 = DEFAULT_FOOTPRINT_AREA_M2
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +148,7 @@ def test_evaluate_model__geometric_inputs_beat_pixel_wise_on_varying_coupling(mo
 def test_correct_scan__geometric_model_gets_the_gate_potential(models):
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
     model = load_model(models[True])
-    options = CorrectionOptions()
+    options = CorrectionOptions(footprint_area_m2=RENDER_FOOTPRINT_M2)
     correction = correct_scan(scan, model, options)
     corrected = correction.flags.ravel() == Flag.CORRECTED
     assert corrected.sum() > 100
@@ -157,7 +161,7 @@ def test_correct_scan__geometric_model_gets_the_gate_potential(models):
     assert (inputs[:, 0] > 0).all()
     np.testing.assert_allclose(correction.depth.ravel()[corrected], model.predict_depth(raw[corrected], inputs),
                                atol=1e-6)
-    with_gate_all = correct_scan(scan, model, CorrectionOptions(gate="all"))
+    with_gate_all = correct_scan(scan, model, CorrectionOptions(gate="all", footprint_area_m2=RENDER_FOOTPRINT_M2))
     assert (with_gate_all.flags == Flag.CORRECTED).sum() > corrected.sum()
 
 
@@ -166,7 +170,7 @@ def test_correct_scan__geometric_model_beats_pixel_wise_on_a_rendered_corner(mod
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(4))
     errors = {}
     for geometric, path in models.items():
-        correction = correct_scan(scan, load_model(path), CorrectionOptions())
+        correction = correct_scan(scan, load_model(path), CorrectionOptions(footprint_area_m2=RENDER_FOOTPRINT_M2))
         corrected = correction.flags == Flag.CORRECTED
         errors[geometric] = np.abs(correction.depth - scan.reference_depth)[corrected].mean()
     raw = np.abs(scan.depth[-1] - scan.reference_depth)[corrected].mean()
