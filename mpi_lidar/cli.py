@@ -316,6 +316,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     import time
 
     from mpi_lidar.correction import CorrectionOptions
+    from mpi_lidar.correction.profile import profile_options
     from mpi_lidar.reporting.scan_report import write_batch_report
     from mpi_lidar.workflows.correct_archive import (
         correct_archive,
@@ -327,7 +328,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     from mpi_lidar.workflows.executor import InProcess, dask_executor
 
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
-                                         max_invalid_share=max_invalid_share, **_profile_options(sensor))
+                                         max_invalid_share=max_invalid_share, **profile_options(sensor))
     started = time.perf_counter()
     here = not scheduler and (workers == 0 if workers is not None else runs_in_process(list(scans)))
     total = len(expand_archive(list(scans)))
@@ -350,12 +351,6 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
         click.echo(f"error: {failure_line(outcome)}", err=True)
     if failing:
         sys.exit(1)
-
-
-def _profile_options(sensor_file: Path | None) -> dict[str, object]:
-    from mpi_lidar.correction.profile import profile_options
-
-    return profile_options(sensor_file)
 
 
 @cli.command()
