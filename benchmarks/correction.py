@@ -58,7 +58,7 @@ from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE
 from mpi_lidar.learning.model import DatasetCard, load_model, save_model
 from mpi_lidar.learning.train import DEFAULT_EARLY_STOPPING, DEFAULT_ROUNDS, model_card, train_arrays
 from mpi_lidar.reporting.scan_report import DEFAULT_OUTPUTS, OUTPUT_LEVELS, scan_metrics, write_scan_outputs
-from mpi_lidar.scans.scan import read_scan, write_scan
+from mpi_lidar.scans.scan import Scan, read_scan, write_scan
 from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
 from mpi_lidar.simulation.sampling import THETA_NAMES
 from mpi_lidar.simulation.scenes import SCENES, render
@@ -138,10 +138,14 @@ def rendered(work: Path, side: int) -> Path:
 
 
 def upsampled(source: Path, out: Path, factor: int) -> Path:
-    """The scan of ``source`` with every pixel repeated factor x factor times on a grid factor times finer."""
-    if out.exists():
-        return out
-    scan = read_scan(source)
+    """The store of ``source`` upsampled (:func:`finer_scan`) into ``out`` (reused when there)."""
+    if not out.exists():
+        write_scan(finer_scan(read_scan(source), factor), out)
+    return out
+
+
+def finer_scan(scan: Scan, factor: int) -> Scan:
+    """The scan with every pixel repeated factor x factor times on a grid factor times finer."""
 
     def grow(values: np.ndarray | None) -> np.ndarray | None:
         return None if values is None else np.repeat(np.repeat(values, factor, axis=-2), factor, axis=-1)
@@ -151,11 +155,9 @@ def upsampled(source: Path, out: Path, factor: int) -> Path:
         return np.linspace(angles[0] - step / 2 + step / (2 * factor), angles[-1] + step / 2 - step / (2 * factor),
                            len(angles) * factor)
 
-    big = replace(scan, name=f"{scan.name}-x{factor}", depth=grow(scan.depth), amplitude=grow(scan.amplitude),
-                  azimuth_rad=finer(scan.azimuth_rad), elevation_rad=finer(scan.elevation_rad),
-                  reference_depth=grow(scan.reference_depth), reference_mask=grow(scan.reference_mask))
-    write_scan(big, out)
-    return out
+    return replace(scan, name=f"{scan.name}-x{factor}", depth=grow(scan.depth), amplitude=grow(scan.amplitude),
+                   azimuth_rad=finer(scan.azimuth_rad), elevation_rad=finer(scan.elevation_rad),
+                   reference_depth=grow(scan.reference_depth), reference_mask=grow(scan.reference_mask))
 
 
 def batch_archive(work: Path, source: Path, scans: int) -> Path:

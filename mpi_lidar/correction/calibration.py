@@ -131,7 +131,6 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     """
     if blocks.pairs.a.size == 0:
         return NOTHING_MEASURED
-    rays = scan.rays()
     components, labels = surface_labels(blocks)
     unit_kappa = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
     if reference:
@@ -141,17 +140,17 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         return NOTHING_MEASURED
     ys, xs = np.divmod(pixels, blocks.shape[1])
     coordinates = ((ys + 0.5) / blocks.block_pixels - 0.5, (xs + 0.5) / blocks.block_pixels - 0.5)
-    depth = np.asarray(scan.depth, dtype=np.float64)[:, ys, xs].T
-    amplitude = np.asarray(scan.amplitude, dtype=np.float64)[:, ys, xs].T
+    depth = scan.depth[:, ys, xs].astype(np.float64).T
+    amplitude = scan.amplitude[:, ys, xs].astype(np.float64).T
     freqs = np.asarray(scan.frequencies_hz, dtype=np.float64)
     metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * freqs)
     sigma = quadrature_noise_v2(sensor, scan.frequencies_hz, amplitude) / np.maximum(amplitude, 1e-12)
     sigma = np.maximum(sigma * metres_per_rad, 1e-5)
     usable = np.isfinite(depth).all(1) & np.isfinite(sigma).all(1)
-    pixel_rays = rays.reshape(-1, 3)[pixels]
+    pixel_rays = scan.pixel_rays(ys, xs)
     block_of_pixel = (ys // blocks.block_pixels) * blocks.usable.shape[1] + xs // blocks.block_pixels
     surface = labels[block_of_pixel]
-    reference_depth = np.asarray(scan.reference_depth, dtype=np.float64).ravel()[pixels] if reference else None
+    reference_depth = scan.reference_depth.ravel()[pixels].astype(np.float64) if reference else None
     # Multipath adds light, so the amplitude overstates the albedo most where the partners that matter lie
     # (the strip along an edge); each estimate of A takes that excess off the albedos for the next.
     measured_albedo = block_albedo(scan, blocks, sensor)
@@ -177,19 +176,33 @@ def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig) -> NDAr
     """Albedo per block (Hb*Wb,) from the amplitude of its inlier pixels: Gamma d^2 / (Gamma_R cos_i).
 
     The median over the block's inliers of the amplitude (mean over frequencies), clipped to 0.01-1.5;
-    0 for blocks without a plane.
+    0 for blocks without a plane. Worked out a tile of whole blocks at a time (:meth:`FacingBlocks.tiles`).
     """
+    rays = scan.ray_rows()
+    albedo = []
+    for band in blocks.tiles():
+        band_rays = rays[band[0][0]]
+        albedo.append(np.concatenate([_tile_albedo(scan, blocks, band_rays[:, columns], rows, columns, sensor)
+                                      for rows, columns in band], axis=1))
+    found = np.concatenate(albedo)
+    found = np.where(blocks.usable & np.isfinite(found), np.clip(found, 0.01, 1.5), 0.0)
+    return found.ravel()
+
+
+def _tile_albedo(scan: Scan, blocks: FacingBlocks, rays: NDArray, rows: slice, columns: slice,
+                 sensor: SensorConfig) -> NDArray[np.float64]:
+    """:func:`block_albedo` of one tile of whole blocks (its rays (rows, columns, 3) given), before clipping."""
     b = blocks.block_pixels
-    depth = np.where(blocks.finite, np.asarray(scan.depth[-1], dtype=np.float64), np.nan)
-    amplitude = np.asarray(scan.amplitude, dtype=np.float64).mean(0)
-    rays = to_blocks(scan.rays(), b)
-    cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(rays), blocks.normals))
+    block_rows, block_columns = slice(rows.start // b, -(-rows.stop // b)), slice(columns.start // b,
+                                                                                  -(-columns.stop // b))
+    depth = np.where(blocks.finite[rows, columns], scan.depth[-1, rows, columns].astype(np.float64), np.nan)
+    amplitude = scan.amplitude[:, rows, columns].astype(np.float64).mean(0)
+    normals = blocks.normals[block_rows, block_columns]
+    cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(to_blocks(rays, b)), normals))
     ratio = to_blocks(amplitude * depth**2, b) / (sensor.gamma_r_v2 * np.maximum(cos_i, 0.1))
     with warnings.catch_warnings():  # blocks without inliers have no median
         warnings.simplefilter("ignore", RuntimeWarning)
-        albedo = np.nanmedian(np.where(blocks.keep, ratio, np.nan), axis=-1)
-    albedo = np.where(blocks.usable & np.isfinite(albedo), np.clip(albedo, 0.01, 1.5), 0.0)
-    return albedo.ravel()
+        return np.nanmedian(np.where(blocks.keep[block_rows, block_columns], ratio, np.nan), axis=-1)
 
 
 def surface_albedo(albedo: NDArray, components: NDArray, unit_kappa: NDArray) -> NDArray[np.float64]:

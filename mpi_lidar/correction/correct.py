@@ -109,10 +109,10 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         candidates = gate.scan_candidates(scan, usable_depth)
         notes: tuple[str, ...] = ()
         geometry = gate if isinstance(gate, GeometryGate) else None
-        potential = getattr(gate, "potential_", None)
-        if model.geometric and potential is None:
+        if model.geometric and (geometry is None or geometry.potential_ is None):
             geometry = geometry_gate(options, sensor)
-            potential = geometry.potential(scan, usable_depth)
+            geometry.scan_candidates(scan, usable_depth)  # for the inputs only: this gate decides nothing
+        potential = None if geometry is None else geometry.potential_
         calibration = None if geometry is None else geometry.calibration_
         uncalibrated = None if geometry is None else geometry.uncalibrated_
         if uncalibrated is not None:
@@ -136,8 +136,11 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         with clock("gate"):
             valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
             needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
-            geometric = None if potential is None else geometry_inputs(
-                potential.coupling.reshape(-1)[pixels][needs], potential.d_ab_m.reshape(-1)[pixels][needs])
+            if potential is None:
+                geometric = None
+            else:
+                at = potential.pixels(pixels.start + needs)
+                geometric = geometry_inputs(at.coupling, at.d_ab_m)
         gate_s += time.perf_counter() - gate_started
         inference_started = time.perf_counter()
         with clock("inference"):
@@ -146,8 +149,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
             flags[pixels.start + needs] = Flag.CORRECTED
         inference_s += time.perf_counter() - inference_started
     return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
-                      None if potential is None else potential.bias_m.astype(np.float32), notes, clock.seconds,
-                      calibration)
+                      None if geometry is None else geometry.bias_m_, notes, clock.seconds, calibration)
 
 
 def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:

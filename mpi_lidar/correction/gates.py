@@ -97,39 +97,55 @@ class GeometryGate(Gate):
     uses_geometry = True
 
     def __init__(self, min_bias_m: float, block_m: float, partner_range_m: float, footprint_area_m2: float | str,
-                 sensor: SensorConfig | None = None):
+                 sensor: SensorConfig | None = None, band_pixels: int = geometry.BAND_PIXELS):
         self.min_bias_m = min_bias_m
         self.block_m = block_m
         self.partner_range_m = partner_range_m
         self.footprint_area_m2 = footprint_area_m2
         self.sensor = sensor or SensorConfig()
-        self.potential_: geometry.MultipathPotential | None = None
+        self.band_pixels = band_pixels
+        self.potential_: geometry.BlockPotential | None = None
+        self.bias_m_: NDArray[np.float32] | None = None
         self.calibration_: FootprintEstimate | None = None
         self.uncalibrated_: NDArray | None = None
 
-    def potential(self, scan: Scan, valid_depth: NDArray) -> geometry.MultipathPotential | None:
-        rays = scan.rays()
+    def potential(self, scan: Scan, valid_depth: NDArray) -> geometry.BlockPotential | None:
+        """The scan's potential per block (pixels interpolate it), or None for a scan without geometry."""
+        rays = scan.ray_rows()
         if rays is None:
             return None
         blocks = geometry.facing_blocks(valid_depth.reshape(scan.shape), rays, block_m=self.block_m,
-                                        max_range_m=self.partner_range_m)
+                                        max_range_m=self.partner_range_m, band_pixels=self.band_pixels)
         if self.footprint_area_m2 != AUTO:
-            return blocks.potential(self.footprint_area_m2)
+            return blocks.block_potential(self.footprint_area_m2)
         from mpi_lidar.correction.calibration import estimate_footprint
 
         estimate = estimate_footprint(scan, blocks, np.isfinite(valid_depth), self.sensor)
         self.calibration_ = estimate
         if estimate.significant:
-            return blocks.potential(estimate.area_m2)
-        upper = blocks.potential(min(estimate.upper_m2(), 1.0))
-        self.uncalibrated_ = (upper.bias_m >= self.min_bias_m).ravel()
-        return blocks.potential(0.0)
+            return blocks.block_potential(estimate.area_m2)
+        upper = blocks.block_potential(min(estimate.upper_m2(), 1.0))
+        self.uncalibrated_ = self._reaches_min_bias(upper)[0]
+        return blocks.block_potential(0.0)
 
     def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
+        """Also keeps the potential (``potential_``) and the expected bias map (``bias_m_``, float32 (H, W))."""
         self.potential_ = self.potential(scan, valid_depth)
         if self.potential_ is None:
             return None
-        return (self.potential_.bias_m >= self.min_bias_m).ravel()
+        candidates, self.bias_m_ = self._reaches_min_bias(self.potential_)
+        return candidates
+
+    def _reaches_min_bias(self, potential: geometry.BlockPotential) -> tuple[NDArray[np.bool_], NDArray[np.float32]]:
+        """Where the bias reaches ``min_bias_m`` (H*W,) and the bias map (H, W) [m], a band of rows at a time."""
+        h, w = potential.blocks.shape
+        reaches = np.empty((h, w), dtype=bool)
+        bias = np.empty((h, w), dtype=np.float32)
+        for rows in potential.blocks.bands(self.band_pixels):
+            band = potential.rows(rows).bias_m
+            reaches[rows] = band >= self.min_bias_m
+            bias[rows] = band
+        return reaches.ravel(), bias
 
     def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
         return np.ones(raw.shape[0], dtype=bool)
@@ -142,7 +158,7 @@ NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (
 
 def geometry_gate(options: CorrectionOptions, sensor: SensorConfig | None = None) -> GeometryGate:
     return GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
-                        options.footprint_area_m2, sensor)
+                        options.footprint_area_m2, sensor, options.tile_pixels)
 
 
 def make_gate(options: CorrectionOptions, sensor: SensorConfig | None = None) -> Gate:

@@ -42,6 +42,13 @@ DEFAULT_MAX_RANGE_M = 0.5
 DEFAULT_MIN_COS = 0.1
 # Range jump [m] within a block beyond which points are taken for another surface in the first plane fit.
 EDGE_JUMP_M = 0.1
+# Pixels per tile of whole blocks that the plane fits work on at once (and per band of rows the potential
+# is interpolated on): their float64 temporaries take about 300 bytes a pixel, so a tile bounds the memory
+# whatever the scan's size.
+BAND_PIXELS = 262_144
+# Largest block side [px]. Blocks keep their metric size up to it, so a finer grid has bigger blocks, not
+# more of them: the facing pairs grow with the square of the block count.
+MAX_BLOCK_PIXELS = 512
 
 
 @dataclass(frozen=True)
@@ -63,20 +70,51 @@ class MultipathPotential:
 
 
 def block_size_pixels(depth: NDArray, rays: NDArray, block_m: float) -> int:
-    """Side of a square pixel block spanning about ``block_m`` [m] at the scan's median range (4 to 64)."""
-    r = np.asarray(rays, dtype=np.float64)
-    h, w = r.shape[:2]
+    """Side of a square pixel block spanning about ``block_m`` [m] at the scan's median range (4 to
+    :data:`MAX_BLOCK_PIXELS`).
+
+    ``rays`` (H, W, 3) may be anything that gives rows of rays by slicing (:class:`mpi_lidar.scans.scan.RayRows`):
+    only the two centre rows are read.
+    """
+    h, w = rays.shape[:2]
     cy, cx = h // 2, w // 2
+    top = min(cy, max(h - 2, 0))
+    r = np.asarray(rays[top:min(h, cy + 2)], dtype=np.float64)
     steps = []
     if w > 1:
-        steps.append(np.arccos(np.clip(r[cy, min(cx, w - 2)] @ r[cy, min(cx, w - 2) + 1], -1, 1)))
+        steps.append(np.arccos(np.clip(r[cy - top, min(cx, w - 2)] @ r[cy - top, min(cx, w - 2) + 1], -1, 1)))
     if h > 1:
-        steps.append(np.arccos(np.clip(r[min(cy, h - 2), cx] @ r[min(cy, h - 2) + 1, cx], -1, 1)))
-    finite = np.asarray(depth)[np.isfinite(depth) & (np.asarray(depth) > 0)]
+        steps.append(np.arccos(np.clip(r[min(cy, h - 2) - top, cx] @ r[min(cy, h - 2) + 1 - top, cx], -1, 1)))
+    values = np.asarray(depth)
+    finite = values[np.isfinite(values) & (values > 0)]
     if not steps or finite.size == 0 or max(steps) <= 0:
         return 4
-    pitch_m = float(np.median(finite)) * max(steps)
-    return int(np.clip(round(block_m / pitch_m), 4, 64))
+    pitch_m = float(_median(finite)) * max(steps)
+    return int(np.clip(round(block_m / pitch_m), 4, MAX_BLOCK_PIXELS))
+
+
+def _median(values: NDArray) -> np.float64:
+    """np.median of ``values`` taken in float64, without a float64 copy of them all (float32 widens exactly)."""
+    n = values.size
+    middle = np.partition(values.ravel(), [(n - 1) // 2, n // 2])[[(n - 1) // 2, n // 2]].astype(np.float64)
+    return middle[0] if n % 2 else np.mean(middle)
+
+
+def block_row_bands(height: int, width: int, block_pixels: int, band_pixels: int) -> list[slice]:
+    """Row ranges of whole block rows, about ``band_pixels`` pixels each (at least one block row)."""
+    rows = max(1, band_pixels // max(width * block_pixels, 1)) * block_pixels
+    return [slice(top, min(top + rows, height)) for top in range(0, height, rows)]
+
+
+def block_tiles(height: int, width: int, block_pixels: int, tile_pixels: int) -> list[list[tuple[slice, slice]]]:
+    """Tiles of whole blocks, about ``tile_pixels`` pixels each (at least one block): per band of block rows,
+    its (rows, columns) tiles from left to right."""
+    tiles = []
+    for rows in block_row_bands(height, width, block_pixels, tile_pixels):
+        side = rows.stop - rows.start
+        columns = max(1, tile_pixels // max(side * block_pixels, 1)) * block_pixels
+        tiles.append([(rows, slice(left, min(left + columns, width))) for left in range(0, width, columns)])
+    return tiles
 
 
 def to_blocks(values: NDArray, b: int) -> NDArray:
@@ -198,13 +236,26 @@ class FacingBlocks:
     pairs: FacingPairs
     finite: NDArray[np.bool_]
 
-    def block_grid(self) -> tuple[NDArray, NDArray]:
-        """Block coordinates (H, W) of every pixel centre, for bilinear interpolation of block values."""
+    def bands(self, band_pixels: int = BAND_PIXELS) -> list[slice]:
+        """Row ranges of whole block rows, about ``band_pixels`` pixels each (:func:`block_row_bands`)."""
+        return block_row_bands(*self.shape, self.block_pixels, band_pixels)
+
+    def tiles(self, tile_pixels: int = BAND_PIXELS) -> list[list[tuple[slice, slice]]]:
+        """Tiles of whole blocks, about ``tile_pixels`` each, per band of block rows (:func:`block_tiles`)."""
+        return block_tiles(*self.shape, self.block_pixels, tile_pixels)
+
+    def block_grid(self, rows: slice = slice(None)) -> tuple[NDArray, NDArray]:
+        """Block coordinates (rows, W) of the pixel centres of ``rows``, for bilinear interpolation of block values."""
         h, w = self.shape
-        ys = (np.arange(h) + 0.5) / self.block_pixels - 0.5
+        ys = (np.arange(h)[rows] + 0.5) / self.block_pixels - 0.5
         xs = (np.arange(w) + 0.5) / self.block_pixels - 0.5
         grid = np.meshgrid(ys, xs, indexing="ij")
         return grid[0], grid[1]
+
+    def pixel_coordinates(self, pixels: NDArray) -> tuple[NDArray, NDArray]:
+        """Block coordinates of the centres of flat pixel indices (n,), as :meth:`block_grid` gives them."""
+        ys, xs = np.divmod(np.asarray(pixels), self.shape[1])
+        return (ys + 0.5) / self.block_pixels - 0.5, (xs + 0.5) / self.block_pixels - 0.5
 
     def to_pixels(self, block_values: NDArray, coordinates: tuple[NDArray, NDArray] | None = None) -> NDArray:
         """Bilinear interpolation of one value per block (Hb*Wb,) at pixel coordinates (default: every pixel)."""
@@ -214,8 +265,13 @@ class FacingBlocks:
         where = self.block_grid() if coordinates is None else coordinates
         return map_coordinates(block_values.reshape(hb, wb), where, order=1, mode="nearest")
 
-    def potential(self, footprint_area_m2: float) -> MultipathPotential:
-        """The multipath potential for the receiver footprint A_fp [m^2] (:func:`multipath_potential`)."""
+    def potential(self, footprint_area_m2: float, rows: slice = slice(None)) -> MultipathPotential:
+        """The multipath potential of ``rows`` (all by default) for the receiver footprint A_fp [m^2]
+        (:func:`multipath_potential`)."""
+        return self.block_potential(footprint_area_m2).rows(rows)
+
+    def block_potential(self, footprint_area_m2: float) -> BlockPotential:
+        """Coupling and bias per block for the receiver footprint A_fp [m^2]; pixels interpolate them."""
         hb, wb = self.usable.shape
         coupling_blocks = np.zeros(hb * wb)
         weighted_r = np.zeros(hb * wb)
@@ -227,39 +283,62 @@ class FacingBlocks:
         with np.errstate(invalid="ignore", divide="ignore"):
             d_ab_blocks = np.where(coupling_blocks > 0, weighted_r / coupling_blocks, 0.0)
         coupling_blocks = np.minimum(coupling_blocks, 1.0)
-        grid = self.block_grid()
-        coupling = self.to_pixels(coupling_blocks, grid)
-        bias = self.to_pixels(coupling_blocks * d_ab_blocks, grid)
+        return BlockPotential(self, coupling_blocks, coupling_blocks * d_ab_blocks)
+
+
+@dataclass(frozen=True)
+class BlockPotential:
+    """The multipath potential per block (Hb*Wb,) for one footprint: the coupling (capped at 1) and the bias
+    [m]. Pixels get both by bilinear interpolation, a band of rows or a set of pixels at a time, so the
+    whole scan's float64 maps never exist at once; every pixel gets the same value either way."""
+
+    blocks: FacingBlocks
+    coupling: NDArray[np.float64]
+    bias_m: NDArray[np.float64]
+
+    def rows(self, rows: slice = slice(None)) -> MultipathPotential:
+        """The potential (rows, W) of a range of rows."""
+        grid = self.blocks.block_grid(rows)
+        return self._at(grid, self.blocks.finite[rows])
+
+    def pixels(self, pixels: NDArray) -> MultipathPotential:
+        """The potential (n,) of flat pixel indices (n,)."""
+        return self._at(self.blocks.pixel_coordinates(pixels), self.blocks.finite.ravel()[pixels])
+
+    def _at(self, coordinates: tuple[NDArray, NDArray], finite: NDArray) -> MultipathPotential:
+        coupling = self.blocks.to_pixels(self.coupling, coordinates)
+        bias = self.blocks.to_pixels(self.bias_m, coordinates)
         with np.errstate(invalid="ignore", divide="ignore"):
             d_ab = np.where(coupling > 0, bias / np.where(coupling > 0, coupling, 1.0), np.nan)
-        missing = ~self.finite
+        missing = ~finite
         coupling[missing], bias[missing], d_ab[missing] = 0.0, 0.0, np.nan
-        return MultipathPotential(coupling, d_ab, bias, self.block_pixels)
+        return MultipathPotential(coupling, d_ab, bias, self.blocks.block_pixels)
 
 
 def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLOCK_M,
-                  max_range_m: float = DEFAULT_MAX_RANGE_M, min_cos: float = DEFAULT_MIN_COS) -> FacingBlocks:
+                  max_range_m: float = DEFAULT_MAX_RANGE_M, min_cos: float = DEFAULT_MIN_COS,
+                  band_pixels: int = BAND_PIXELS) -> FacingBlocks:
     """Block planes of a range map (H, W) [m] along unit rays (H, W, 3) and the block pairs that face each other.
 
     This is the costly part of :func:`multipath_potential` (plane fits, the partner search); the footprint
-    only scales the pairs' coupling, so one :class:`FacingBlocks` serves every footprint.
+    only scales the pairs' coupling, so one :class:`FacingBlocks` serves every footprint. The planes are
+    fitted a tile of whole blocks at a time (about ``band_pixels``), each block from its own pixels, so the
+    memory is that of one tile; ``rays`` may be anything that gives rows of rays by slicing
+    (:class:`mpi_lidar.scans.scan.RayRows`), the depth any float array.
     """
     from scipy.spatial import cKDTree
 
-    d = np.asarray(depth, dtype=np.float64)
-    d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
-    r = np.asarray(rays, dtype=np.float64)
-    b = block_size_pixels(d, r, block_m)
-    points = d[..., None] * r
-    centres, normals, keep, usable, rms = fit_block_planes(points, b)
-    # Pixel footprints on the fitted plane: range^2 times solid angle over the incidence cosine.
-    solid_angle = _pixel_solid_angle(r)
-    ray_blocks = to_blocks(r, b)
-    cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(ray_blocks), normals))
-    pixel_area = to_blocks(d**2 * solid_angle, b) / np.maximum(cos_i, 0.1)
-    area = np.where(keep, np.nan_to_num(pixel_area), 0.0).sum(-1)
-    centre_ray = centres / np.maximum(np.linalg.norm(centres, axis=-1, keepdims=True), 1e-12)
-    block_cos_i = np.maximum(-np.einsum("hwi,hwi->hw", normals, centre_ray), 1e-3)
+    h, w = depth.shape
+    b = block_size_pixels(depth, rays, block_m)
+    bands = []
+    for band in block_tiles(h, w, b, band_pixels):
+        rows = band[0][0]
+        halo_rows = slice(max(rows.start - 1, 0), min(rows.stop + 1, h))
+        band_rays = np.asarray(rays[halo_rows], dtype=np.float64)
+        tiles = [_tile_planes(depth, band_rays, halo_rows, rows, columns, b) for _, columns in band]
+        bands.append([np.concatenate(parts, axis=1) for parts in zip(*tiles, strict=True)])
+    centres, normals, keep, usable, rms, area, block_cos_i, finite = (np.concatenate(parts)
+                                                                       for parts in zip(*bands, strict=True))
     index = np.flatnonzero(usable.ravel())
     empty = np.zeros(0)
     pairs = FacingPairs(np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), empty, empty, empty, empty, empty,
@@ -271,7 +350,32 @@ def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLO
         if found.size:
             i, j = np.concatenate([found[:, 0], found[:, 1]]), np.concatenate([found[:, 1], found[:, 0]])
             pairs = _facing_pairs(i, j, c, n, cos_blk, a_blk, noise[i] + noise[j], min_cos)
-    return FacingBlocks(d.shape, b, centres, normals, keep, usable, rms, index, pairs, np.isfinite(d))
+    return FacingBlocks((h, w), b, centres, normals, keep, usable, rms, index, pairs, finite)
+
+
+def _tile_planes(depth: NDArray, band_rays: NDArray, halo_rows: slice, rows: slice, columns: slice, b: int
+                 ) -> tuple[NDArray, ...]:
+    """Block planes of one tile of whole blocks: centres, normals, inliers, usable flags, RMS, plane areas [m^2]
+    and incidence cosines per block, and the tile's finite pixels. ``band_rays`` are the rays of
+    ``halo_rows``: the tile's rows and one more on each side where the scan has it."""
+    w = depth.shape[1]
+    d = np.asarray(depth[rows, columns], dtype=np.float64)
+    d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    # One pixel of rays beyond the tile on each side, so the tile's ray steps are those of the whole grid.
+    left, right = max(columns.start - 1, 0), min(columns.stop + 1, w)
+    halo = band_rays[:, left:right]
+    core = (slice(rows.start - halo_rows.start, rows.stop - halo_rows.start),
+            slice(columns.start - left, columns.stop - left))
+    r = halo[core]
+    centres, normals, keep, usable, rms = fit_block_planes(d[..., None] * r, b)
+    # Pixel footprints on the fitted plane: range^2 times solid angle over the incidence cosine.
+    solid_angle = _pixel_solid_angle(halo)[core]
+    cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(to_blocks(r, b)), normals))
+    pixel_area = to_blocks(d**2 * solid_angle, b) / np.maximum(cos_i, 0.1)
+    area = np.where(keep, np.nan_to_num(pixel_area), 0.0).sum(-1)
+    centre_ray = centres / np.maximum(np.linalg.norm(centres, axis=-1, keepdims=True), 1e-12)
+    block_cos_i = np.maximum(-np.einsum("hwi,hwi->hw", normals, centre_ray), 1e-3)
+    return centres, normals, keep, usable, rms, area, block_cos_i, np.isfinite(d)
 
 
 def _pair_coupling(centre_a: NDArray, normal_a: NDArray, cos_i: NDArray, area_a: NDArray, centre_b: NDArray,

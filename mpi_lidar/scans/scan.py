@@ -82,6 +82,18 @@ class Scan:
             return None
         return grid_rays(self.azimuth_rad, self.elevation_rad)
 
+    def ray_rows(self) -> RayRows | None:
+        """The unit rays (H, W, 3) a band of rows at a time (``rays[rows]``), or None without geometry."""
+        return RayRows(self) if self.has_geometry else None
+
+    def pixel_rays(self, ys: NDArray, xs: NDArray) -> NDArray[np.float64]:
+        """Unit rays (n, 3) of the pixels at rows ``ys`` and columns ``xs`` (n,), as :meth:`rays` gives them."""
+        if self.ray_directions is not None:
+            return np.asarray(self.ray_directions[ys, xs], dtype=np.float64)
+        if self.azimuth_rad is None or self.elevation_rad is None:
+            raise ValueError(f"scan {self.name} has no geometry")
+        return grid_rays(np.asarray(self.azimuth_rad)[xs], np.asarray(self.elevation_rad)[ys], pairs=True)
+
     def raw_pixels(self) -> NDArray[np.float32]:
         """Per-pixel raw measurements (H*W, 2F) ordered like a dataset's features: depths, then amplitudes."""
         f = len(self.frequencies_hz)
@@ -93,15 +105,32 @@ class Scan:
         digest = hashlib.sha256(json.dumps([float(f) for f in self.frequencies_hz]).encode())
         for array in (self.depth, self.amplitude, self.azimuth_rad, self.elevation_rad, self.ray_directions):
             if array is not None:
-                digest.update(np.ascontiguousarray(array).tobytes())
+                digest.update(memoryview(np.ascontiguousarray(array)).cast("B"))  # no copy of the bytes
         return digest.hexdigest()
 
 
-def grid_rays(azimuth_rad: NDArray, elevation_rad: NDArray) -> NDArray[np.float64]:
-    """Unit rays (H, W, 3) of an azimuth (W,) by elevation (H,) scan grid."""
-    az = np.asarray(azimuth_rad, dtype=np.float64)[None, :]
-    el = np.asarray(elevation_rad, dtype=np.float64)[:, None]
+def grid_rays(azimuth_rad: NDArray, elevation_rad: NDArray, pairs: bool = False) -> NDArray[np.float64]:
+    """Unit rays (H, W, 3) of an azimuth (W,) by elevation (H,) scan grid; with ``pairs``, the rays (n, 3) of
+    n (azimuth, elevation) pairs."""
+    az = np.asarray(azimuth_rad, dtype=np.float64)
+    el = np.asarray(elevation_rad, dtype=np.float64)
+    if not pairs:
+        az, el = az[None, :], el[:, None]
     return np.stack([np.cos(el) * np.sin(az), np.sin(el) * np.ones_like(az), np.cos(el) * np.cos(az)], axis=-1)
+
+
+class RayRows:
+    """A scan's unit rays (H, W, 3), built for a band of rows when sliced (``rays[top:bottom]``): a large
+    scan never holds all of them in float64 at once. Each row is exactly that row of :meth:`Scan.rays`."""
+
+    def __init__(self, scan: Scan):
+        self.scan = scan
+        self.shape = (*scan.shape, 3)
+
+    def __getitem__(self, rows: slice) -> NDArray[np.float64]:
+        if self.scan.ray_directions is not None:
+            return np.asarray(self.scan.ray_directions[rows], dtype=np.float64)
+        return grid_rays(self.scan.azimuth_rad, np.asarray(self.scan.elevation_rad)[rows])
 
 
 def validate(scan: Scan, source: str) -> Scan:

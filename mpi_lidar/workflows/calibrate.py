@@ -31,7 +31,7 @@ def scan_footprint(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
                    ) -> FootprintEstimate:
     """The footprint one scan measures: against its reference depth where it has one (and ``use_reference``),
     else against its own surfaces. A scan without geometry measures nothing."""
-    rays = scan.rays()
+    rays = scan.ray_rows()
     if rays is None:
         return FootprintEstimate(float("nan"), float("inf"), 0, 0)
     raw = scan.raw_pixels()

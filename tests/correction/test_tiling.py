@@ -7,6 +7,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from benchmarks.correction import finer_scan
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
 from mpi_lidar.correction.correct import row_tiles
@@ -57,20 +58,25 @@ def test_correct_scan__geometry_gate_corrects_near_the_corner_and_says_what_it_c
     assert all(seconds >= 0 for seconds in correction.cpu_s.values())
 
 
-def test_correct_scan__working_memory_beside_the_gate_is_one_tile(board, model, monkeypatch):
-    """With the gate's whole-scan work left out, what correction holds at once shrinks with the tile."""
-    from mpi_lidar.correction import gates
-
-    big = render(cornered_board(height=240, width=320), Config(), np.random.default_rng(5), patch_spacing_m=0.1)
-    potential = gates.geometry_gate(CorrectionOptions()).potential(big, big.depth[-1].ravel())
-    monkeypatch.setattr(gates.GeometryGate, "potential", lambda self, scan, depth: potential)  # computed before
-    peaks = {}
-    for tile_pixels in (320, 10**7):
-        correct_scan(big, model, CorrectionOptions(gate="all", tile_pixels=tile_pixels))  # warm caches
-        tracemalloc.start()
-        correct_scan(big, model, CorrectionOptions(gate="all", tile_pixels=tile_pixels))
-        peaks[tile_pixels] = tracemalloc.get_traced_memory()[1]
+def _peak_bytes(scan, model, options) -> int:
+    correct_scan(scan, model, options)  # warm caches and lazy imports
+    tracemalloc.start()
+    try:
+        correct_scan(scan, model, options)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
         tracemalloc.stop()
-    pixels = 240 * 320
-    assert peaks[10**7] > 40 * pixels, "untiled, the raw pixels and features of the whole scan are held"
-    assert peaks[320] < 20 * pixels, "tiled: the flags, depths and one tile"
+
+
+def test_correct_scan__working_memory_grows_by_a_few_bytes_a_pixel_when_tiled(model):
+    """The same scene on a grid three times as fine: tiled, the gate included, the extra pixels cost what the
+    per-pixel results cost (flags, depth, bias map); at once, the float64 temporaries of the whole scan."""
+    small = render(cornered_board(height=120, width=160), Config(), np.random.default_rng(5), patch_spacing_m=0.1)
+    large = finer_scan(small, 3)
+    extra = large.depth[0].size - small.depth[0].size
+    growth = {}
+    for tile_pixels in (320, 10**7):
+        options = CorrectionOptions(tile_pixels=tile_pixels, footprint_area_m2=0.041)
+        growth[tile_pixels] = (_peak_bytes(large, model, options) - _peak_bytes(small, model, options)) / extra
+    assert growth[10**7] > 150, "at once, the gate's plane fits hold a few hundred bytes a pixel"
+    assert growth[320] < 40, "tiled: the per-pixel results and one band"

@@ -156,7 +156,7 @@ def test_correct_scan__geometric_model_gets_the_gate_potential(models):
     gate = GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
                         options.footprint_area_m2)
     usable = np.isfinite(raw).all(1)
-    potential = gate.potential(scan, np.where(usable, raw[:, len(FREQS) - 1], np.nan))
+    potential = gate.potential(scan, np.where(usable, raw[:, len(FREQS) - 1], np.nan)).rows()
     inputs = geometry_inputs(potential.coupling, potential.d_ab_m)[corrected]
     assert (inputs[:, 0] > 0).all()
     np.testing.assert_allclose(correction.depth.ravel()[corrected], model.predict_depth(raw[corrected], inputs),
