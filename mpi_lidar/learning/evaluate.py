@@ -30,15 +30,19 @@ class ErrorMetrics:
 
 
 def error_metrics(estimate: NDArray, truth: NDArray) -> ErrorMetrics:
-    error = np.asarray(estimate, dtype=np.float64) - np.asarray(truth, dtype=np.float64)
+    # In place where it can be: a scan's errors are tens of millions of float64s.
+    error = np.array(estimate, dtype=np.float64)
+    np.subtract(error, truth, out=error)
     finite = np.isfinite(error)
-    e = error[finite]
+    non_finite = int(error.size - np.count_nonzero(finite))
+    e = error.ravel() if non_finite == 0 else error[finite]
+    del error
     if e.size == 0:
-        return ErrorMetrics(0, float("nan"), float("nan"), float("nan"), float("nan"), int((~finite).sum()))
-    return ErrorMetrics(
-        rows=int(e.size), mae_m=float(np.abs(e).mean()), rmse_m=float(np.sqrt((e**2).mean())),
-        max_abs_m=float(np.abs(e).max()), bias_m=float(e.mean()), non_finite=int((~finite).sum()),
-    )
+        return ErrorMetrics(0, float("nan"), float("nan"), float("nan"), float("nan"), non_finite)
+    bias, rmse = float(e.mean()), float(np.sqrt(np.square(e).mean()))
+    np.abs(e, out=e)
+    return ErrorMetrics(rows=int(e.size), mae_m=float(e.mean()), rmse_m=rmse, max_abs_m=float(e.max()), bias_m=bias,
+                        non_finite=non_finite)
 
 
 def raw_estimates(raw: NDArray, frequencies_hz: tuple[float, ...]) -> dict[str, NDArray[np.float64]]:

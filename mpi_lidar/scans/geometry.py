@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -330,15 +332,23 @@ def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLO
 
     h, w = depth.shape
     b = block_size_pixels(depth, rays, block_m)
-    bands = []
-    for band in block_tiles(h, w, b, band_pixels):
+    bands = block_tiles(h, w, b, band_pixels)
+
+    def band_planes(band: list[tuple[slice, slice]]) -> list[NDArray]:
         rows = band[0][0]
         halo_rows = slice(max(rows.start - 1, 0), min(rows.stop + 1, h))
         band_rays = np.asarray(rays[halo_rows], dtype=np.float64)
         tiles = [_tile_planes(depth, band_rays, halo_rows, rows, columns, b) for _, columns in band]
-        bands.append([np.concatenate(parts, axis=1) for parts in zip(*tiles, strict=True)])
+        return [np.concatenate(parts, axis=1) for parts in zip(*tiles, strict=True)]
+
+    # Bands are independent and NumPy releases the GIL in their heavy loops: one thread per core. The fits
+    # silence the RuntimeWarnings of blocks without points; warnings.catch_warnings is process-wide, so
+    # this one holds while the threads enter and leave theirs.
+    with (warnings.catch_warnings(), ThreadPoolExecutor(max(1, min(len(bands), os.cpu_count() or 1))) as pool):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        fitted = list(pool.map(band_planes, bands))
     centres, normals, keep, usable, rms, area, block_cos_i, finite = (np.concatenate(parts)
-                                                                       for parts in zip(*bands, strict=True))
+                                                                       for parts in zip(*fitted, strict=True))
     index = np.flatnonzero(usable.ravel())
     empty = np.zeros(0)
     pairs = FacingPairs(np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), empty, empty, empty, empty, empty,
