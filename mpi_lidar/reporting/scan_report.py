@@ -27,7 +27,6 @@ from mpi_lidar.correction import (
 )
 from mpi_lidar.correction.outcome import invalid_share
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.learning.evaluate import error_metrics
 from mpi_lidar.reporting.report import (
     REPORT_MARKER,
     Embed,
@@ -56,16 +55,62 @@ def _regions(scan: Scan, correction: Correction) -> dict[str, np.ndarray]:
 
 
 def scan_metrics(scan: Scan, correction: Correction) -> dict[str, dict[str, float]]:
-    """MAE, RMSE and max error of the raw highest-frequency depth and of the corrected depth, per region. [m]"""
-    raw = scan.depth[-1]
+    """MAE, RMSE and max error of the raw highest-frequency depth and of the corrected depth, per region. [m]
+
+    Summed a band of rows at a time (:data:`METRIC_BAND_PIXELS`), so a scan kept in its store is read one
+    band at a time and the float64 errors of the whole scan never exist at once.
+    """
+    if scan.reference_depth is None:
+        return {}
+    h, w = scan.shape
+    invalid = [int(f) for f in INVALID_FLAGS]
+    sums: dict[str, tuple[_ErrorSums, _ErrorSums]] = {}
+    step = max(1, METRIC_BAND_PIXELS // max(w, 1))
+    for top in range(0, h, step):
+        rows = slice(top, min(top + step, h))
+        reference = scan.reference_depth[rows]
+        usable = np.isfinite(reference) & ~np.isin(correction.flags[rows], invalid)
+        regions = {"whole map": usable}
+        if scan.reference_mask is not None:
+            regions["masked region"] = usable & scan.reference_mask[rows]
+        raw, corrected = scan.depth[-1, rows], correction.depth[rows]
+        for region, where in regions.items():
+            before, after = sums.setdefault(region, (_ErrorSums(), _ErrorSums()))
+            before.add(raw[where], reference[where])
+            after.add(corrected[where], reference[where])
     metrics = {}
-    for region, where in _regions(scan, correction).items():
-        before = error_metrics(raw[where], scan.reference_depth[where])
-        after = error_metrics(correction.depth[where], scan.reference_depth[where])
-        metrics[region] = {"pixels": before.rows, "raw_mae_m": before.mae_m, "raw_rmse_m": before.rmse_m,
-                           "raw_max_abs_m": before.max_abs_m, "corrected_mae_m": after.mae_m,
-                           "corrected_rmse_m": after.rmse_m, "corrected_max_abs_m": after.max_abs_m}
+    for region, (before, after) in sums.items():
+        metrics[region] = {"pixels": before.rows, "raw_mae_m": before.mae_m(), "raw_rmse_m": before.rmse_m(),
+                           "raw_max_abs_m": before.max_abs_m, "corrected_mae_m": after.mae_m(),
+                           "corrected_rmse_m": after.rmse_m(), "corrected_max_abs_m": after.max_abs_m}
     return metrics
+
+
+# Pixels per band of rows that :func:`scan_metrics` works on at once.
+METRIC_BAND_PIXELS = 1 << 20
+
+
+class _ErrorSums:
+    """Running sums of the finite errors of estimates against a truth, band by band. [m]"""
+
+    def __init__(self) -> None:
+        self.rows, self.abs_sum, self.square_sum, self.max_abs_m = 0, 0.0, 0.0, float("nan")
+
+    def add(self, estimate: np.ndarray, truth: np.ndarray) -> None:
+        error = estimate.astype(np.float64)
+        error -= truth
+        error = np.abs(error[np.isfinite(error)])
+        if error.size:
+            self.rows += int(error.size)
+            self.abs_sum += float(error.sum())
+            self.square_sum += float(np.square(error).sum())
+            self.max_abs_m = float(np.fmax(self.max_abs_m, error.max()))
+
+    def mae_m(self) -> float:
+        return self.abs_sum / self.rows if self.rows else float("nan")
+
+    def rmse_m(self) -> float:
+        return float(np.sqrt(self.square_sum / self.rows)) if self.rows else float("nan")
 
 
 def applied_correction_mm(scan: Scan, correction: Correction) -> np.ndarray:

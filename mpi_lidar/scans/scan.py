@@ -24,7 +24,7 @@ import hashlib
 import json
 import warnings
 import zipfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -36,7 +36,7 @@ from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import demod
 from mpi_lidar.storage.atomic import atomic_path
-from mpi_lidar.storage.integrity import array_fingerprints, verify_array
+from mpi_lidar.storage.integrity import array_fingerprints, verified_chunks, verify_array
 
 SCAN_SCHEMA = "mpi-lidar/scan@1"
 SCAN_SUFFIX = ".scan.zarr"
@@ -44,6 +44,12 @@ SCAN_SUFFIX = ".scan.zarr"
 # half of it. Correction holds a few times this while it works, so more would not fit a worker safely.
 MAX_SCAN_BYTES = 2**30
 MAX_ARRAY_VALUES = 2**28  # 1 GiB of float32 per array: 4 taps x 4 frequencies x 4096 x 4096
+# Values a stored map reads at once, a band of whole chunk rows at a time (:class:`StoredMap`): 32 MiB of
+# float32.
+BAND_VALUES = 2**23
+# Correction keeps the depth and amplitude of a scan larger than this in its store (:class:`StoredMap`):
+# 256 MiB of float32 maps, a 4-frequency scan of about 2900 x 2900.
+STORED_MAPS_ABOVE_BYTES = 2**28
 
 
 class ScanError(StoreError):
@@ -97,15 +103,17 @@ class Scan:
     def raw_pixels(self) -> NDArray[np.float32]:
         """Per-pixel raw measurements (H*W, 2F) ordered like a dataset's features: depths, then amplitudes."""
         f = len(self.frequencies_hz)
-        stacked = np.concatenate([self.depth.reshape(f, -1), self.amplitude.reshape(f, -1)], axis=0)
+        stacked = np.concatenate([np.asarray(self.depth).reshape(f, -1), np.asarray(self.amplitude).reshape(f, -1)],
+                                 axis=0)
         return np.ascontiguousarray(stacked.T, dtype=np.float32)
 
     def content_sha256(self) -> str:
         """Identity of what correction reads: frequencies, depth and amplitude maps, geometry."""
         digest = hashlib.sha256(json.dumps([float(f) for f in self.frequencies_hz]).encode())
         for array in (self.depth, self.amplitude, self.azimuth_rad, self.elevation_rad, self.ray_directions):
-            if array is not None:
-                digest.update(memoryview(np.ascontiguousarray(array)).cast("B"))  # no copy of the bytes
+            parts = array.c_order_parts() if isinstance(array, StoredMap) else [] if array is None else [array]
+            for part in parts:
+                digest.update(memoryview(np.ascontiguousarray(part)).cast("B"))  # no copy of the bytes
         return digest.hexdigest()
 
 
@@ -117,6 +125,91 @@ def grid_rays(azimuth_rad: NDArray, elevation_rad: NDArray, pairs: bool = False)
     if not pairs:
         az, el = az[None, :], el[:, None]
     return np.stack([np.cos(el) * np.sin(az), np.sin(el) * np.ones_like(az), np.cos(el) * np.cos(az)], axis=-1)
+
+
+class StoredMap:
+    """A map of a scan store read from the store when indexed, so that a large scan is never in memory at once:
+    ``depth``/``amplitude`` (F, H, W) (``row_axis`` 1) or ``ray_directions`` (H, W, 3) (``row_axis`` 0).
+
+    Slicing reads what it selects; ``[:, ys, xs]`` (``[ys, xs]`` for row axis 0) with integer arrays picks
+    pixels a band of rows at a time; ``np.asarray`` reads it all. Values come as ``dtype`` (the maps as
+    float32, like :func:`validate` makes them). The store was checked against its fingerprints when opened.
+    """
+
+    def __init__(self, array: zarr.Array, row_axis: int, dtype: np.dtype | type | None = None):
+        self.array, self.row_axis = array, row_axis
+        self.shape: tuple[int, ...] = tuple(array.shape)
+        self.ndim = len(self.shape)
+        self.stored_dtype = np.dtype(array.dtype)
+        self.dtype = np.dtype(dtype or array.dtype)
+        self._cached: tuple[slice, NDArray] | None = None
+
+    def __array__(self, dtype: np.dtype | None = None, copy: bool | None = None) -> NDArray:
+        return np.asarray(self[...], dtype=dtype)
+
+    def __getitem__(self, key: object) -> NDArray:
+        key = key if isinstance(key, tuple) else (key,)
+        if any(isinstance(k, np.ndarray) for k in key):
+            return self._pixels(key)
+        rows = key[self.row_axis] if len(key) > self.row_axis else slice(None)
+        if Ellipsis in key or not isinstance(rows, slice) or rows.step not in (None, 1):
+            return np.asarray(self.array[key], dtype=self.dtype)
+        start, stop, _ = rows.indices(self.shape[self.row_axis])
+        if stop - start > self._band_rows():  # more than a band: read as asked, nothing kept
+            return np.asarray(self.array[key], dtype=self.dtype)
+        band, values = self._band(start, max(start, stop))
+        return values[(*key[:self.row_axis], slice(start - band.start, stop - band.start), *key[self.row_axis + 1:])]
+
+    def _band(self, start: int, stop: int) -> tuple[slice, NDArray]:
+        """The last band of whole chunk rows read, if it holds rows start:stop, else the one that does.
+
+        Correction reads a scan in tiles of fewer rows than a chunk holds; without this each chunk would be
+        decoded once per tile that touches it.
+        """
+        cached = self._cached
+        if cached is not None and cached[0].start <= start and stop <= cached[0].stop:
+            return cached
+        step = self.array.chunks[self.row_axis]
+        band = slice(start // step * step, min(-(-stop // step) * step, self.shape[self.row_axis]))
+        self._cached = (band, np.asarray(self.array[(slice(None),) * self.row_axis + (band,)], dtype=self.dtype))
+        return self._cached
+
+    def _band_rows(self) -> int:
+        """Rows of a band: whole chunk rows, about :data:`BAND_VALUES` values (at least one chunk row)."""
+        step = self.array.chunks[self.row_axis]
+        per_row = max(1, int(np.prod(self.shape, dtype=np.int64)) // max(self.shape[self.row_axis], 1))
+        return max(1, BAND_VALUES // (per_row * step)) * step
+
+    def row_bands(self) -> list[slice]:
+        """Row ranges of one band each (whole chunk rows, about :data:`BAND_VALUES` values)."""
+        height, rows = self.shape[self.row_axis], self._band_rows()
+        return [slice(top, min(top + rows, height)) for top in range(0, height, rows)]
+
+    def rows(self, rows: slice) -> NDArray:
+        """The values of a range of rows, every other axis whole."""
+        return self[(slice(None),) * self.row_axis + (rows,)]
+
+    def c_order_parts(self) -> Iterator[NDArray]:
+        """The values in parts whose bytes, one after the other, are those of the whole array in C order."""
+        for leading in np.ndindex(*self.shape[:self.row_axis]):
+            for rows in self.row_bands():  # whole chunks, read once: past the band kept for tiles
+                yield np.asarray(self.array[(*leading, rows)], dtype=self.dtype)
+
+    def _pixels(self, key: tuple) -> NDArray:
+        """``[:, ys, xs]`` (row axis 1) or ``[ys, xs]`` (row axis 0): the values of pixels (..., n, ...)."""
+        if len(key) != self.row_axis + 2 or any(k != slice(None) for k in key[:self.row_axis]):
+            raise IndexError(f"a stored map picks pixels as [{':, ' * self.row_axis}rows, columns], got {key!r}")
+        ys, xs = (np.asarray(k) for k in key[self.row_axis:])
+        out = np.empty((*self.shape[:self.row_axis], ys.size, *self.shape[self.row_axis + 2:]), dtype=self.dtype)
+        for rows in self.row_bands():
+            chosen = np.flatnonzero((ys >= rows.start) & (ys < rows.stop))
+            if chosen.size:
+                values = self.rows(rows)
+                if self.row_axis:
+                    out[:, chosen] = values[:, ys[chosen] - rows.start, xs[chosen]]
+                else:
+                    out[chosen] = values[ys[chosen] - rows.start, xs[chosen]]
+        return out
 
 
 class RayRows:
@@ -141,18 +234,21 @@ def validate(scan: Scan, source: str) -> Scan:
     if len(set(scan.frequencies_hz)) != f:
         raise ScanError(f"{source}: frequencies_hz has duplicates {list(scan.frequencies_hz)}; each frequency "
                         "is measured once")
-    depth, amplitude = np.asarray(scan.depth), np.asarray(scan.amplitude)
+    stored = isinstance(scan.depth, StoredMap) and isinstance(scan.amplitude, StoredMap)
+    depth, amplitude = (scan.depth, scan.amplitude) if stored else (np.asarray(scan.depth), np.asarray(scan.amplitude))
     if depth.ndim != 3 or depth.shape[0] != f:
         raise ScanError(f"{source}: depth must have shape (F={f}, H, W), got {depth.shape}")
     if amplitude.shape != depth.shape:
         raise ScanError(f"{source}: amplitude shape {amplitude.shape} differs from depth shape {depth.shape}")
     for name, array in (("depth", depth), ("amplitude", amplitude)):
-        if not np.issubdtype(array.dtype, np.floating):
-            raise ScanError(f"{source}: {name} must be floating point, got {array.dtype}")
-    if np.any(amplitude < 0):
-        raise ScanError(f"{source}: amplitude has negative values ({int((amplitude < 0).sum())} pixels); an "
+        dtype = array.stored_dtype if stored else array.dtype
+        if not np.issubdtype(dtype, np.floating):
+            raise ScanError(f"{source}: {name} must be floating point, got {dtype}")
+    negative = sum(int((part < 0).sum()) for part in _parts(amplitude))
+    if negative:
+        raise ScanError(f"{source}: amplitude has negative values ({negative} pixels); an "
                         "amplitude is a magnitude: check the importer or the tap order")
-    if not np.isfinite(depth).any():
+    if not any(np.isfinite(part).any() for part in _parts(depth)):
         raise ScanError(f"{source}: no pixel has a finite depth")
     h, w = depth.shape[1:]
     _check_optional(source, "azimuth_rad", scan.azimuth_rad, (w,))
@@ -166,9 +262,22 @@ def validate(scan: Scan, source: str) -> Scan:
                         "store it as bool (True where the reference holds)")
     for name in ("azimuth_rad", "elevation_rad", "ray_directions", "reference_depth", "taps"):
         value = getattr(scan, name)
-        if value is not None and not np.issubdtype(np.asarray(value).dtype, np.floating):
-            raise ScanError(f"{source}: {name} must be floating point, got {np.asarray(value).dtype}")
+        if value is None:
+            continue
+        dtype = value.stored_dtype if isinstance(value, StoredMap) else np.asarray(value).dtype
+        if not np.issubdtype(dtype, np.floating):
+            raise ScanError(f"{source}: {name} must be floating point, got {dtype}")
+    if stored:
+        return scan
     return replace(scan, depth=depth.astype(np.float32, copy=False), amplitude=amplitude.astype(np.float32, copy=False))
+
+
+def _parts(values: NDArray | StoredMap) -> Iterator[NDArray]:
+    """An array whole, or a stored map a band of rows at a time."""
+    if isinstance(values, StoredMap):
+        yield from values.c_order_parts()
+    else:
+        yield values
 
 
 def _check_optional(source: str, name: str, array: NDArray | None, shape: tuple[int, ...]) -> None:
@@ -282,8 +391,14 @@ def store_fingerprints(group: zarr.Group) -> dict[str, list[str]]:
     return {name: array_fingerprints(group[name][...], group[name].chunks) for name in sorted(group.array_keys())}
 
 
-def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> Scan:
-    """Read and validate a scan store; depth/amplitude are demodulated from taps when only taps are stored."""
+def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_above_bytes: float = float("inf")
+              ) -> Scan:
+    """Read and validate a scan store; depth/amplitude are demodulated from taps when only taps are stored.
+
+    A store whose depth and amplitude (and ray directions) take more than ``stored_above_bytes`` as float32
+    keeps them in the store: they come as :class:`StoredMap`, every chunk checked against its fingerprint
+    here (one chunk at a time) and read again where correction needs it, a band of rows at a time.
+    """
     path = Path(path)
     if not path.exists():
         raise ScanError(f"scan {path} does not exist")
@@ -302,7 +417,16 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S) -> Scan
         fingerprints = attrs.get("chunk_sha256")  # absent in scans written before fingerprints existed
         fingerprints = fingerprints if isinstance(fingerprints, dict) else {}
 
-        def read(name: str) -> NDArray:
+        maps = {"depth": 1, "amplitude": 1, "ray_directions": 0}
+        in_store = {"depth", "amplitude"} <= members and stored_above_bytes < 4 * sum(
+            np.prod(group[name].shape, dtype=np.float64) for name in maps if name in members)
+
+        def read(name: str) -> NDArray | StoredMap:
+            if in_store and name in maps:
+                for _ in verified_chunks(group[name], fingerprints.get(name), str(path), name):
+                    pass
+                # The maps come as float32 (as validate makes them), ray directions as stored.
+                return StoredMap(group[name], maps[name], None if name == "ray_directions" else np.float32)
             return verify_array(group[name], fingerprints.get(name), str(path), name)
 
         optional = {name: read(name) for name in OPTIONAL_ARRAYS if name in members}

@@ -82,12 +82,21 @@ def verify_array(array: zarr.Array, expected: list[str] | None, store: str, name
     ``expected`` None (a store written before fingerprints) only checks that every chunk decodes.
     """
     values = np.empty(array.shape, dtype=array.dtype)
+    for where, chunk in verified_chunks(array, expected, store, name):
+        values[where] = chunk
+    return values
+
+
+def verified_chunks(array: zarr.Array, expected: list[str] | None, store: str, name: str
+                    ) -> Iterator[tuple[tuple[slice, ...], NDArray]]:
+    """(where, values) of every chunk of an array, each checked against its recorded fingerprint (``expected``
+    None: only that it decodes); one chunk in memory at a time."""
     cells = list(chunk_slices(array.shape, array.chunks))
     if expected is not None and len(expected) != len(cells):
         raise IntegrityError(f"{store}: {name!r} records {len(expected)} chunk fingerprints for {len(cells)} "
                              "chunks; the store is damaged: restore or regenerate it")
     for k, (index, where) in enumerate(cells):
-        values[where] = read_chunk(array, where, store, name, index)
+        chunk = np.asarray(read_chunk(array, where, store, name, index), dtype=array.dtype)
         if expected is not None:
-            check_fingerprint(values[where], expected[k], store, name, index)
-    return values
+            check_fingerprint(chunk, expected[k], store, name, index)
+        yield where, chunk

@@ -47,7 +47,7 @@ from mpi_lidar.reporting.scan_report import (
     scan_metrics,
     write_scan_outputs,
 )
-from mpi_lidar.scans.scan import SCAN_SUFFIX, read_scan
+from mpi_lidar.scans.scan import SCAN_SUFFIX, STORED_MAPS_ABOVE_BYTES, read_scan
 from mpi_lidar.storage.atomic import remove_interrupted_staging
 from mpi_lidar.workflows.executor import Executor, as_executor
 
@@ -213,7 +213,7 @@ def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None
 def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
                   started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None
                   ) -> ScanOutcome:
-    scan = read_scan(source)
+    scan = read_scan(source, stored_above_bytes=STORED_MAPS_ABOVE_BYTES)  # a large scan stays in its store
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
     scan_sha, model_sha, options_sha = scan.content_sha256(), model.card.model_sha256, options.sha256()
