@@ -82,9 +82,11 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     """Correct one scan in this process, in tiles of whole rows of about ``options.tile_pixels`` pixels.
 
     Everything per pixel (validity mask, model range, a pixel-wise gate, geometric inputs, inference) runs
-    tile by tile, so its working memory is that of one tile whatever the scan's size; what the gate needs of
-    the whole scan (the geometry gate's planes and facing partners) is computed once between the two passes.
-    Every pixel gets exactly the value it gets from the whole scan at once (tests/correction/test_tiling.py).
+    tile by tile, so its working memory is that of one tile whatever the scan's size; the geometry gate runs
+    between the two passes, itself in tiles of whole blocks (its planes) and bands of rows (its potential),
+    with only its facing pairs over the whole scan. ``scan`` may keep its maps in the store
+    (:class:`mpi_lidar.scans.scan.StoredMap`). Every pixel gets exactly the value it gets from the whole scan
+    in memory at once (tests/correction/test_tiling.py, tests/scans/test_stored_maps.py).
     """
     started = time.perf_counter()
     clock = _StageClock()
