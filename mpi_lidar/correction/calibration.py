@@ -139,7 +139,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     if pixels.size == 0:
         return NOTHING_MEASURED
     ys, xs = np.divmod(pixels, blocks.shape[1])
-    coordinates = ((ys + 0.5) / blocks.block_pixels - 0.5, (xs + 0.5) / blocks.block_pixels - 0.5)
+    coordinates = blocks.pixel_coordinates(pixels)
     depth = scan.depth[:, ys, xs].astype(np.float64).T
     amplitude = scan.amplitude[:, ys, xs].astype(np.float64).T
     freqs = np.asarray(scan.frequencies_hz, dtype=np.float64)

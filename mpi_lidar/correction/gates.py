@@ -125,7 +125,7 @@ class GeometryGate(Gate):
         if estimate.significant:
             return blocks.block_potential(estimate.area_m2)
         upper = blocks.block_potential(min(estimate.upper_m2(), 1.0))
-        self.uncalibrated_ = self._reaches_min_bias(upper)[0]
+        self.uncalibrated_ = self._reaches_min_bias(upper)
         return blocks.block_potential(0.0)
 
     def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
@@ -133,19 +133,20 @@ class GeometryGate(Gate):
         self.potential_ = self.potential(scan, valid_depth)
         if self.potential_ is None:
             return None
-        candidates, self.bias_m_ = self._reaches_min_bias(self.potential_)
-        return candidates
+        self.bias_m_ = np.empty(scan.shape, dtype=np.float32)
+        return self._reaches_min_bias(self.potential_, self.bias_m_)
 
-    def _reaches_min_bias(self, potential: geometry.BlockPotential) -> tuple[NDArray[np.bool_], NDArray[np.float32]]:
-        """Where the bias reaches ``min_bias_m`` (H*W,) and the bias map (H, W) [m], a band of rows at a time."""
-        h, w = potential.blocks.shape
-        reaches = np.empty((h, w), dtype=bool)
-        bias = np.empty((h, w), dtype=np.float32)
+    def _reaches_min_bias(self, potential: geometry.BlockPotential, bias_out: NDArray | None = None
+                          ) -> NDArray[np.bool_]:
+        """Where the bias reaches ``min_bias_m`` (H*W,), a band of rows at a time; the bias [m] goes into
+        ``bias_out`` (H, W) where given."""
+        reaches = np.empty(potential.blocks.shape, dtype=bool)
         for rows in potential.blocks.bands(self.band_pixels):
             band = potential.rows(rows).bias_m
             reaches[rows] = band >= self.min_bias_m
-            bias[rows] = band
-        return reaches.ravel(), bias
+            if bias_out is not None:
+                bias_out[rows] = band
+        return reaches.ravel()
 
     def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:
         return np.ones(raw.shape[0], dtype=bool)

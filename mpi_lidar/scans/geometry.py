@@ -267,10 +267,9 @@ class FacingBlocks:
         where = self.block_grid() if coordinates is None else coordinates
         return map_coordinates(block_values.reshape(hb, wb), where, order=1, mode="nearest")
 
-    def potential(self, footprint_area_m2: float, rows: slice = slice(None)) -> MultipathPotential:
-        """The multipath potential of ``rows`` (all by default) for the receiver footprint A_fp [m^2]
-        (:func:`multipath_potential`)."""
-        return self.block_potential(footprint_area_m2).rows(rows)
+    def potential(self, footprint_area_m2: float) -> MultipathPotential:
+        """The multipath potential of every pixel for the footprint A_fp [m^2] (:func:`multipath_potential`)."""
+        return self.block_potential(footprint_area_m2).rows()
 
     def block_potential(self, footprint_area_m2: float) -> BlockPotential:
         """Coupling and bias per block for the receiver footprint A_fp [m^2]; pixels interpolate them."""
