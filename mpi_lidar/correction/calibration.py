@@ -27,7 +27,6 @@ against it directly and the planes are not needed.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -35,7 +34,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.validity import quadrature_noise_v2
-from mpi_lidar.scans.geometry import FacingBlocks, to_blocks
+from mpi_lidar.scans.geometry import FacingBlocks, nanmedian_last, to_blocks
 from mpi_lidar.scans.scan import Scan
 
 # A surface is a connected set of blocks whose normals agree to this [deg] and whose centres lie on each
@@ -61,6 +60,8 @@ NO_COUPLING_ROOT = 1e3
 MAX_ITERATIONS = 20
 PLAIN_ITERATIONS = 4
 HUBER_K = 2.0
+# The fit stops once a step changes A by less than this share of it: far below the systematic uncertainty.
+CONVERGED_STEP = 1e-3
 # Estimates of A, each with the albedos less the light the multipath adds at the previous one.
 ALBEDO_ITERATIONS = 2
 # Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
@@ -156,6 +157,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     measured_albedo = block_albedo(scan, blocks, sensor)
     albedo = surface_albedo(measured_albedo, components, unit_kappa)
     found = NOTHING_MEASURED
+    area = 0.0
     for iteration in range(ALBEDO_ITERATIONS):
         unit_phasor, _ = block_unit_phasors(blocks, albedo, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
         phasor, kappa = _pixel_phasors(blocks, unit_phasor, unit_kappa, coordinates)
@@ -163,7 +165,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
                            amplitude[usable] / sensor.gamma_r_v2, pixel_rays[usable], surface[usable],
                            None if reference_depth is None else reference_depth[usable])
         last = iteration == ALBEDO_ITERATIONS - 1
-        found = problem.solve("reference" if reference else "planes", check=last)
+        found = problem.solve("reference" if reference else "planes", check=last, start_m2=area)
         if last or not np.isfinite(found.area_m2) or found.area_m2 <= 0:
             break
         area = found.area_m2
@@ -200,9 +202,7 @@ def _tile_albedo(scan: Scan, blocks: FacingBlocks, rays: NDArray, rows: slice, c
     normals = blocks.normals[block_rows, block_columns]
     cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(to_blocks(rays, b)), normals))
     ratio = to_blocks(amplitude * depth**2, b) / (sensor.gamma_r_v2 * np.maximum(cos_i, 0.1))
-    with warnings.catch_warnings():  # blocks without inliers have no median
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmedian(np.where(blocks.keep[block_rows, block_columns], ratio, np.nan), axis=-1)
+    return nanmedian_last(np.where(blocks.keep[block_rows, block_columns], ratio, np.nan))  # NaN: no inliers
 
 
 def surface_albedo(albedo: NDArray, components: NDArray, unit_kappa: NDArray) -> NDArray[np.float64]:
@@ -338,36 +338,46 @@ class _Problem:
     def __init__(self, depth: NDArray, sigma: NDArray, phasor: NDArray, kappa: NDArray, metres_per_rad: NDArray,
                  relative_amplitude: NDArray, rays: NDArray, surface: NDArray, reference: NDArray | None):
         self.depth, self.sigma, self.phasor, self.kappa = depth, sigma, phasor, kappa
+        # The bias model in real arithmetic (complex NumPy is several times slower): the phasor's parts.
+        self.phasor_re, self.phasor_im = np.ascontiguousarray(phasor.real), np.ascontiguousarray(phasor.imag)
+        self.inverse_variance = sigma**-2.0
         self.log_amplitude = np.log(np.maximum(relative_amplitude, 1e-12))
         self.sigma_log = sigma / metres_per_rad
         self.metres_per_rad, self.rays, self.reference = metres_per_rad, rays, reference
         _, self.surface = np.unique(surface, return_inverse=True)
         self.surfaces = int(self.surface.max()) + 1 if surface.size else 0
+        # Sums per surface as one matrix product: (surfaces, n) one-hot rows.
+        self.members = (self.surface[None, :] == np.arange(self.surfaces)[:, None]).astype(np.float64)
         self.anchor = self._anchor_rows()
         self.ray_outer = np.einsum("ni,nj->nij", rays, rays).reshape(-1, 9)  # the planes' normal equations
 
     def bias(self, area: float) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         """Predicted depth bias (n, F) [m] at footprint ``area``, its derivative in the footprint, the
         amplitude gain |1 + ratio| (n, F) and the derivative of its logarithm."""
-        scale = 1.0 / np.maximum(abs(area) * self.kappa, 1.0)[:, None]
-        ratio = area * self.phasor * scale
-        bias = np.angle(1.0 + ratio) * self.metres_per_rad
-        capped = (abs(area) * self.kappa > 1.0)[:, None] | (np.abs(1.0 + ratio) < 1e-9)
-        safe = np.where(capped, 1.0, 1.0 + ratio)
-        relative = self.phasor * scale / safe
-        slope = np.where(capped, 0.0, relative.imag) * self.metres_per_rad
-        return bias, slope, np.abs(safe), np.where(capped, 0.0, relative.real)
+        # ratio = area S / max(area K, 1); with 1 + ratio = x + j y, the derivative of the phase in the
+        # footprint is Im(S' / (1 + ratio)) and that of log|1 + ratio| its real part (S' = S / max(area K, 1)).
+        scale = (1.0 / np.maximum(abs(area) * self.kappa, 1.0))[:, None]
+        s_re, s_im = self.phasor_re * scale, self.phasor_im * scale
+        x, y = 1.0 + area * s_re, area * s_im
+        bias = np.arctan2(y, x) * self.metres_per_rad
+        norm2 = x * x + y * y
+        capped = (abs(area) * self.kappa > 1.0)[:, None] | (norm2 < 1e-18)
+        inverse = np.where(capped, 0.0, 1.0 / np.where(capped, 1.0, norm2))
+        slope = (s_im * x - s_re * y) * inverse * self.metres_per_rad
+        gain = np.where(capped, 1.0, np.sqrt(norm2))
+        return bias, slope, gain, (s_re * x + s_im * y) * inverse
 
-    def solve(self, method: str, check: bool = True) -> FootprintEstimate:
+    def solve(self, method: str, check: bool = True, start_m2: float = 0.0) -> FootprintEstimate:
         """The footprint from the depth residuals, over the fitted planes or against the reference depth.
 
         The statistical uncertainty is combined with a systematic one, ``SYSTEMATIC_SHARE`` of the estimate:
         the spread of the estimate over rendered scenes the scan's geometry describes only in part (partners
         beyond the field of view, 3 cm blocks). ``check``: compare with the amplitude (see
-        :meth:`_amplitude_agrees`); an estimate that fails the check is not significant.
+        :meth:`_amplitude_agrees`); an estimate that fails the check is not significant. ``start_m2``: the
+        footprint the depth fit starts from (an earlier estimate saves iterations); the amplitude's starts from 0.
         """
         problem = self if self.reference is not None else self._anchored()
-        found = problem._solve(method, use_depth=True, use_amplitude=False)
+        found = problem._solve(method, use_depth=True, use_amplitude=False, start_m2=start_m2)
         if not np.isfinite(found.area_m2) or abs(found.area_m2) > MAX_PLAUSIBLE_M2:
             # No receiver sees a square metre: such a number comes from a few spurious facing blocks.
             return FootprintEstimate(float("nan"), float("inf"), found.pixels, found.surfaces, method)
@@ -387,17 +397,22 @@ class _Problem:
         return bool(np.isfinite(check) and area > 0 and check > 0
                     and 1 / AMPLITUDE_AGREEMENT <= check / area <= AMPLITUDE_AGREEMENT)
 
-    def _solve(self, method: str, use_depth: bool, use_amplitude: bool) -> FootprintEstimate:
+    def _solve(self, method: str, use_depth: bool, use_amplitude: bool, start_m2: float = 0.0
+               ) -> FootprintEstimate:
         n = self.depth.shape[0]
         informative = int((self.kappa > 0).sum())
         if n < 10 or informative == 0:
             return FootprintEstimate(float("nan"), float("inf"), informative, self.surfaces, method)
         anchor = self.anchor if self.reference is None else np.zeros(n, dtype=bool)
         fit_rows = (self.kappa > 0) & ~anchor
-        area = 0.0
+        area = start_m2
         robust_depth, robust_amplitude = np.ones_like(self.depth), np.ones_like(self.depth)
         spread, information = 1.0, 0.0
+        # Before A is near, the multipath itself looks like an outlier: plain least squares first, unless the
+        # fit starts from an earlier estimate.
+        plain = PLAIN_ITERATIONS if start_m2 == 0 else 0
         for iteration in range(MAX_ITERATIONS):
+            robust = iteration >= plain
             bias, slope, gain, gain_slope = self.bias(area)
             planes = None
             if self.reference is None:
@@ -410,14 +425,14 @@ class _Problem:
             z = residual / self.sigma
             if use_depth:
                 spread = 1.4826 * float(np.median(np.abs(z[fit_rows]))) or 1.0
-            if iteration >= PLAIN_ITERATIONS:  # before A is near, the multipath itself looks like an outlier
+            if robust:
                 robust_depth = _huber(z, spread)
             weight = np.where(trusted & fit_rows[:, None], robust_depth / self.sigma**2, 0.0)
             numerator = float((weight * slope * residual).sum()) if use_depth else 0.0
             information = float((weight * slope**2).sum()) if use_depth else 0.0
             if planes is not None and use_amplitude:
                 step_terms = self._amplitude_terms(planes, surface_range, gain, gain_slope, trusted,
-                                                   robust_amplitude, iteration)
+                                                   robust_amplitude, robust)
                 numerator += step_terms[0]
                 information += step_terms[1]
                 robust_amplitude, spread = step_terms[2], step_terms[3]
@@ -425,19 +440,20 @@ class _Problem:
                 return FootprintEstimate(float("nan"), float("inf"), informative, self.surfaces, method)
             step = numerator / information
             area += step
-            if iteration >= PLAIN_ITERATIONS and abs(step) <= 1e-4 * max(abs(area), 1e-4):
+            if robust and abs(step) <= CONVERGED_STEP * max(abs(area), 1e-4):
                 break
         sigma_area = spread / np.sqrt(information) if information > 0 else float("inf")
         return FootprintEstimate(float(area), float(sigma_area), informative, self.surfaces, method)
 
     def _amplitude_terms(self, planes: NDArray, surface_range: NDArray, gain: NDArray, gain_slope: NDArray,
-                         trusted: NDArray, robust: NDArray, iteration: int) -> tuple[float, float, NDArray, float]:
-        """Gauss-Newton sums (numerator, information) of the amplitude rows, their Huber weights and spread."""
+                         trusted: NDArray, weights: NDArray, robust: bool) -> tuple[float, float, NDArray, float]:
+        """Gauss-Newton sums (numerator, information) of the amplitude rows, their Huber weights (``weights``
+        as they were where not ``robust`` yet) and spread."""
         # Lambertian direct light: amplitude / Gamma_R = rho cos_i / t^2 with cos_i = 1 / (t |u|).
         with np.errstate(divide="ignore", invalid="ignore"):
             log_direct = -np.log(surface_range**3 * np.linalg.norm(planes[self.surface], axis=1))
         residual = np.where(trusted, self.log_amplitude - np.nan_to_num(log_direct)[:, None] - np.log(gain), 0.0)
-        weight = np.where(trusted, robust / self.sigma_log**2, 0.0)
+        weight = np.where(trusted, weights / self.sigma_log**2, 0.0)
         # Eliminate log rho per surface: weighted means.
         pixel_weight = weight.sum(1)
         total = np.maximum(np.bincount(self.surface, pixel_weight, minlength=self.surfaces), 1e-300)
@@ -447,9 +463,9 @@ class _Problem:
         slope = gain_slope - mean_slope[self.surface][:, None]
         z = residual / self.sigma_log
         spread = 1.4826 * float(np.median(np.abs(z))) or 1.0
-        if iteration >= PLAIN_ITERATIONS:
-            robust = _huber(z, spread)
-        return float((weight * slope * residual).sum()), float((weight * slope**2).sum()), robust, spread
+        if robust:
+            weights = _huber(z, spread)
+        return float((weight * slope * residual).sum()), float((weight * slope**2).sum()), weights, spread
 
     def _anchored(self) -> _Problem:
         """This problem without the surfaces that have too few anchors to fix a plane.
@@ -477,12 +493,13 @@ class _Problem:
         The plane u . ray = 1 / range is a weighted least-squares fit per surface of the inverse-variance
         mean depth over the frequencies, each anchor weighted by its range noise (d(1/r) = dr / r^2).
         """
-        inverse_variance = self.sigma**-2
-        depth = ((self.depth - bias) * inverse_variance).sum(1) / inverse_variance.sum(1)
-        weight = np.where(anchor, depth**4 * inverse_variance.sum(1), 0.0)
-        matrices = _sum_by(self.surface, self.ray_outer * weight[:, None], self.surfaces).reshape(-1, 3, 3)
-        matrices += 1e-9 * np.eye(3)
-        vectors = _sum_by(self.surface, self.rays * (weight / depth)[:, None], self.surfaces)
+        inverse_variance = self.inverse_variance
+        total = inverse_variance.sum(1)
+        depth = ((self.depth - bias) * inverse_variance).sum(1) / total
+        weight = np.where(anchor, depth**4 * total, 0.0)
+        weighted_members = self.members * weight
+        matrices = (weighted_members @ self.ray_outer).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
+        vectors = (weighted_members / depth) @ self.rays
         planes = np.linalg.solve(matrices, vectors[..., None])[..., 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             inverse_range = np.einsum("ni,ni->n", self.rays, planes[self.surface])
@@ -492,11 +509,6 @@ class _Problem:
 def _huber(z: NDArray, spread: float) -> NDArray:
     """Huber weights of standardized residuals, zero beyond six robust spreads."""
     return np.where(np.abs(z) > 6 * spread, 0.0, np.minimum(1.0, HUBER_K * spread / np.maximum(np.abs(z), 1e-12)))
-
-
-def _sum_by(labels: NDArray, values: NDArray, count: int) -> NDArray:
-    """Sums of the rows of ``values`` (n, k) per label (count, k)."""
-    return np.stack([np.bincount(labels, values[:, k], minlength=count) for k in range(values.shape[1])], axis=1)
 
 
 def pool_estimates(estimates: list[FootprintEstimate]) -> FootprintEstimate:
