@@ -158,8 +158,9 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     albedo = surface_albedo(measured_albedo, components, unit_kappa)
     found = NOTHING_MEASURED
     area = 0.0
+    block_phasors = BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
     for iteration in range(ALBEDO_ITERATIONS):
-        unit_phasor, _ = block_unit_phasors(blocks, albedo, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
+        unit_phasor = block_phasors(albedo)
         phasor, kappa = _pixel_phasors(blocks, unit_phasor, unit_kappa, coordinates)
         problem = _Problem(depth[usable], sigma[usable], phasor[usable], kappa[usable], metres_per_rad,
                            amplitude[usable] / sensor.gamma_r_v2, pixel_rays[usable], surface[usable],
@@ -220,26 +221,31 @@ def surface_albedo(albedo: NDArray, components: NDArray, unit_kappa: NDArray) ->
     return out
 
 
-def block_unit_phasors(blocks: FacingBlocks, albedo: NDArray, frequencies_hz: tuple[float, ...],
-                       speed_of_light_m_per_s: float) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
-    """Per block (Hb*Wb,): the multipath phasor S_f at unit footprint (Hb*Wb, F) and the white kappa (Hb*Wb,).
+class BlockPhasors:
+    """The multipath phasor per block at unit footprint, for any albedos: the pairs' phases are worked out once.
 
     S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c} with kappa_B at A_fp = 1 m^2: the ratio
     Gamma_M / Gamma_D of the two-path model is A_fp S_f, and the white kappa sum K caps it like the
     renderer does (at A_fp K > 1 the multipath is scaled by 1 / (A_fp K)).
     """
-    pairs = blocks.pairs
-    n_blocks = blocks.usable.size
-    kappa = pairs.kappa(1.0)
-    block_a, block_b = blocks.index[pairs.a], blocks.index[pairs.b]
-    weight = kappa * albedo[block_a] * albedo[block_b]
-    freqs = np.asarray(frequencies_hz, dtype=np.float64)
-    phase = 4 * np.pi * pairs.distance_m[:, None] * freqs[None, :] / speed_of_light_m_per_s
-    phasor = np.zeros((n_blocks, freqs.size), dtype=np.complex128)
-    for k in range(freqs.size):
-        phasor[:, k] = (np.bincount(block_a, weight * np.cos(phase[:, k]), minlength=n_blocks)
-                        + 1j * np.bincount(block_a, weight * np.sin(phase[:, k]), minlength=n_blocks))
-    return phasor, np.bincount(block_a, kappa, minlength=n_blocks)
+
+    def __init__(self, blocks: FacingBlocks, frequencies_hz: tuple[float, ...], speed_of_light_m_per_s: float):
+        pairs = blocks.pairs
+        self.blocks = blocks.usable.size
+        self.kappa = pairs.kappa(1.0)
+        self.block_a, self.block_b = blocks.index[pairs.a], blocks.index[pairs.b]
+        freqs = np.asarray(frequencies_hz, dtype=np.float64)
+        phase = 4 * np.pi * pairs.distance_m[:, None] * freqs[None, :] / speed_of_light_m_per_s
+        self.cos, self.sin = np.cos(phase), np.sin(phase)
+
+    def __call__(self, albedo: NDArray) -> NDArray[np.complex128]:
+        """S_f per block (Hb*Wb, F) for the albedos per block ``albedo`` (Hb*Wb,)."""
+        weight = self.kappa * albedo[self.block_a] * albedo[self.block_b]
+        phasor = np.zeros((self.blocks, self.cos.shape[1]), dtype=np.complex128)
+        for k in range(self.cos.shape[1]):
+            phasor[:, k] = (np.bincount(self.block_a, weight * self.cos[:, k], minlength=self.blocks)
+                            + 1j * np.bincount(self.block_a, weight * self.sin[:, k], minlength=self.blocks))
+        return phasor
 
 
 def _pixel_phasors(blocks: FacingBlocks, unit_phasor: NDArray, unit_kappa: NDArray,

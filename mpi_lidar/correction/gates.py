@@ -142,7 +142,7 @@ class GeometryGate(Gate):
         ``bias_out`` (H, W) where given."""
         reaches = np.empty(potential.blocks.shape, dtype=bool)
         for rows in potential.blocks.bands(self.band_pixels):
-            band = potential.rows(rows).bias_m
+            band = potential.bias_rows(rows)
             reaches[rows] = band >= self.min_bias_m
             if bias_out is not None:
                 bias_out[rows] = band

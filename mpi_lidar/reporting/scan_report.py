@@ -37,7 +37,7 @@ from mpi_lidar.reporting.report import (
     write_report,
 )
 from mpi_lidar.scans import geometry
-from mpi_lidar.scans.scan import Scan, consolidate, describe_arrays, store_fingerprints
+from mpi_lidar.scans.scan import Scan, consolidate, store_fingerprints, write_described_arrays
 from mpi_lidar.storage.atomic import atomic_path
 
 FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea"]
@@ -517,16 +517,14 @@ def _write_corrected_store(path: Path, scan: Scan, correction: Correction, ident
     fingerprints of every array, then consolidated metadata.
     """
     group = zarr.open_group(store=str(path), mode="w-")
-    group.create_array("corrected_depth", data=correction.depth, dimension_names=("y", "x"))
-    group.create_array("flags", data=correction.flags, dimension_names=("y", "x"))
+    arrays = {"corrected_depth": (correction.depth, ("y", "x")), "flags": (correction.flags, ("y", "x"))}
     if correction.multipath_bias_m is not None:
-        group.create_array("multipath_bias_m", data=correction.multipath_bias_m, dimension_names=("y", "x"))
+        arrays["multipath_bias_m"] = (correction.multipath_bias_m, ("y", "x"))
     for name, dims in (("azimuth_rad", ("x",)), ("elevation_rad", ("y",))):
         if getattr(scan, name) is not None:
-            group.create_array(name, data=np.asarray(getattr(scan, name)), dimension_names=dims)
-    describe_arrays(group, scan.shape, metadata=CORRECTED_METADATA)
-    group["flags"].attrs.update({"flag_values": [int(f) for f in Flag],
-                                 "flag_meanings": " ".join(f.name.lower() for f in Flag)})
+            arrays[name] = (np.asarray(getattr(scan, name)), dims)
+    flags = {"flag_values": [int(f) for f in Flag], "flag_meanings": " ".join(f.name.lower() for f in Flag)}
+    write_described_arrays(group, arrays, scan.shape, metadata=CORRECTED_METADATA, attributes={"flags": flags})
     # One metadata write: group.attrs.update would rewrite the group's metadata once per key.
     group.update_attributes({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
                              "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},

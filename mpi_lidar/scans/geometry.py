@@ -312,6 +312,12 @@ class BlockPotential:
         grid = self.blocks.block_grid(rows)
         return self._at(grid, self.blocks.finite[rows])
 
+    def bias_rows(self, rows: slice = slice(None)) -> NDArray[np.float64]:
+        """The bias [m] (rows, W) of a range of rows alone, as :meth:`rows` gives it."""
+        bias = self.blocks.to_pixels(self.bias_m, self.blocks.block_grid(rows))
+        bias[~self.blocks.finite[rows]] = 0.0
+        return bias
+
     def pixels(self, pixels: NDArray) -> MultipathPotential:
         """The potential (n,) of flat pixel indices (n,)."""
         return self._at(self.blocks.pixel_coordinates(pixels), self.blocks.finite.ravel()[pixels])

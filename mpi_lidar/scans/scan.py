@@ -331,48 +331,48 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
     with atomic_path(path, replace=overwrite, what="scan", error=ScanError) as staging:
         group = zarr.open_group(store=str(staging), mode="w-")
         h, w = scan.shape
-        chunks = (1, min(h, 512), min(w, 512))
-        for name in ("depth", "amplitude"):
-            group.create_array(name, data=getattr(scan, name), chunks=chunks, dimension_names=("frequency", "y", "x"))
-        for name, dims in OPTIONAL_ARRAYS.items():
-            value = getattr(scan, name)
-            if value is not None:
-                group.create_array(name, data=np.asarray(value), dimension_names=dims)
-        describe_arrays(group, scan.shape, scan.frequencies_hz)
+        maps = {name: (getattr(scan, name), ("frequency", "y", "x")) for name in ("depth", "amplitude")}
+        optional = {name: (np.asarray(getattr(scan, name)), dims) for name, dims in OPTIONAL_ARRAYS.items()
+                    if getattr(scan, name) is not None}
+        write_described_arrays(group, {**maps, **optional}, scan.shape, scan.frequencies_hz,
+                               chunks=dict.fromkeys(maps, (1, min(h, 512), min(w, 512))))
         group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": [float(f) for f in scan.frequencies_hz],
                             "name": scan.name, "scene": scan.scene, "chunk_sha256": store_fingerprints(group)})
         consolidate(staging)
     return path
 
 
-def describe_arrays(group: zarr.Group, shape: tuple[int, int], frequencies_hz: Sequence[float] | None = None,
-                    metadata: Mapping[str, tuple[str, str]] | None = None) -> None:
-    """Make a store xarray-readable: coordinate arrays, then ``units``, ``long_name`` and ``coordinates``.
+def write_described_arrays(group: zarr.Group, arrays: Mapping[str, tuple[NDArray, tuple[str, ...]]],
+                           shape: tuple[int, int], frequencies_hz: Sequence[float] | None = None,
+                           metadata: Mapping[str, tuple[str, str]] | None = None,
+                           chunks: Mapping[str, tuple[int, ...]] | None = None,
+                           attributes: Mapping[str, Mapping[str, object]] | None = None) -> None:
+    """Write data arrays (name -> (values, dimension names)) so that xarray reads the store: with coordinate
+    arrays, and ``units``, ``long_name`` and ``coordinates`` on every array.
 
-    Writes ``frequency_hz`` (with ``frequencies_hz`` given) and the pixel indices ``y``/``x`` of a grid without
-    ``elevation_rad``/``azimuth_rad``, then describes every array of the group from :data:`ARRAY_METADATA` and
-    ``metadata`` (name -> (units, long_name)). Call it after the data arrays and before the fingerprints.
+    Adds ``frequency_hz`` (with ``frequencies_hz`` given) and the pixel indices ``y``/``x`` of a grid without
+    ``elevation_rad``/``azimuth_rad``. Each array is described from :data:`ARRAY_METADATA` and ``metadata``
+    (name -> (units, long_name)), plus its own ``attributes``, in the one metadata write that creates it;
+    ``chunks`` where an array's chunks are not zarr's own choice. Write the fingerprints after it.
     """
     h, w = shape
-    members = set(group.array_keys())
+    planned = dict(arrays)
     if frequencies_hz is not None:
-        group.create_array("frequency_hz", data=np.asarray(frequencies_hz, dtype=np.float64),
-                           dimension_names=("frequency",))
+        planned["frequency_hz"] = (np.asarray(frequencies_hz, dtype=np.float64), ("frequency",))
     for index, grid, size in (("y", "elevation_rad", h), ("x", "azimuth_rad", w)):
-        if grid not in members:
-            group.create_array(index, data=np.arange(size, dtype=np.int64), dimension_names=(index,))
+        if grid not in planned:
+            planned[index] = (np.arange(size, dtype=np.int64), (index,))
     described = {**ARRAY_METADATA, **(metadata or {})}
-    arrays = {name: group[name] for name in group.array_keys()}
-    dims = {name: tuple(array.metadata.dimension_names or ()) for name, array in arrays.items()}
-    coordinates = [name for name in ("frequency_hz", "elevation_rad", "azimuth_rad") if name in arrays]
-    for name, array in arrays.items():
+    coordinates = [name for name in ("frequency_hz", "elevation_rad", "azimuth_rad") if name in planned]
+    for name, (values, dims) in planned.items():
         units, long_name = described.get(name, ("1", name.replace("_", " ")))
-        attrs: dict[str, object] = {"units": units, "long_name": long_name}
-        if name not in coordinates and name not in dims[name]:
-            own = " ".join(c for c in coordinates if set(dims[c]) <= set(dims[name]))
+        attrs: dict[str, object] = {"units": units, "long_name": long_name, **(attributes or {}).get(name, {})}
+        if name not in coordinates and name not in dims:
+            own = " ".join(c for c in coordinates if set(planned[c][1]) <= set(dims))
             if own:
                 attrs["coordinates"] = own
-        array.attrs.update(attrs)
+        extra = {"chunks": chunks[name]} if chunks and name in chunks else {}
+        group.create_array(name, data=values, dimension_names=dims, attributes=attrs, **extra)
 
 
 def consolidate(path: str | Path) -> None:
@@ -388,7 +388,8 @@ def consolidate(path: str | Path) -> None:
 
 def store_fingerprints(group: zarr.Group) -> dict[str, list[str]]:
     """Fingerprints of every chunk of every array of a store just written (read back, so exactly as stored)."""
-    return {name: array_fingerprints(group[name][...], group[name].chunks) for name in sorted(group.array_keys())}
+    arrays = dict(group.arrays())  # opened together: one round trip to the store, not one per array
+    return {name: array_fingerprints(arrays[name][...], arrays[name].chunks) for name in sorted(arrays)}
 
 
 def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_above_bytes: float = float("inf")
@@ -406,28 +407,29 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
         # Each array's own metadata, not the consolidated copy: that is what the chunks were written with.
         group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
         attrs = dict(group.attrs)
-        members = set(group.array_keys())
+        arrays = dict(group.arrays())  # opened together: one round trip to the store, not one per array
+        members = set(arrays)
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
         raise ScanError(f"{path} is not a readable Zarr store ({type(exc).__name__})") from None
     if attrs.get("schema") != SCAN_SCHEMA:
         raise ScanError(f"{path} is not an mpi-lidar scan (schema {attrs.get('schema')!r}, expected {SCAN_SCHEMA!r})")
     try:
-        _check_declared_sizes(path, group, members)
+        _check_declared_sizes(path, arrays)
         frequencies = tuple(float(f) for f in attrs["frequencies_hz"])
         fingerprints = attrs.get("chunk_sha256")  # absent in scans written before fingerprints existed
         fingerprints = fingerprints if isinstance(fingerprints, dict) else {}
 
         maps = {"depth": 1, "amplitude": 1, "ray_directions": 0}
         in_store = {"depth", "amplitude"} <= members and stored_above_bytes < 4 * sum(
-            np.prod(group[name].shape, dtype=np.float64) for name in maps if name in members)
+            np.prod(arrays[name].shape, dtype=np.float64) for name in maps if name in members)
 
         def read(name: str) -> NDArray | StoredMap:
             if in_store and name in maps:
-                for _ in verified_chunks(group[name], fingerprints.get(name), str(path), name):
+                for _ in verified_chunks(arrays[name], fingerprints.get(name), str(path), name):
                     pass
                 # The maps come as float32 (as validate makes them), ray directions as stored.
-                return StoredMap(group[name], maps[name], None if name == "ray_directions" else np.float32)
-            return verify_array(group[name], fingerprints.get(name), str(path), name)
+                return StoredMap(arrays[name], maps[name], None if name == "ray_directions" else np.float32)
+            return verify_array(arrays[name], fingerprints.get(name), str(path), name)
 
         optional = {name: read(name) for name in OPTIONAL_ARRAYS if name in members}
         coordinates = {name: read(name) for name in COORDINATE_ARRAYS if name in members}
@@ -452,12 +454,12 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
     return validate(scan, str(path))
 
 
-def _check_declared_sizes(path: Path, group: zarr.Group, members: set[str]) -> None:
+def _check_declared_sizes(path: Path, arrays: Mapping[str, zarr.Array]) -> None:
     """Refuse a store whose declared arrays exceed the memory budget, before allocating anything.
 
     A damaged or hostile store can declare 4 x 8000 x 8000 pixels in a few hundred bytes of metadata.
     """
-    check_memory_budget(path, [(f"array {name!r}", group[name].shape, group[name].dtype) for name in members])
+    check_memory_budget(path, [(f"array {name!r}", array.shape, array.dtype) for name, array in arrays.items()])
 
 
 def check_memory_budget(path: Path, declared: list[tuple[str, tuple[int, ...], np.dtype]]) -> None:
