@@ -23,6 +23,7 @@ scan in the flow; the command line, the pipeline and the Prefect flow all call :
 
 from __future__ import annotations
 
+import ctypes
 import glob
 import json
 import os
@@ -187,6 +188,25 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
                            seconds=time.perf_counter() - started)
 
 
+# glibc raises its mmap threshold each time a large block is freed (up to 32 MiB), so from then on the tiles
+# and maps of a scan (1-64 MiB each) come from the heap, and what they held stays with the process after they
+# are freed, spread over one arena per thread. At 4000 x 4000 that was a fifth of the peak resident set
+# (docs/benchmarks.md). A fixed threshold puts every array of a megabyte or more in a mapping of its own,
+# given back to the system the moment it is freed.
+FREED_ARRAYS_MMAP_BYTES = 1 << 20
+_M_MMAP_THRESHOLD = -3  # mallopt's parameter number, from glibc's malloc.h
+
+
+@lru_cache(maxsize=1)
+def give_freed_arrays_back() -> bool:
+    """Make this process give the memory of large freed arrays back at once (glibc; elsewhere nothing is
+    done). True where the allocator took the setting. Called by every scan of an archive, once per process."""
+    try:
+        return bool(ctypes.CDLL(None).mallopt(_M_MMAP_THRESHOLD, FREED_ARRAYS_MMAP_BYTES))
+    except (OSError, AttributeError):  # no C library to load, or one without mallopt (macOS, musl)
+        return False
+
+
 def _cached_model(model_dir: str) -> CorrectionModel:
     """The model of ``model_dir``, loaded once per process: every scan of a batch run here, or of one Dask
     worker, shares it. Its files' sizes and modification times are part of the key, so a model replaced
@@ -213,6 +233,7 @@ def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None
 def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
                   started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None
                   ) -> ScanOutcome:
+    give_freed_arrays_back()
     scan = read_scan(source, stored_above_bytes=STORED_MAPS_ABOVE_BYTES)  # a large scan stays in its store
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))

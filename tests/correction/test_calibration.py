@@ -8,7 +8,7 @@ import zarr
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
-from mpi_lidar.correction.calibration import FootprintEstimate, estimate_footprint, pool_estimates
+from mpi_lidar.correction.calibration import FootprintEstimate, estimate_footprint, evenly_chosen, pool_estimates
 from mpi_lidar.correction.profile import SensorProfile, read_profile, write_profile
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
@@ -60,6 +60,15 @@ def test_estimate__from_the_scans_own_surfaces_at_a_small_footprint():
 def test_estimate__a_flat_wall_measures_nothing_usable():
     found = estimate(rendered(flat_wall(0.0), 0.041))
     assert not found.significant
+
+
+@pytest.mark.parametrize(("shape", "share", "count"), [((50, 70), 0.3, 100), ((3, 5), 0.5, 2), ((400, 300), 0.01, 1000),
+                                                  ((40, 30), 0.9, 10_000), ((10, 10), 0.0, 5), ((100, 100), 1.0, 37)])
+def test_fit_pixels__row_by_row_stride_picks_what_the_flat_stride_picks(shape, share, count):
+    mask = np.random.default_rng(1).random(shape) < share
+    every = np.flatnonzero(mask)
+    expected = every[np.linspace(0, every.size - 1, count).astype(np.intp)] if every.size > count else every
+    np.testing.assert_array_equal(evenly_chosen(mask, count), expected)
 
 
 def test_pool__is_the_inverse_variance_mean():

@@ -99,3 +99,30 @@ def test_cached_model__loaded_once_per_process_and_again_when_replaced(archive, 
     os.utime(card, ns=(card.stat().st_atime_ns, card.stat().st_mtime_ns + 1_000_000))
     correct_archive([str(archive)], model_dir, tmp_path / "again", CorrectionOptions(gate="all"), outputs="data")
     assert loads == [str(model_dir)] * 2, "a model whose files changed is loaded again"
+
+
+FREED_ARRAY_PROBE = """
+import numpy as np
+from mpi_lidar.workflows.correct_archive import give_freed_arrays_back
+
+def resident():
+    return int(next(line for line in open('/proc/self/status') if line.startswith('VmRSS')).split()[1]) * 1024
+
+assert give_freed_arrays_back()
+first = np.ones(16 << 20, dtype=np.uint8)
+del first  # glibc would now serve blocks up to 16 MiB from its heap, and keep them when freed
+before = resident()
+second = np.ones(8 << 20, dtype=np.uint8)
+grown = resident() - before
+del second
+print(grown, resident() - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator and /proc")
+def test_archive_scans__freed_large_arrays_go_back_to_the_system():
+    done = subprocess.run([sys.executable, "-c", FREED_ARRAY_PROBE], capture_output=True, text=True, check=True,
+                          cwd=Path(__file__).parents[2])
+    grown, kept = (int(value) for value in done.stdout.split())
+    assert grown > 6 << 20  # the second array was resident ...
+    assert kept < 1 << 20  # ... and its memory left with it (without the setting, all 8 MiB stay)
