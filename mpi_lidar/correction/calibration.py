@@ -375,19 +375,23 @@ class _Problem:
         self.anchor = self._anchor_rows()
         self.ray_outer = np.einsum("ni,nj->nij", rays, rays).reshape(-1, 9)  # the planes' normal equations
 
-    def bias(self, area: float) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    def bias(self, area: float, amplitude: bool = True) -> tuple[NDArray, NDArray, NDArray | None, NDArray | None]:
         """Predicted depth bias (n, F) [m] at footprint ``area``, its derivative in the footprint, the
-        amplitude gain |1 + ratio| (n, F) and the derivative of its logarithm."""
+        amplitude gain |1 + ratio| (n, F) and the derivative of its logarithm (those two only with
+        ``amplitude``, else None)."""
         # ratio = area S / max(area K, 1); with 1 + ratio = x + j y, the derivative of the phase in the
         # footprint is Im(S' / (1 + ratio)) and that of log|1 + ratio| its real part (S' = S / max(area K, 1)).
-        scale = (1.0 / np.maximum(abs(area) * self.kappa, 1.0))[:, None]
+        coupling = abs(area) * self.kappa
+        scale = (1.0 / np.maximum(coupling, 1.0))[:, None]
         s_re, s_im = self.phasor_re * scale, self.phasor_im * scale
         x, y = 1.0 + area * s_re, area * s_im
         bias = np.arctan2(y, x) * self.metres_per_rad
         norm2 = x * x + y * y
-        capped = (abs(area) * self.kappa > 1.0)[:, None] | (norm2 < 1e-18)
-        inverse = np.where(capped, 0.0, 1.0 / np.where(capped, 1.0, norm2))
+        capped = (coupling > 1.0)[:, None] | (norm2 < 1e-18)
+        inverse = np.where(capped, 0.0, 1.0 / np.where(capped, 1.0, norm2)) if capped.any() else 1.0 / norm2
         slope = (s_im * x - s_re * y) * inverse * self.metres_per_rad
+        if not amplitude:
+            return bias, slope, None, None
         gain = np.where(capped, 1.0, np.sqrt(norm2))
         return bias, slope, gain, (s_re * x + s_im * y) * inverse
 
@@ -437,7 +441,7 @@ class _Problem:
         plain = PLAIN_ITERATIONS if start_m2 == 0 else 0
         for iteration in range(MAX_ITERATIONS):
             robust = iteration >= plain
-            bias, slope, gain, gain_slope = self.bias(area)
+            bias, slope, gain, gain_slope = self.bias(area, amplitude=use_amplitude)
             planes = None
             if self.reference is None:
                 surface_range, planes = self._plane_range(bias, anchor)
@@ -446,14 +450,15 @@ class _Problem:
             # A surface whose plane could not be fitted (too few anchors) has no range: its rows are left out.
             trusted = ((abs(area) * self.kappa <= MAX_FIT_COUPLING) & np.isfinite(surface_range))[:, None]
             residual = np.where(trusted, self.depth - np.nan_to_num(surface_range)[:, None] - bias, 0.0)
-            z = residual / self.sigma
+            numerator = information = 0.0
             if use_depth:
+                z = residual / self.sigma
                 spread = 1.4826 * float(np.median(np.abs(z[fit_rows]))) or 1.0
-            if robust:
-                robust_depth = _huber(z, spread)
-            weight = np.where(trusted & fit_rows[:, None], robust_depth / self.sigma**2, 0.0)
-            numerator = float((weight * slope * residual).sum()) if use_depth else 0.0
-            information = float((weight * slope**2).sum()) if use_depth else 0.0
+                if robust:
+                    robust_depth = _huber(z, spread)
+                weight = np.where(trusted & fit_rows[:, None], robust_depth * self.inverse_variance, 0.0)
+                numerator = float((weight * slope * residual).sum())
+                information = float((weight * slope**2).sum())
             if planes is not None and use_amplitude:
                 step_terms = self._amplitude_terms(planes, surface_range, gain, gain_slope, trusted,
                                                    robust_amplitude, robust)
