@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import os
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -353,15 +352,17 @@ def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLO
         rows = band[0][0]
         halo_rows = slice(max(rows.start - 1, 0), min(rows.stop + 1, h))
         band_rays = np.asarray(rays[halo_rows], dtype=np.float64)
-        tiles = [_tile_planes(depth, band_rays, halo_rows, rows, columns, b) for _, columns in band]
+        with np.errstate(invalid="ignore", divide="ignore"):  # blocks without points (this thread only)
+            tiles = [_tile_planes(depth, band_rays, halo_rows, rows, columns, b) for _, columns in band]
         return [np.concatenate(parts, axis=1) for parts in zip(*tiles, strict=True)]
 
-    # Bands are independent and NumPy releases the GIL in their heavy loops: one thread per core. The fits
-    # silence the RuntimeWarnings of blocks without points; warnings.catch_warnings is process-wide, so
-    # this one holds while the threads enter and leave theirs.
-    with (warnings.catch_warnings(), ThreadPoolExecutor(max(1, min(len(bands), os.cpu_count() or 1))) as pool):
-        warnings.simplefilter("ignore", RuntimeWarning)
-        fitted = list(pool.map(band_planes, bands))
+    # Bands are independent and NumPy releases the GIL in their heavy loops: one thread per core.
+    workers = min(len(bands), os.cpu_count() or 1)
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            fitted = list(pool.map(band_planes, bands))
+    else:
+        fitted = [band_planes(band) for band in bands]
     centres, normals, keep, usable, rms, area, block_cos_i, finite = (np.concatenate(parts)
                                                                        for parts in zip(*fitted, strict=True))
     index = np.flatnonzero(usable.ravel())
