@@ -79,23 +79,39 @@ def check_fingerprint(values: NDArray, expected: bytes | str, store: str, name: 
 def verify_array(array: zarr.Array, expected: list[str] | None, store: str, name: str) -> NDArray:
     """Read a whole array chunk by chunk, each checked against its recorded fingerprint; the values.
 
-    ``expected`` None (a store written before fingerprints) only checks that every chunk decodes.
+    ``expected`` None (a store written before fingerprints) only checks that every chunk decodes. The array
+    is decoded in one read (zarr decodes its chunks concurrently), then each chunk's values are checked; a
+    read that fails is done again chunk by chunk, which names the chunk that does not decode.
     """
-    values = np.empty(array.shape, dtype=array.dtype)
-    for where, chunk in verified_chunks(array, expected, store, name):
-        values[where] = chunk
+    cells = _chunk_cells(array, expected, store, name)
+    try:
+        values = np.asarray(array[...], dtype=array.dtype)
+    except Exception:  # codecs raise several types on damaged bytes
+        values = np.empty(array.shape, dtype=array.dtype)
+        for where, chunk in verified_chunks(array, expected, store, name):
+            values[where] = chunk
+        return values
+    if expected is not None:
+        for k, (index, where) in enumerate(cells):
+            check_fingerprint(values[where], expected[k], store, name, index)
     return values
+
+
+def _chunk_cells(array: zarr.Array, expected: list[str] | None, store: str, name: str
+                 ) -> list[tuple[tuple[int, ...], tuple[slice, ...]]]:
+    """The array's chunks (grid index, slices); as many as ``expected`` records, or an :class:`IntegrityError`."""
+    cells = list(chunk_slices(array.shape, array.chunks))
+    if expected is not None and len(expected) != len(cells):
+        raise IntegrityError(f"{store}: {name!r} records {len(expected)} chunk fingerprints for {len(cells)} "
+                             "chunks; the store is damaged: restore or regenerate it")
+    return cells
 
 
 def verified_chunks(array: zarr.Array, expected: list[str] | None, store: str, name: str
                     ) -> Iterator[tuple[tuple[slice, ...], NDArray]]:
     """(where, values) of every chunk of an array, each checked against its recorded fingerprint (``expected``
     None: only that it decodes); one chunk in memory at a time."""
-    cells = list(chunk_slices(array.shape, array.chunks))
-    if expected is not None and len(expected) != len(cells):
-        raise IntegrityError(f"{store}: {name!r} records {len(expected)} chunk fingerprints for {len(cells)} "
-                             "chunks; the store is damaged: restore or regenerate it")
-    for k, (index, where) in enumerate(cells):
+    for k, (index, where) in enumerate(_chunk_cells(array, expected, store, name)):
         chunk = np.asarray(read_chunk(array, where, store, name, index), dtype=array.dtype)
         if expected is not None:
             check_fingerprint(chunk, expected[k], store, name, index)
