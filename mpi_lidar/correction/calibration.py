@@ -231,7 +231,7 @@ class BlockPhasors:
 
     def __init__(self, blocks: FacingBlocks, frequencies_hz: tuple[float, ...], speed_of_light_m_per_s: float):
         pairs = blocks.pairs
-        self.blocks = blocks.usable.size
+        self.block_count = blocks.usable.size
         self.kappa = pairs.kappa(1.0)
         self.block_a, self.block_b = blocks.index[pairs.a], blocks.index[pairs.b]
         freqs = np.asarray(frequencies_hz, dtype=np.float64)
@@ -241,10 +241,10 @@ class BlockPhasors:
     def __call__(self, albedo: NDArray) -> NDArray[np.complex128]:
         """S_f per block (Hb*Wb, F) for the albedos per block ``albedo`` (Hb*Wb,)."""
         weight = self.kappa * albedo[self.block_a] * albedo[self.block_b]
-        phasor = np.zeros((self.blocks, self.cos.shape[1]), dtype=np.complex128)
+        phasor = np.zeros((self.block_count, self.cos.shape[1]), dtype=np.complex128)
         for k in range(self.cos.shape[1]):
-            phasor[:, k] = (np.bincount(self.block_a, weight * self.cos[:, k], minlength=self.blocks)
-                            + 1j * np.bincount(self.block_a, weight * self.sin[:, k], minlength=self.blocks))
+            phasor[:, k] = (np.bincount(self.block_a, weight * self.cos[:, k], minlength=self.block_count)
+                            + 1j * np.bincount(self.block_a, weight * self.sin[:, k], minlength=self.block_count))
         return phasor
 
 

@@ -77,7 +77,7 @@ def check_fingerprint(values: NDArray, expected: bytes | str, store: str, name: 
 
 
 def verify_array(array: zarr.Array, expected: list[str] | None, store: str, name: str) -> NDArray:
-    """Read a whole array chunk by chunk, each checked against its recorded fingerprint; the values.
+    """Read a whole array, each chunk checked against its recorded fingerprint; the values.
 
     ``expected`` None (a store written before fingerprints) only checks that every chunk decodes. The array
     is decoded in one read (zarr decodes its chunks concurrently), then each chunk's values are checked; a
