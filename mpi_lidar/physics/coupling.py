@@ -67,7 +67,8 @@ def pair_geometry(points_a: ArrayLike, normals_a: ArrayLike, points_b: ArrayLike
     cos_b : Cosine between the direction B -> A and B's normal; > 0 where A lies in front of B. [1]
     """
     offset = np.asarray(points_b, dtype=np.float64) - np.asarray(points_a, dtype=np.float64)
-    r = np.linalg.norm(offset, axis=-1)
+    x, y, z = offset[..., 0], offset[..., 1], offset[..., 2]
+    r = np.sqrt(x * x + y * y + z * z)  # np.linalg.norm(offset, axis=-1), the same numbers, faster on (..., 3)
     direction = offset / np.maximum(r, 1e-12)[..., None]
     cos_a = np.einsum("...k,...k->...", direction, np.asarray(normals_a, dtype=np.float64))
     cos_b = -np.einsum("...k,...k->...", direction, np.asarray(normals_b, dtype=np.float64))
