@@ -188,21 +188,22 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
                            seconds=time.perf_counter() - started)
 
 
-# glibc raises its mmap threshold each time a large block is freed (up to 32 MiB), so from then on the tiles
-# and maps of a scan (1-64 MiB each) come from the heap, and what they held stays with the process after they
-# are freed, spread over one arena per thread. At 4000 x 4000 that was a fifth of the peak resident set
-# (docs/benchmarks.md). A fixed threshold puts every array of a megabyte or more in a mapping of its own,
-# given back to the system the moment it is freed.
-FREED_ARRAYS_MMAP_BYTES = 1 << 20
-_M_MMAP_THRESHOLD = -3  # mallopt's parameter number, from glibc's malloc.h
+# glibc gives every thread that allocates its own heap (arena), and memory freed in one arena is reused only
+# by the threads of that arena. A scan's tiles are allocated by this thread, the plane fits' threads, zarr's
+# decoders and XGBoost's threads in turn, so each arena ends up holding a share of the freed tiles: at
+# 4000 x 4000 that was 160 MiB of the peak resident set (docs/benchmarks.md). One arena for all threads
+# reuses them wherever they were freed, at the same speed on the 2-core machine. (A fixed mmap threshold
+# would give them back to the system too, but costs a quarter more time in page faults.)
+_M_ARENA_MAX = -8  # mallopt's parameter number, from glibc's malloc.h
 
 
 @lru_cache(maxsize=1)
-def give_freed_arrays_back() -> bool:
-    """Make this process give the memory of large freed arrays back at once (glibc; elsewhere nothing is
-    done). True where the allocator took the setting. Called by every scan of an archive, once per process."""
+def share_one_heap() -> bool:
+    """Make every thread of this process allocate from one heap (glibc; elsewhere nothing is done), so memory
+    freed by one thread serves the next. True where the allocator took the setting. Called by every scan of
+    an archive, once per process: it holds for the threads started afterwards."""
     try:
-        return bool(ctypes.CDLL(None).mallopt(_M_MMAP_THRESHOLD, FREED_ARRAYS_MMAP_BYTES))
+        return bool(ctypes.CDLL(None).mallopt(_M_ARENA_MAX, 1))
     except (OSError, AttributeError):  # no C library to load, or one without mallopt (macOS, musl)
         return False
 
@@ -233,7 +234,7 @@ def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None
 def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
                   started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None
                   ) -> ScanOutcome:
-    give_freed_arrays_back()
+    share_one_heap()
     scan = read_scan(source, stored_above_bytes=STORED_MAPS_ABOVE_BYTES)  # a large scan stays in its store
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
