@@ -191,7 +191,7 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
 # glibc gives every thread that allocates its own heap (arena), and memory freed in one arena is reused only
 # by the threads of that arena. A scan's tiles are allocated by this thread, the plane fits' threads, zarr's
 # decoders and XGBoost's threads in turn, so each arena ends up holding a share of the freed tiles: at
-# 4000 x 4000 that was 160 MiB of the peak resident set (docs/benchmarks.md). One arena for all threads
+# 4000 x 4000 that was 50-160 MiB of the peak resident set (docs/benchmarks.md). One arena for all threads
 # reuses them wherever they were freed, at the same speed on the 2-core machine. (A fixed mmap threshold
 # would give them back to the system too, but costs a quarter more time in page faults.)
 _M_ARENA_MAX = -8  # mallopt's parameter number, from glibc's malloc.h
