@@ -110,7 +110,8 @@ libc = ctypes.CDLL(None)
 libc.fopen.restype = ctypes.c_void_p
 
 def heaps():
-    path = tempfile.mktemp()
+    handle, path = tempfile.mkstemp()
+    os.close(handle)
     report = libc.fopen(path.encode(), b"w")
     libc.malloc_info(0, ctypes.c_void_p(report))
     libc.fclose(ctypes.c_void_p(report))
@@ -119,7 +120,7 @@ def heaps():
     return found
 
 def allocate_in_a_thread():
-    arrays = [np.ones(20_000) for _ in range(50)]  # 160 kB each: from a heap, not a mapping of their own
+    arrays = [np.ones(2_000) for _ in range(50)]  # 16 kB each: from a heap, not a mapping of their own
     del arrays
 
 if sys.argv[1] == "shared":
