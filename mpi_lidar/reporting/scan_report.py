@@ -44,13 +44,16 @@ FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43"
 GATED_OUT = ("not_needed", "no_multipath", "uncalibrated")
 
 
-def _regions(scan: Scan, correction: Correction) -> dict[str, np.ndarray]:
+def _regions(scan: Scan, correction: Correction, rows: slice = slice(None)) -> dict[str, np.ndarray]:
+    """Where the metrics are taken, per region, for a range of rows: pixels with a reference depth and a
+    valid measurement (whole map), and those of them in the reference mask (masked region)."""
     if scan.reference_depth is None:
         return {}
-    usable = np.isfinite(scan.reference_depth) & ~np.isin(correction.flags, [int(f) for f in INVALID_FLAGS])
+    usable = np.isfinite(scan.reference_depth[rows]) & ~np.isin(correction.flags[rows],
+                                                                [int(f) for f in INVALID_FLAGS])
     regions = {"whole map": usable}
     if scan.reference_mask is not None:
-        regions["masked region"] = usable & scan.reference_mask
+        regions["masked region"] = usable & scan.reference_mask[rows]
     return regions
 
 
@@ -63,18 +66,13 @@ def scan_metrics(scan: Scan, correction: Correction) -> dict[str, dict[str, floa
     if scan.reference_depth is None:
         return {}
     h, w = scan.shape
-    invalid = [int(f) for f in INVALID_FLAGS]
     sums: dict[str, tuple[_ErrorSums, _ErrorSums]] = {}
     step = max(1, METRIC_BAND_PIXELS // max(w, 1))
     for top in range(0, h, step):
         rows = slice(top, min(top + step, h))
         reference = scan.reference_depth[rows]
-        usable = np.isfinite(reference) & ~np.isin(correction.flags[rows], invalid)
-        regions = {"whole map": usable}
-        if scan.reference_mask is not None:
-            regions["masked region"] = usable & scan.reference_mask[rows]
         raw, corrected = scan.depth[-1, rows], correction.depth[rows]
-        for region, where in regions.items():
+        for region, where in _regions(scan, correction, rows).items():
             before, after = sums.setdefault(region, (_ErrorSums(), _ErrorSums()))
             before.add(raw[where], reference[where])
             after.add(corrected[where], reference[where])
