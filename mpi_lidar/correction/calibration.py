@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.validity import quadrature_noise_v2
-from mpi_lidar.scans.geometry import FacingBlocks, nanmedian_last, to_blocks
+from mpi_lidar.scans.geometry import FacingBlocks, nanmedian_last, on_cores, to_blocks
 from mpi_lidar.scans.scan import Scan
 
 # A surface is a connected set of blocks whose normals agree to this [deg] and whose centres lie on each
@@ -182,12 +182,16 @@ def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig) -> NDAr
     0 for blocks without a plane. Worked out a tile of whole blocks at a time (:meth:`FacingBlocks.tiles`).
     """
     rays = scan.ray_rows()
-    albedo = []
-    for band in blocks.tiles():
+
+    def band_albedo(band: list[tuple[slice, slice]]) -> NDArray[np.float64]:
         band_rays = rays[band[0][0]]
-        albedo.append(np.concatenate([_tile_albedo(scan, blocks, band_rays[:, columns], rows, columns, sensor)
-                                      for rows, columns in band], axis=1))
-    found = np.concatenate(albedo)
+        return np.concatenate([_tile_albedo(scan, blocks, band_rays[:, columns], rows, columns, sensor)
+                               for rows, columns in band], axis=1)
+
+    bands = blocks.tiles()
+    # Bands of a scan in memory on one thread per core; a scan in its store is read one band after the other
+    # (it keeps one band of decoded rows, which two threads would take from each other).
+    found = np.concatenate(on_cores(band_albedo, bands) if scan.in_memory() else [band_albedo(band) for band in bands])
     found = np.where(blocks.usable & np.isfinite(found), np.clip(found, 0.01, 1.5), 0.0)
     return found.ravel()
 

@@ -16,10 +16,14 @@ scan already corrected by the same model with the same options (same content has
 """
 from __future__ import annotations
 
+import itertools
+import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,7 +41,13 @@ from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.correction.validity import validity_flags
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
+from mpi_lidar.scans.geometry import BlockPotential
 from mpi_lidar.scans.scan import Scan
+
+T = TypeVar("T")
+# Rows of a tile's per-pixel work (validity, the model's inputs) that one thread takes at least: NumPy
+# releases the GIL in its loops, so a tile's rows are split among the cores, each row computed as alone.
+PARALLEL_MIN_ROWS = 16_384
 
 
 @dataclass(frozen=True)
@@ -92,19 +102,42 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     clock = _StageClock()
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
     sensor = sensor or SensorConfig()
-    f = len(scan.frequencies_hz)
-    h, w = scan.shape
-    tiles = row_tiles(h, w, options.tile_pixels)
-    flags = np.empty(h * w, dtype=np.uint8)
-    usable_depth = np.empty(h * w, dtype=np.float32)
-    invalid = [int(flag) for flag in INVALID_FLAGS]
-    for pixels, raw in _raw_tiles(scan, tiles):  # first pass: validity and model range, tile by tile
+    tiles = row_tiles(*scan.shape, options.tile_pixels)
+    with RowThreads() as threads:
         with clock("validity"):
-            tile_flags = validity_flags(raw, scan.frequencies_hz, options, sensor)
-            top = raw[:, f - 1]
-            tile_flags[(tile_flags == Flag.NOT_NEEDED) & ~in_model_range(top, model, options)] = Flag.OUT_OF_RANGE
-            flags[pixels] = tile_flags
-            usable_depth[pixels] = np.where(~np.isin(tile_flags, invalid), top, np.nan)
+            flags, usable_depth = _validity_pass(scan, model, options, sensor, tiles, threads)
+        return _gate_and_predict(scan, model, options, sensor, tiles, flags, usable_depth, threads, clock,
+                                 started)
+
+
+def _validity_pass(scan: Scan, model: CorrectionModel, options: CorrectionOptions, sensor: SensorConfig,
+                   tiles: list[slice], threads: RowThreads) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """Validity and model range of every pixel, tile by tile: the flags (H*W,) (NOT_NEEDED where valid and in
+    range) and the highest-frequency depth of the usable pixels (H*W,) [m] (NaN elsewhere)."""
+    f = len(scan.frequencies_hz)
+    flags = np.empty(scan.shape[0] * scan.shape[1], dtype=np.uint8)
+    usable_depth = np.empty(flags.size, dtype=np.float32)
+    invalid = [int(flag) for flag in INVALID_FLAGS]
+    for pixels, raw in _raw_tiles(scan, tiles):
+        def check(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
+            part = raw[rows]
+            part_flags = validity_flags(part, scan.frequencies_hz, options, sensor)
+            top = part[:, f - 1]
+            part_flags[(part_flags == Flag.NOT_NEEDED) & ~in_model_range(top, model, options)] = Flag.OUT_OF_RANGE
+            where = slice(start + rows.start, start + rows.stop)
+            flags[where] = part_flags
+            usable_depth[where] = np.where(~np.isin(part_flags, invalid), top, np.nan)
+
+        threads.map(check, raw.shape[0])
+    return flags, usable_depth
+
+
+def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOptions, sensor: SensorConfig,
+                      tiles: list[slice], flags: NDArray[np.uint8], usable_depth: NDArray[np.float32],
+                      threads: RowThreads, clock: _StageClock, started: float) -> Correction:
+    """The gate over the whole scan, then the model on the pixels it lets through, tile by tile
+    (:func:`correct_scan` after its first pass)."""
+    h, w = scan.shape
     gate_started = time.perf_counter()
     with clock("gate"):
         gate = make_gate(options, sensor)
@@ -134,22 +167,19 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     depth = usable_depth  # the gate is done with it (the geometry gate copied it): filled in place, no copy
     inference_s = 0.0
     for pixels, raw in _raw_tiles(scan, tiles) if predict else ():  # second pass: the pixels that need it
-        gate_started = time.perf_counter()
-        with clock("gate"):
-            valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
-            needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
-            if potential is None:
-                geometric = None
-            else:
-                at = potential.pixels(pixels.start + needs)
-                geometric = geometry_inputs(at.coupling, at.d_ab_m)
-        gate_s += time.perf_counter() - gate_started
-        inference_started = time.perf_counter()
-        with clock("inference"):
-            if needs.size:
-                depth[pixels.start + needs] = model.predict_depth(raw[needs], geometric)
-            flags[pixels.start + needs] = Flag.CORRECTED
-        inference_s += time.perf_counter() - inference_started
+        tile_cpu, tile_started = time.process_time(), time.perf_counter()
+        valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
+        needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
+        gate_cpu = gate_wall = 0.0
+        if needs.size:
+            depth[pixels.start + needs], gate_cpu, gate_wall = _predict_pixels(threads, model, raw[needs],
+                                                                               pixels.start + needs, potential)
+        flags[pixels.start + needs] = Flag.CORRECTED
+        # The geometric inputs are the gate's share of the tile; the model's inputs and prediction the rest.
+        clock.add("gate", gate_cpu)
+        clock.add("inference", time.process_time() - tile_cpu - gate_cpu)
+        gate_s += gate_wall
+        inference_s += time.perf_counter() - tile_started - gate_wall
     return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
                       None if geometry is None else geometry.bias_m_, notes, clock.seconds, calibration)
 
@@ -166,6 +196,55 @@ def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
         return f"{measured}; the coupling and the gate use it"
     return (f"{measured}, not significant: {uncalibrated:,} pixels that could hold multipath above the gate's "
             "threshold were left as measured (flag uncalibrated)")
+
+
+def _predict_pixels(threads: RowThreads, model: CorrectionModel, raw: NDArray, pixels: NDArray,
+                    potential: BlockPotential | None) -> tuple[NDArray[np.float64], float, float]:
+    """Corrected depth of raw rows (n, 2F) of flat pixel indices ``pixels`` (n,), and the CPU seconds and the
+    longest wall seconds the geometric inputs took (the gate's share).
+
+    The model's inputs, with the geometric ones of ``potential`` where the model takes them, are built in
+    row ranges on ``threads`` into one array; the model then predicts them all at once.
+    """
+    features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)
+
+    def build(rows: slice) -> tuple[float, float]:
+        cpu, wall = time.thread_time(), time.perf_counter()
+        geometric = None
+        if potential is not None and model.geometric:
+            at = potential.pixels(pixels[rows])
+            geometric = geometry_inputs(at.coupling, at.d_ab_m)
+        gate_share = (time.thread_time() - cpu, time.perf_counter() - wall)
+        model.spec.transform_into(raw[rows], geometric, features[rows])
+        return gate_share
+
+    shares = threads.map(build, raw.shape[0])
+    return (model.depth_from_features(raw, features), sum(cpu for cpu, _ in shares),
+            max(wall for _, wall in shares))
+
+
+class RowThreads:
+    """One thread per core for per-row work: :meth:`map` runs it on consecutive row ranges, one per thread
+    (one range alone below :data:`PARALLEL_MIN_ROWS` rows a thread). Each row's result is the same either way."""
+
+    def __init__(self, workers: int | None = None):
+        self.workers = workers or os.cpu_count() or 1
+        self._pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
+
+    def __enter__(self) -> RowThreads:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+
+    def map(self, work: Callable[[slice], T], rows: int) -> list[T]:
+        parts = max(1, min(self.workers, rows // PARALLEL_MIN_ROWS))
+        bounds = [rows * k // parts for k in range(parts + 1)]
+        ranges = [slice(a, b) for a, b in itertools.pairwise(bounds)]
+        if parts == 1 or self._pool is None:
+            return [work(part) for part in ranges]
+        return list(self._pool.map(work, ranges))
 
 
 def row_tiles(height: int, width: int, tile_pixels: int) -> list[slice]:
@@ -188,10 +267,13 @@ class _StageClock:
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
 
+    def add(self, stage: str, seconds: float) -> None:
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds
+
     @contextmanager
     def __call__(self, stage: str) -> Iterator[None]:
         started = time.process_time()
         try:
             yield
         finally:
-            self.seconds[stage] = self.seconds.get(stage, 0.0) + time.process_time() - started
+            self.add(stage, time.process_time() - started)

@@ -201,30 +201,51 @@ class FeatureSpec:
                 return features
             extra = da.asarray(geometry).astype(np.float32).rechunk((raw.chunks[0], -1))
             return da.concatenate([features, extra], axis=1).rechunk({1: -1})
-        features = self._transform_block(raw)
-        if not self.geometric:
-            return features
-        geometry = np.asarray(geometry, dtype=np.float32)
-        if geometry.shape != (features.shape[0], len(GEOMETRIC_NAMES)):
-            raise MpiLidarError(f"expected geometric inputs of shape ({features.shape[0]}, 2), got {geometry.shape}")
-        return np.concatenate([features, geometry], axis=1)
+        raw = self._checked(raw)
+        return self.transform_into(raw, geometry, np.empty((raw.shape[0], len(self.names)), dtype=np.float32))
 
-    def _transform_block(self, raw: NDArray) -> NDArray[np.float32]:
+    def transform_into(self, raw: NDArray, geometry: NDArray | None, out: NDArray[np.float32]
+                       ) -> NDArray[np.float32]:
+        """:meth:`transform` of numpy rows written into ``out`` (n, len(names)) float32, which is returned.
+
+        Each column is worked out in float64 and rounded once to float32, as a float64 matrix of all the
+        features rounded at the end would be, without that matrix: rows can be split among threads, each
+        filling its own rows of one array.
+        """
+        base = len(self.names) - (len(GEOMETRIC_NAMES) if self.geometric else 0)
+        self._transform_block(raw, out[:, :base])
+        if self.geometric:
+            geometry = np.asarray(geometry)
+            if geometry.shape != (out.shape[0], len(GEOMETRIC_NAMES)):
+                raise MpiLidarError(f"expected geometric inputs of shape ({out.shape[0]}, 2), got {geometry.shape}")
+            out[:, base:] = geometry
+        return out
+
+    def _checked(self, raw: NDArray) -> NDArray:
         raw = np.asarray(raw)
         if raw.ndim != 2 or raw.shape[1] != 2 * self.n_freq:
             raise MpiLidarError(f"expected raw measurements of shape (n, {2 * self.n_freq}), got {raw.shape}")
+        return raw
+
+    def _transform_block(self, raw: NDArray, out: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+        raw = self._checked(raw)
         if self.feature_set == "raw":
-            return raw.astype(np.float32, copy=False)
+            if out is None:
+                return raw.astype(np.float32, copy=False)
+            out[:] = raw
+            return out
         f = self.n_freq
-        depth = raw[:, :f].astype(np.float64)
-        amplitude = np.maximum(raw[:, f:].astype(np.float64), AMPLITUDE_FLOOR_V2)
-        extra = [
-            depth[:, :-1] - depth[:, -1:],
-            amplitude[:, :-1] / amplitude[:, -1:],
-            weighted_depth(raw, self.frequencies_hz)[:, None],
-            np.log(amplitude[:, -1:]),
-        ]
-        return np.concatenate([raw.astype(np.float64), *extra], axis=1).astype(np.float32)
+        if out is None:
+            out = np.empty((raw.shape[0], 4 * f), dtype=np.float32)
+        out[:, :2 * f] = raw  # rounded to float32 like every column (exact for float32 measurements)
+        top_depth = raw[:, f - 1].astype(np.float64)
+        top_amplitude = np.maximum(raw[:, 2 * f - 1].astype(np.float64), AMPLITUDE_FLOOR_V2)
+        for k in range(f - 1):
+            out[:, 2 * f + k] = raw[:, k].astype(np.float64) - top_depth
+            out[:, 3 * f - 1 + k] = np.maximum(raw[:, f + k].astype(np.float64), AMPLITUDE_FLOOR_V2) / top_amplitude
+        out[:, 4 * f - 2] = weighted_depth(raw, self.frequencies_hz)
+        out[:, 4 * f - 1] = np.log(top_amplitude)
+        return out
 
     def reference_depth(self, raw: NDArray | da.Array) -> NDArray | da.Array:
         """The measured depth a residual is relative to (zero for the absolute target). [m]"""

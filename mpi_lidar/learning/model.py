@@ -227,7 +227,14 @@ def _problems(exc: ValidationError, shown: int = 3) -> str:
 def booster_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray,
                   geometry: NDArray | None = None) -> NDArray[np.float64]:
     """Corrected depth [m] of raw rows (n, 2F) by a booster trained on ``spec``, in this process."""
-    prediction = booster.inplace_predict(spec.transform(raw, geometry))
+    return depth_from_features(booster, spec, raw, spec.transform(raw, geometry))
+
+
+def depth_from_features(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray, features: NDArray[np.float32]
+                        ) -> NDArray[np.float64]:
+    """Corrected depth [m] of raw rows (n, 2F) whose model inputs ``features`` are built already
+    (:meth:`FeatureSpec.transform_into`)."""
+    prediction = booster.inplace_predict(features)
     return np.asarray(spec.depth(raw, prediction.astype(np.float64)))
 
 
@@ -267,6 +274,10 @@ class CorrectionModel:
         (:attr:`geometric`) and ignored by the others.
         """
         return booster_depth(self.booster, self.spec, raw, geometry)
+
+    def depth_from_features(self, raw: NDArray, features: NDArray[np.float32]) -> NDArray[np.float64]:
+        """:meth:`predict_depth` of raw rows (n, 2F) whose inputs are built already (``spec.transform_into``)."""
+        return depth_from_features(self.booster, self.spec, raw, features)
 
     def predict_depth_dask(self, client: object, raw: da.Array, geometry: da.Array | None = None) -> da.Array:
         """Corrected depth [m] for a dask array of raw measurements, predicted on the cluster's workers."""

@@ -4,13 +4,18 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_coupling, pair_geometry, vector_length
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 def point_cloud(depth: NDArray, rays: NDArray) -> NDArray[np.float64]:
@@ -129,6 +134,16 @@ def nanmedian_last(values: NDArray) -> NDArray[np.float64]:
     low = np.take_along_axis(ordered, np.maximum(count - 1, 0) // 2, axis=-1)
     high = np.take_along_axis(ordered, np.minimum(count // 2, values.shape[-1] - 1), axis=-1)
     return np.where(count > 0, (low + high) / 2, np.nan)[..., 0]
+
+
+def on_cores(work: Callable[[T], R], items: list[T]) -> list[R]:
+    """``work`` of each item, in order, on one thread per core: for independent bands and tiles, whose heavy
+    NumPy loops release the GIL."""
+    workers = min(len(items), os.cpu_count() or 1)
+    if workers <= 1:
+        return [work(item) for item in items]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(work, items))
 
 
 def to_blocks(values: NDArray, b: int) -> NDArray:
@@ -356,13 +371,7 @@ def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLO
             tiles = [_tile_planes(depth, band_rays, halo_rows, rows, columns, b) for _, columns in band]
         return [np.concatenate(parts, axis=1) for parts in zip(*tiles, strict=True)]
 
-    # Bands are independent and NumPy releases the GIL in their heavy loops: one thread per core.
-    workers = min(len(bands), os.cpu_count() or 1)
-    if workers > 1:
-        with ThreadPoolExecutor(workers) as pool:
-            fitted = list(pool.map(band_planes, bands))
-    else:
-        fitted = [band_planes(band) for band in bands]
+    fitted = on_cores(band_planes, bands)
     centres, normals, keep, usable, rms, area, block_cos_i, finite = (np.concatenate(parts)
                                                                        for parts in zip(*fitted, strict=True))
     index = np.flatnonzero(usable.ravel())

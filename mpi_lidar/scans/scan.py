@@ -107,6 +107,10 @@ class Scan:
                                  axis=0)
         return np.ascontiguousarray(stacked.T, dtype=np.float32)
 
+    def in_memory(self) -> bool:
+        """Whether the depth and amplitude maps are in memory, not read from the store (:class:`StoredMap`)."""
+        return not isinstance(self.depth, StoredMap) and not isinstance(self.amplitude, StoredMap)
+
     def content_sha256(self) -> str:
         """Identity of what correction reads: frequencies, depth and amplitude maps, geometry."""
         digest = hashlib.sha256(json.dumps([float(f) for f in self.frequencies_hz]).encode())

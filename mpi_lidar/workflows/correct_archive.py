@@ -30,6 +30,7 @@ import os
 import re
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING
@@ -238,17 +239,26 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
     scan = read_scan(source, stored_above_bytes=STORED_MAPS_ABOVE_BYTES)  # a large scan stays in its store
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
-    scan_sha, model_sha, options_sha = scan.content_sha256(), model.card.model_sha256, options.sha256()
-    done = _already_done(target, scan_sha, model_sha, options_sha, outputs) and all(
-        (target / name).is_file() for name in point_cloud_files(scan, outputs, point_clouds))
-    existing = _existing_results(target) if done else None
-    if existing is not None:
-        counts = existing["counts"]
-        return ScanOutcome(source, name, ScanStatus.SKIPPED, "already corrected with this model and options",
-                           output=str(target), counts=counts, metrics=existing["metrics"],
-                           seconds=time.perf_counter() - started, notes=existing["notes"],
-                           kept_status=scan_status(counts, options.max_invalid_share))
-    correction = correct_scan(scan, model, options)
+    model_sha, options_sha = model.card.model_sha256, options.sha256()
+    if (target / "corrected.zarr").exists() or not scan.in_memory():
+        scan_sha = scan.content_sha256()
+        done = _already_done(target, scan_sha, model_sha, options_sha, outputs) and all(
+            (target / name).is_file() for name in point_cloud_files(scan, outputs, point_clouds))
+        existing = _existing_results(target) if done else None
+        if existing is not None:
+            counts = existing["counts"]
+            return ScanOutcome(source, name, ScanStatus.SKIPPED, "already corrected with this model and options",
+                               output=str(target), counts=counts, metrics=existing["metrics"],
+                               seconds=time.perf_counter() - started, notes=existing["notes"],
+                               kept_status=scan_status(counts, options.max_invalid_share))
+        correction = correct_scan(scan, model, options)
+    else:
+        # Nothing there to skip: the scan's identity is hashed on a thread beside the correction (hashlib
+        # releases the GIL). A scan kept in its store is hashed first instead: its reads would double.
+        with ThreadPoolExecutor(1) as hashing:
+            pending = hashing.submit(scan.content_sha256)
+            correction = correct_scan(scan, model, options)
+            scan_sha = pending.result()
     metrics = scan_metrics(scan, correction)
     identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
     notes = write_scan_outputs(target, scan, correction, metrics, identity, options, outputs,
