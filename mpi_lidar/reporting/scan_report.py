@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TypeVar
 
 import matplotlib
 import matplotlib.image
@@ -40,6 +42,7 @@ from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan, consolidate, store_fingerprints, write_described_arrays
 from mpi_lidar.storage.atomic import atomic_path
 
+T = TypeVar("T")
 FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea"]
 GATED_OUT = ("not_needed", "no_multipath", "uncalibrated")
 
@@ -369,7 +372,8 @@ def covers(written: str | None, wanted: str) -> bool:
     return OUTPUT_LEVELS.index(written) <= OUTPUT_LEVELS.index(check_outputs(wanted))
 
 
-def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics: dict[str, dict[str, float]],
+def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
+                       metrics: dict[str, dict[str, float]] | Future[dict[str, dict[str, float]]],
                        identity: dict[str, str], options: CorrectionOptions, outputs: str = "full",
                        cpu_s: dict[str, float] | None = None,
                        point_clouds: tuple[str, ...] | list[str] | None = None) -> list[str]:
@@ -382,9 +386,10 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
     point clouds. ``point_clouds``: the formats written at any level (:data:`POINT_CLOUD_FILES`: ``ply``
     writes ``raw.ply`` and ``corrected.ply``, ``las``/``laz`` ``corrected.las``/``.laz``, every file with the
     named fields of :func:`mpi_lidar.scans.pointcloud.correction_fields`); None: ``ply`` and ``las`` at
-    level full, none below. Returns the notes for the batch summary; ``cpu_s``, if given, gets the CPU
-    seconds of this process spent on ``write`` (store, point clouds, report and metrics) and ``figures``
-    (drawing and encoding PNGs, the 3-D view).
+    level full, none below. ``metrics`` are :func:`scan_metrics`, or a future of them (the store is written
+    while they are worked out). Returns the notes for the batch summary; ``cpu_s``, if given, gets the CPU
+    seconds of this process spent on ``write`` (store, point clouds, report, and a future's metrics) and
+    ``figures`` (drawing and encoding PNGs, the 3-D view).
     """
     check_outputs(outputs)
     formats = point_cloud_formats(outputs, point_clouds)
@@ -393,10 +398,18 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
     if scan.reference_depth is None:
         notes.append("no reference depth: errors, error maps and histogram skipped")
     try:
-        with atomic_path(target, replace=True, what="scan outputs") as staging:
+        with atomic_path(target, replace=True, what="scan outputs") as staging, ThreadPoolExecutor(1) as beside:
             staging.mkdir()
-            with _cpu(cpu_s, "write"):
-                _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options, outputs)
+            # The thumbnail needs nothing of the store: it is drawn on a thread beside the store's writing.
+            thumbnail = (beside.submit(_thread_cpu, _write_thumbnail, staging, correction) if outputs == "light"
+                         else None)
+            started = time.process_time()
+            _write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options, outputs)
+            depth_limits, thumbnail_cpu = thumbnail.result() if thumbnail is not None else (None, 0.0)
+            if isinstance(metrics, Future):
+                metrics = metrics.result()
+            cpu_s["figures"] = cpu_s.get("figures", 0.0) + thumbnail_cpu
+            cpu_s["write"] = cpu_s.get("write", 0.0) + time.process_time() - started - thumbnail_cpu
             figures: dict[str, plt.Figure] = {}
             files = ["corrected.zarr"]
             embeds: list[Embed] = []
@@ -438,10 +451,6 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
                 with _cpu(cpu_s, "figures"):
                     for name, fig in figures.items():
                         save_figure(fig, staging / name)
-            elif outputs == "light":
-                with _cpu(cpu_s, "figures"):
-                    image, depth_limits = thumbnail_image(correction)
-                    write_png(staging / "thumbnail.png", image)
             images = sorted(figures) if outputs == "full" else ["thumbnail.png"] if outputs == "light" else []
             files += images + ([] if outputs == "data" else ["report.md", "report.html"]) + ["metrics.json"]
             with _cpu(cpu_s, "write"):
@@ -455,6 +464,19 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction, metrics
     finally:
         plt.close("all")
     return notes
+
+
+def _write_thumbnail(staging: Path, correction: Correction) -> tuple[float, float]:
+    """``thumbnail.png`` of the correction in ``staging``; returns the depth limits of its colour scale [m]."""
+    image, depth_limits = thumbnail_image(correction)
+    write_png(staging / "thumbnail.png", image)
+    return depth_limits
+
+
+def _thread_cpu(work: Callable[..., T], *args: object) -> tuple[T, float]:
+    """``work(*args)`` and the CPU seconds of this thread it took (a thread beside the caller's)."""
+    started = time.thread_time()
+    return work(*args), time.thread_time() - started
 
 
 @contextmanager

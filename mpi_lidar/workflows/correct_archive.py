@@ -259,10 +259,15 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
             pending = hashing.submit(scan.content_sha256)
             correction = correct_scan(scan, model, options)
             scan_sha = pending.result()
-    metrics = scan_metrics(scan, correction)
     identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
-    notes = write_scan_outputs(target, scan, correction, metrics, identity, options, outputs,
-                               point_clouds=point_clouds)
+    # A scan in memory is measured on a thread while its outputs are written; one in its store before (its
+    # band of decoded rows would come on top of the writing's memory).
+    with ThreadPoolExecutor(1) as beside:
+        measuring = beside.submit(scan_metrics, scan, correction) if scan.in_memory() else None
+        metrics = scan_metrics(scan, correction) if measuring is None else {}
+        notes = write_scan_outputs(target, scan, correction, metrics if measuring is None else measuring, identity,
+                                   options, outputs, point_clouds=point_clouds)
+        metrics = metrics if measuring is None else measuring.result()
     counts = correction.counts()
     return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share), output=str(target),
                        counts=counts, metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes))
