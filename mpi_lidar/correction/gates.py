@@ -141,11 +141,14 @@ class GeometryGate(Gate):
         """Where the bias reaches ``min_bias_m`` (H*W,), a band of rows at a time; the bias [m] goes into
         ``bias_out`` (H, W) where given."""
         reaches = np.empty(potential.blocks.shape, dtype=bool)
-        for rows in potential.blocks.bands(self.band_pixels):
-            band = potential.bias_rows(rows)
-            reaches[rows] = band >= self.min_bias_m
+
+        def band(rows: slice) -> None:
+            bias = potential.bias_rows(rows)
+            reaches[rows] = bias >= self.min_bias_m
             if bias_out is not None:
-                bias_out[rows] = band
+                bias_out[rows] = bias
+
+        geometry.on_cores(band, potential.blocks.bands(self.band_pixels))
         return reaches.ravel()
 
     def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:

@@ -188,9 +188,7 @@ class FeatureSpec:
         ``geometry`` (n, 2): the geometric coupling [1] and d_AB [m] per row; required when ``geometric``,
         ignored otherwise.
         """
-        if self.geometric and geometry is None:
-            raise MpiLidarError("this model was trained with geometric features (coupling, d_AB) and needs them "
-                                "for every pixel: give a scan with geometry (azimuth/elevation or ray directions)")
+        self._require_geometry(geometry)
         if is_dask_array(raw):
             import dask.array as da  # loaded already: raw is a dask array
 
@@ -212,6 +210,7 @@ class FeatureSpec:
         features rounded at the end would be, without that matrix: rows can be split among threads, each
         filling its own rows of one array.
         """
+        self._require_geometry(geometry)
         base = len(self.names) - (len(GEOMETRIC_NAMES) if self.geometric else 0)
         self._transform_block(raw, out[:, :base])
         if self.geometric:
@@ -220,6 +219,11 @@ class FeatureSpec:
                 raise MpiLidarError(f"expected geometric inputs of shape ({out.shape[0]}, 2), got {geometry.shape}")
             out[:, base:] = geometry
         return out
+
+    def _require_geometry(self, geometry: object) -> None:
+        if self.geometric and geometry is None:
+            raise MpiLidarError("this model was trained with geometric features (coupling, d_AB) and needs them "
+                                "for every pixel: give a scan with geometry (azimuth/elevation or ray directions)")
 
     def _checked(self, raw: NDArray) -> NDArray:
         raw = np.asarray(raw)

@@ -1,4 +1,5 @@
-"""Row tiles: a scan corrected tile by tile is the scan corrected at once, to the last bit."""
+"""Row tiles and threads: a scan corrected tile by tile, or with its rows shared among threads, is the scan
+corrected at once in one thread, to the last bit."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import pytest
 from benchmarks.correction import finer_scan
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
-from mpi_lidar.correction.correct import row_tiles
+from mpi_lidar.correction.correct import PARALLEL_MIN_ROWS, RowThreads, row_tiles
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.simulation.scenes import cornered_board, render
 from tests.model_factory import tiny_model
@@ -56,6 +57,30 @@ def test_correct_scan__geometry_gate_corrects_near_the_corner_and_says_what_it_c
     np.testing.assert_array_equal(correction.depth[gated], board.depth[-1][gated])
     assert set(correction.cpu_s) == {"validity", "gate", "inference"}
     assert all(seconds >= 0 for seconds in correction.cpu_s.values())
+
+
+def test_row_threads__ranges_cover_every_row_once_in_order():
+    with RowThreads(3) as threads:
+        found = threads.map(lambda rows: (rows.start, rows.stop), 3 * PARALLEL_MIN_ROWS + 1)
+        assert found == [(0, PARALLEL_MIN_ROWS), (PARALLEL_MIN_ROWS, 2 * PARALLEL_MIN_ROWS),
+                         (2 * PARALLEL_MIN_ROWS, 3 * PARALLEL_MIN_ROWS + 1)]
+        assert threads.map(lambda rows: (rows.start, rows.stop), 2 * PARALLEL_MIN_ROWS - 1) == [
+            (0, 2 * PARALLEL_MIN_ROWS - 1)]  # too few rows for two threads
+        assert threads.map(lambda rows: (rows.start, rows.stop), 0) == [(0, 0)]
+
+
+def test_correct_scan__threads_share_the_rows_to_the_same_bits(board, model, monkeypatch):
+    finer = finer_scan(board, 4)  # 240 x 320: one tile of 76,800 pixels, split among the threads
+    assert finer.shape[0] * finer.shape[1] >= 4 * PARALLEL_MIN_ROWS
+    monkeypatch.setattr("os.cpu_count", lambda: 1)
+    alone = correct_scan(finer, model, CorrectionOptions())
+    monkeypatch.setattr("os.cpu_count", lambda: 3)
+    shared = correct_scan(finer, model, CorrectionOptions())
+    assert alone.counts()["corrected"] > PARALLEL_MIN_ROWS, "the model's inputs must be built on several threads"
+    assert shared.depth.tobytes() == alone.depth.tobytes()
+    assert shared.flags.tobytes() == alone.flags.tobytes()
+    assert shared.multipath_bias_m.tobytes() == alone.multipath_bias_m.tobytes()
+    assert shared.calibration == alone.calibration
 
 
 def _peak_bytes(scan, model, options) -> int:

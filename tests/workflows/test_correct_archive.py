@@ -12,10 +12,11 @@ import pytest
 import zarr
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus
+from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, correct_scan
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.reporting.scan_report import batch_report, write_batch_report
-from mpi_lidar.scans.scan import Scan, write_scan
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.scan_report import batch_report, scan_metrics, write_batch_report
+from mpi_lidar.scans.scan import Scan, read_scan, write_scan
 from mpi_lidar.simulation.scenes import flat_wall, render
 from mpi_lidar.workflows.correct_archive import (
     correct_archive,
@@ -245,3 +246,27 @@ def test_process_scan__unexpected_exception_type_fails_that_scan_alone(small_mod
     assert broken.status == "failed" and re.fullmatch(r"UFuncTypeError: ufunc 'multiply' .+", broken.reason)
     assert outcomes["plain"].status == "corrected" and (tmp_path / "out" / "plain" / "report.html").is_file()
     assert not (tmp_path / "out" / "geometry").exists()
+
+
+# --- work beside the correction ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kept_in_store", [False, True], ids=["in-memory", "in-store"])
+@pytest.mark.parametrize("outputs", ["light", "data"])
+def test_process_scan__identity_and_metrics_made_beside_are_those_made_alone(small_model, tmp_path, monkeypatch,
+                                                                              kept_in_store, outputs):
+    source = write_scan(two_path_scan("beside"), tmp_path / "beside.scan.zarr")
+    if kept_in_store:  # the scan's maps stay in the store: hashed and measured before, not beside
+        monkeypatch.setattr("mpi_lidar.workflows.correct_archive.STORED_MAPS_ABOVE_BYTES", 0)
+    outcome = process_scan(source, small_model, tmp_path / "out", ALL, outputs=outputs)
+    assert outcome.status == "corrected", outcome.reason
+    scan = read_scan(source)
+    expected = json.loads(json.dumps(scan_metrics(scan, correct_scan(scan, load_model(small_model), ALL))))
+    assert expected["whole map"]["pixels"] > 0
+    assert json.loads(json.dumps(outcome.metrics)) == expected
+    assert json.loads((Path(outcome.output) / "metrics.json").read_text())["metrics"] == expected
+    attrs = zarr.open_group(str(Path(outcome.output) / "corrected.zarr"), mode="r").attrs
+    assert attrs["scan_sha256"] == scan.content_sha256()
+    assert (Path(outcome.output) / "thumbnail.png").is_file() == (outputs == "light")
+    [again] = correct_archive([str(source)], small_model, tmp_path / "out", ALL, outputs=outputs)
+    assert again.status == "skipped", "the identity written beside the correction is the one a re-run finds"
