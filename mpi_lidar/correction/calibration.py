@@ -34,8 +34,9 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.validity import quadrature_noise_v2
-from mpi_lidar.scans.geometry import FacingBlocks, nanmedian_last, on_cores, to_blocks
+from mpi_lidar.scans.geometry import FacingBlocks, nanmedian_last, to_blocks
 from mpi_lidar.scans.scan import Scan
+from mpi_lidar.threads import on_cores
 
 # A surface is a connected set of blocks whose normals agree to this [deg] and whose centres lie on each
 # other's planes (a depth step is another surface) ...

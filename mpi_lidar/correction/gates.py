@@ -13,6 +13,7 @@ from mpi_lidar.correction.options import AUTO, CorrectionOptions
 from mpi_lidar.correction.validity import quadrature_noise_v2
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
+from mpi_lidar.threads import on_cores
 
 if TYPE_CHECKING:
     from mpi_lidar.correction.calibration import FootprintEstimate
@@ -148,7 +149,7 @@ class GeometryGate(Gate):
             if bias_out is not None:
                 bias_out[rows] = bias
 
-        geometry.on_cores(band, potential.blocks.bands(self.band_pixels))
+        on_cores(band, potential.blocks.bands(self.band_pixels))
         return reaches.ravel()
 
     def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig) -> NDArray:

@@ -3,19 +3,13 @@
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_coupling, pair_geometry, vector_length
-
-T = TypeVar("T")
-R = TypeVar("R")
+from mpi_lidar.threads import on_cores
 
 
 def point_cloud(depth: NDArray, rays: NDArray) -> NDArray[np.float64]:
@@ -134,16 +128,6 @@ def nanmedian_last(values: NDArray) -> NDArray[np.float64]:
     low = np.take_along_axis(ordered, np.maximum(count - 1, 0) // 2, axis=-1)
     high = np.take_along_axis(ordered, np.minimum(count // 2, values.shape[-1] - 1), axis=-1)
     return np.where(count > 0, (low + high) / 2, np.nan)[..., 0]
-
-
-def on_cores(work: Callable[[T], R], items: list[T]) -> list[R]:
-    """``work`` of each item, in order, on one thread per core: for independent bands and tiles, whose heavy
-    NumPy loops release the GIL."""
-    workers = min(len(items), os.cpu_count() or 1)
-    if workers <= 1:
-        return [work(item) for item in items]
-    with ThreadPoolExecutor(workers) as pool:
-        return list(pool.map(work, items))
 
 
 def to_blocks(values: NDArray, b: int) -> NDArray:

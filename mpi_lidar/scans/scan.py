@@ -37,6 +37,7 @@ from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import demod
 from mpi_lidar.storage.atomic import atomic_path
 from mpi_lidar.storage.integrity import fingerprint_hex, verified_chunks, verify_array
+from mpi_lidar.threads import on_cores
 
 SCAN_SCHEMA = "mpi-lidar/scan@1"
 SCAN_SUFFIX = ".scan.zarr"
@@ -392,10 +393,13 @@ def consolidate(path: str | Path) -> None:
 
 def store_fingerprints(group: zarr.Group) -> dict[str, list[str]]:
     """Fingerprints of every chunk of every array of a store just written (read back, so exactly as stored),
-    one chunk in memory at a time."""
+    one chunk of an array in memory at a time, an array per core."""
     arrays = dict(group.arrays())  # opened together: one round trip to the store, not one per array
-    return {name: [fingerprint_hex(chunk) for _, chunk in verified_chunks(arrays[name], None, str(group.store), name)]
-            for name in sorted(arrays)}
+    names = sorted(arrays)
+    found = on_cores(lambda name: [fingerprint_hex(chunk) for _, chunk in verified_chunks(arrays[name], None,
+                                                                                         str(group.store), name)],
+                     names)  # an array per core: a chunk of each in memory at a time
+    return dict(zip(names, found, strict=True))
 
 
 def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_above_bytes: float = float("inf")

@@ -24,6 +24,7 @@ import zarr
 from numpy.typing import NDArray
 
 from mpi_lidar.errors import StoreError
+from mpi_lidar.threads import on_cores
 
 FINGERPRINT_BYTES = 32
 
@@ -36,7 +37,7 @@ def fingerprint(values: NDArray) -> bytes:
     """SHA-256 of an array's decoded values: dtype, shape, then its C-order bytes."""
     values = np.ascontiguousarray(values)
     digest = hashlib.sha256(f"{values.dtype.str}{values.shape}".encode())
-    digest.update(values.tobytes())
+    digest.update(values.reshape(-1).view(np.uint8))  # its C-order bytes, not copied
     return digest.digest()
 
 
@@ -80,8 +81,9 @@ def verify_array(array: zarr.Array, expected: list[str] | None, store: str, name
     """Read a whole array, each chunk checked against its recorded fingerprint; the values.
 
     ``expected`` None (a store written before fingerprints) only checks that every chunk decodes. The array
-    is decoded in one read (zarr decodes its chunks concurrently), then each chunk's values are checked; a
-    read that fails is done again chunk by chunk, which names the chunk that does not decode.
+    is decoded in one read (zarr decodes its chunks concurrently), then each chunk's values are checked (on
+    every core; the error names the first damaged chunk in C order); a read that fails is done again chunk by
+    chunk, which names the chunk that does not decode.
     """
     cells = _chunk_cells(array, expected, store, name)
     try:
@@ -92,8 +94,8 @@ def verify_array(array: zarr.Array, expected: list[str] | None, store: str, name
             values[where] = chunk
         return values
     if expected is not None:
-        for k, (index, where) in enumerate(cells):
-            check_fingerprint(values[where], expected[k], store, name, index)
+        on_cores(lambda k: check_fingerprint(values[cells[k][1]], expected[k], store, name, cells[k][0]),
+                 range(len(cells)))
     return values
 
 

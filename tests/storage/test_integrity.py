@@ -92,3 +92,13 @@ def test_old_store_without_fingerprints__still_read(store, tmp_path):
     result = verify_store(copy)
     assert (result.chunks, result.fingerprinted) == (4, False)
     assert dataset.read_subsample(copy, "test").features.shape[0] > 0
+
+
+def test_two_swapped_scan_chunks__the_first_in_c_order_is_named(tmp_path, monkeypatch):
+    monkeypatch.setattr("os.cpu_count", lambda: 4)  # the chunks are checked on several threads
+    path = write_scan(two_path_scan("frame", height=8, width=6), tmp_path / "frame.scan.zarr")
+    damage(path, "depth", "3/0/0", "0/0/0", "swapped")
+    damage(path, "depth", "1/0/0", "0/0/0", "swapped")
+    for _ in range(5):  # whichever thread finds its damage first
+        with pytest.raises(IntegrityError, match=r"chunk \(1, 0, 0\) of 'depth'"):
+            read_scan(path)

@@ -1,0 +1,44 @@
+"""Work on every core: results in order, and the error of the first item that fails."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from mpi_lidar.threads import on_cores
+
+
+def test_on_cores__results_come_in_the_items_order_from_several_threads(monkeypatch):
+    monkeypatch.setattr("os.cpu_count", lambda: 4)
+    seen: set[int] = set()
+
+    def slow_square(item: int) -> int:
+        time.sleep(0.002 * (20 - item))  # later items finish first
+        seen.add(threading.get_ident())
+        return item * item
+
+    assert on_cores(slow_square, range(20)) == [k * k for k in range(20)]
+    assert len(seen) > 1
+
+
+def test_on_cores__the_first_failing_item_in_order_raises(monkeypatch):
+    monkeypatch.setattr("os.cpu_count", lambda: 4)
+
+    def check(item: int) -> int:
+        time.sleep(0.001 * (10 - item))
+        if item in (3, 7):
+            raise ValueError(f"item {item}")
+        return item
+
+    with pytest.raises(ValueError, match="item 3"):
+        on_cores(check, range(10))
+
+
+def test_on_cores__one_core_or_one_item_runs_in_this_thread(monkeypatch):
+    here = threading.get_ident()
+    assert on_cores(lambda _: threading.get_ident(), [0]) == [here]
+    monkeypatch.setattr("os.cpu_count", lambda: 1)
+    assert on_cores(lambda _: threading.get_ident(), range(5)) == [here] * 5
+    assert on_cores(lambda item: item, []) == []
