@@ -170,12 +170,14 @@ def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOpt
         tile_cpu, tile_started = time.process_time(), time.perf_counter()
         valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
         needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
-        gate_cpu = gate_wall = 0.0
+        gate_cpu, gate_wall = time.process_time() - tile_cpu, time.perf_counter() - tile_started
         if needs.size:
-            depth[pixels.start + needs], gate_cpu, gate_wall = _predict_pixels(threads, model, raw[needs],
-                                                                               pixels.start + needs, potential)
+            depth[pixels.start + needs], inputs_cpu, inputs_wall = _predict_pixels(
+                threads, model, raw[needs], pixels.start + needs, potential)
+            gate_cpu, gate_wall = gate_cpu + inputs_cpu, gate_wall + inputs_wall
         flags[pixels.start + needs] = Flag.CORRECTED
-        # The geometric inputs are the gate's share of the tile; the model's inputs and prediction the rest.
+        # The pixel-wise gate and the geometric inputs are the gate's share of the tile; the model's inputs and
+        # its prediction the rest.
         clock.add("gate", gate_cpu)
         clock.add("inference", time.process_time() - tile_cpu - gate_cpu)
         gate_s += gate_wall
