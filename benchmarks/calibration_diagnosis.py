@@ -4,12 +4,15 @@ Run: .venv/bin/python -m benchmarks.calibration_diagnosis [--quick] [--seed 1]
 Renders corners at several true footprints A_fp and prints, per corner, the ratio estimate / truth of:
 
 1. ``shipped``: :func:`mpi_lidar.correction.calibration.estimate_footprint` as correction runs it;
-2. ``true albedo``: the same with each surface's true albedo instead of the one its amplitude gives;
-3. ``exact, planes``: the same planes fit, its multipath model worked out per pixel from the exact surfaces
+2. ``amplitude alone``: the footprint its amplitude check finds (the same model fitted to the amplitude,
+   one albedo per surface eliminated);
+3. ``true albedo``: the shipped estimate with each surface's true albedo instead of its amplitude's;
+4. ``exact, planes``: the same planes fit, its multipath model worked out per pixel from the exact surfaces
    in the field of view (true planes, true albedo, the renderer's 2 cm clamp) instead of the scan's blocks;
-4. ``exact, reference``: that exact model against the reference depth, without planes.
+5. ``exact, reference``: that exact model against the reference depth, without planes.
 
-A ``*`` marks an estimate that is significant (the amplitude check is left out of rows 3 and 4). ``--quick``
+A ``*`` marks a significant estimate: rows 4 and 5 without the amplitude check, row 2 on its statistical
+uncertainty alone. ``--quick``
 runs one corner at two footprints on fewer pixels (for a test).
 """
 
@@ -34,7 +37,7 @@ from mpi_lidar.simulation.scenes import DEFAULT_PATCH_SPACING_M, corner, render
 
 CORNERS = ((60, 2.4, 0.9), (90, 1.4, 0.9))
 FOOTPRINTS_M2 = (0.004, 0.016, 0.041, 0.1)
-VARIANTS = ("shipped", "true albedo", "exact, planes", "exact, reference")
+VARIANTS = ("shipped", "amplitude alone", "true albedo", "exact, planes", "exact, reference")
 PARTNER_STEP = 2  # every second pixel of the partner surface along each axis is a patch
 
 
@@ -107,8 +110,20 @@ def diagnose(angle: float, distance: float, albedo: float, true_m2: float, seed:
                   coupling_gain=coupling_gain(true_m2))
     valid = np.isfinite(scan.depth[-1])
     blocks = geometry.facing_blocks(np.where(valid, scan.depth[-1], np.nan), scan.ray_rows())
-    found = {"shipped": calibration.estimate_footprint(scan, blocks, valid.ravel(), config.sensor,
-                                                       max_pixels=max_pixels)}
+    amplitude_fits: list[calibration.FootprintEstimate] = []
+    solve = calibration._Problem._solve
+
+    def kept_amplitude_fit(problem: calibration._Problem, method: str, use_depth: bool, use_amplitude: bool,
+                           start_m2: float = 0.0) -> calibration.FootprintEstimate:
+        found = solve(problem, method, use_depth, use_amplitude, start_m2)
+        if use_amplitude and not use_depth:
+            amplitude_fits.append(found)
+        return found
+
+    with mock.patch.object(calibration._Problem, "_solve", kept_amplitude_fit):
+        found = {"shipped": calibration.estimate_footprint(scan, blocks, valid.ravel(), config.sensor,
+                                                           max_pixels=max_pixels)}
+    found["amplitude alone"] = amplitude_fits[-1] if amplitude_fits else calibration.NOTHING_MEASURED
     true_albedo = lambda measured, components, unit_kappa: np.where(measured > 0, albedo, 0.0)  # noqa: E731
     with mock.patch.object(calibration, "surface_albedo", true_albedo):
         found["true albedo"] = calibration.estimate_footprint(scan, blocks, valid.ravel(), config.sensor,
