@@ -335,43 +335,6 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     return sorted(outcomes, key=lambda o: o.source)
 
 
-# --- where a small batch runs -----------------------------------------------------------------------------
-
-# Without --workers, a batch estimated to take less than IN_PROCESS_MAX_SECONDS here runs in this process, and
-# so does a single scan (one task cannot use two workers). A 2-worker local cluster takes about 10 s to start
-# (8 s on the 2-core development machine, 21 s when it was shared) and corrects about 1.5 times as fast as
-# this process, so it pays off from about half a minute of work. The estimate: SCAN_SECONDS per scan (reading,
-# writing, the gate's fixed costs) plus SECONDS_PER_PIXEL, from the light runs of docs/benchmarks.md
-# (0.27-0.35 s per 256 x 256 scan, 2.0-3.2 s per 1000 x 1000 scan; 0.200 s per small scan on 2 workers).
-IN_PROCESS_MAX_SECONDS = 30.0
-SCAN_SECONDS = 0.15
-SECONDS_PER_PIXEL = 2e-6
-
-
-def runs_in_process(inputs: list[str]) -> bool:
-    """Whether a batch is small enough to run quicker in this process than on a local cluster: one scan, or
-    less than :data:`IN_PROCESS_MAX_SECONDS` of estimated work. The sizes are read from the stores'
-    metadata (a store that cannot be read counts as no pixels: it fails alone later)."""
-    sources = expand_archive(inputs)
-    if len(sources) < 2:
-        return True
-    seconds = SCAN_SECONDS * len(sources)
-    for source in sources:
-        if seconds >= IN_PROCESS_MAX_SECONDS:
-            return False
-        seconds += SECONDS_PER_PIXEL * _declared_pixels(source)
-    return seconds < IN_PROCESS_MAX_SECONDS
-
-
-def _declared_pixels(source: str) -> int:
-    try:
-        group = zarr.open_group(store=source, mode="r")
-        shape = group["depth"].shape if "depth" in group else group["taps"].shape
-        return int(shape[-1]) * int(shape[-2])
-    except Exception:  # a damaged or foreign store: it fails alone when it is corrected
-        return 0
-
-
 # --- which outcomes fail a batch --------------------------------------------------------------------------
 
 FAIL_ON = ("degraded", "unchanged", "failed")  # statuses --fail-on / fail_on may name; failed always fails

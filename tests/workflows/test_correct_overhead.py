@@ -1,4 +1,4 @@
-"""Per-scan overhead of batch correction: light imports, a small batch in this process, one model load."""
+"""Per-scan overhead of batch correction: light imports, a batch in this process, one model load."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.reporting.scan_report import DEFAULT_OUTPUTS, OUTPUT_LEVELS
 from mpi_lidar.scans.scan import write_scan
 from mpi_lidar.workflows import correct_archive as archive_module
-from mpi_lidar.workflows.correct_archive import correct_archive, runs_in_process
+from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
@@ -56,21 +56,7 @@ def test_correct_cli__outputs_choices_are_the_levels_and_light_is_the_default():
     assert tuple(option.type.choices) == OUTPUT_LEVELS and option.default == DEFAULT_OUTPUTS == "light"
 
 
-def test_runs_in_process__small_batches_here_large_ones_on_a_cluster(archive, tmp_path, monkeypatch):
-    assert runs_in_process([str(archive)]), "3 small scans: well under half a minute"
-    monkeypatch.setattr(archive_module, "IN_PROCESS_MAX_SECONDS", 3 * 0.15 + 2.5 * 768 * 2e-6)
-    assert not runs_in_process([str(archive)]), "3 x (0.15 s + 768 pixels x 2 us) is more"
-    assert runs_in_process([str(archive / "s0.scan.zarr")]), "one scan always runs here"
-    monkeypatch.setattr(archive_module, "IN_PROCESS_MAX_SECONDS", 2 * 0.15 + 768 * 2e-6 + 1e-9)
-    broken = tmp_path / "broken.scan.zarr"
-    broken.mkdir()
-    assert runs_in_process([str(broken), str(archive / "s0.scan.zarr")]), "an unreadable store counts no pixels"
-    monkeypatch.setattr(archive_module, "IN_PROCESS_MAX_SECONDS", 3 * 0.15)
-    assert not runs_in_process([str(archive)]), "the scans alone reach the limit"
-
-
-def test_correct_cli__default_workers_run_a_small_batch_here_and_an_explicit_count_is_honoured(
-        archive, model_dir, tmp_path, monkeypatch):
+def test_correct_cli__every_batch_runs_here_unless_workers_are_asked_for(archive, model_dir, tmp_path, monkeypatch):
     from mpi_lidar.workflows import executor
 
     started: list[int] = []
@@ -83,6 +69,8 @@ def test_correct_cli__default_workers_run_a_small_batch_here_and_an_explicit_cou
     arguments = ["correct", str(archive), "--model", str(model_dir), "--gate", "all"]
     assert CliRunner().invoke(cli, [*arguments, "--out", str(tmp_path / "a")]).exit_code == 0
     assert started == [] and (tmp_path / "a" / "s0" / "thumbnail.png").exists()
+    assert CliRunner().invoke(cli, [*arguments, "--out", str(tmp_path / "z"), "--workers", "0"]).exit_code == 0
+    assert started == [] and (tmp_path / "z" / "s2" / "thumbnail.png").exists()
     result = CliRunner().invoke(cli, [*arguments, "--out", str(tmp_path / "b"), "--workers", "3"])
     assert started == [3] and isinstance(result.exception, RuntimeError)
 
