@@ -12,11 +12,23 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
+def cores() -> int:
+    """Threads this process gives to one piece of work: one per core, or fewer where ``OMP_NUM_THREADS`` says
+    so. Dask sets it to 1 in its worker processes, which already share the cores among themselves, so a
+    worker's scan does not start a thread per core on top of every other worker's."""
+    count = os.cpu_count() or 1
+    try:
+        budget = int(os.environ.get("OMP_NUM_THREADS", ""))
+    except ValueError:  # unset, or not a number: no budget
+        return count
+    return max(1, min(count, budget))
+
+
 def on_cores(work: Callable[[T], R], items: Iterable[T]) -> list[R]:
-    """``work`` of each item, results in the items' order, on one thread per core (here, for one item or one
-    core). An exception is that of the first item, in order, that raised one."""
+    """``work`` of each item, results in the items' order, on one thread per core (:func:`cores`; here, for
+    one item or one core). An exception is that of the first item, in order, that raised one."""
     items = list(items)
-    workers = min(len(items), os.cpu_count() or 1)
+    workers = min(len(items), cores())
     if workers <= 1:
         return [work(item) for item in items]
     with ThreadPoolExecutor(workers) as pool:

@@ -7,11 +7,28 @@ import time
 
 import pytest
 
-from mpi_lidar.threads import on_cores
+from mpi_lidar.threads import cores, on_cores
 
 
-def test_on_cores__results_come_in_the_items_order_from_several_threads(monkeypatch):
+@pytest.fixture
+def four_cores(monkeypatch):
     monkeypatch.setattr("os.cpu_count", lambda: 4)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+
+
+def test_cores__one_per_core_unless_omp_num_threads_asks_for_fewer(four_cores, monkeypatch):
+    assert cores() == 4
+    for budget, expected in (("1", 1), ("3", 3), ("16", 4), ("0", 1), ("many", 4), ("", 4)):
+        monkeypatch.setenv("OMP_NUM_THREADS", budget)
+        assert cores() == expected, budget
+
+
+def test_on_cores__a_dask_worker_budget_of_one_thread_runs_here(four_cores, monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # as Dask sets it in its worker processes
+    assert on_cores(lambda _: threading.get_ident(), range(5)) == [threading.get_ident()] * 5
+
+
+def test_on_cores__results_come_in_the_items_order_from_several_threads(four_cores):
     seen: set[int] = set()
 
     def slow_square(item: int) -> int:
@@ -23,8 +40,7 @@ def test_on_cores__results_come_in_the_items_order_from_several_threads(monkeypa
     assert len(seen) > 1
 
 
-def test_on_cores__the_first_failing_item_in_order_raises(monkeypatch):
-    monkeypatch.setattr("os.cpu_count", lambda: 4)
+def test_on_cores__the_first_failing_item_in_order_raises(four_cores):
 
     def check(item: int) -> int:
         time.sleep(0.001 * (10 - item))

@@ -17,7 +17,6 @@ scan already corrected by the same model with the same options (same content has
 from __future__ import annotations
 
 import itertools
-import os
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -43,6 +42,7 @@ from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.scans.geometry import BlockPotential
 from mpi_lidar.scans.scan import Scan
+from mpi_lidar.threads import cores
 
 T = TypeVar("T")
 # Rows of a tile's per-pixel work (validity, the model's inputs) that one thread takes at least: NumPy
@@ -226,11 +226,12 @@ def _predict_pixels(threads: RowThreads, model: CorrectionModel, raw: NDArray, p
 
 
 class RowThreads:
-    """One thread per core for per-row work: :meth:`map` runs it on consecutive row ranges, one per thread
-    (one range alone below :data:`PARALLEL_MIN_ROWS` rows a thread). Each row's result is the same either way."""
+    """One thread per core (:func:`mpi_lidar.threads.cores`) for per-row work: :meth:`map` runs it on
+    consecutive row ranges, one per thread (one range alone below :data:`PARALLEL_MIN_ROWS` rows a thread).
+    Each row's result is the same either way."""
 
     def __init__(self, workers: int | None = None):
-        self.workers = workers or os.cpu_count() or 1
+        self.workers = workers or cores()
         self._pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
 
     def __enter__(self) -> RowThreads:

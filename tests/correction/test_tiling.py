@@ -72,6 +72,7 @@ def test_row_threads__ranges_cover_every_row_once_in_order():
 def test_correct_scan__threads_share_the_rows_to_the_same_bits(board, model, monkeypatch):
     finer = finer_scan(board, 4)  # 240 x 320: one tile of 76,800 pixels, split among the threads
     assert finer.shape[0] * finer.shape[1] >= 4 * PARALLEL_MIN_ROWS
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setattr("os.cpu_count", lambda: 1)
     alone = correct_scan(finer, model, CorrectionOptions())
     monkeypatch.setattr("os.cpu_count", lambda: 3)

@@ -96,6 +96,7 @@ def test_old_store_without_fingerprints__still_read(store, tmp_path):
 
 def test_two_swapped_scan_chunks__the_first_in_c_order_is_named(tmp_path, monkeypatch):
     monkeypatch.setattr("os.cpu_count", lambda: 4)  # the chunks are checked on several threads
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     path = write_scan(two_path_scan("frame", height=8, width=6), tmp_path / "frame.scan.zarr")
     damage(path, "depth", "3/0/0", "0/0/0", "swapped")
     damage(path, "depth", "1/0/0", "0/0/0", "swapped")
