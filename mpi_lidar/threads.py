@@ -3,6 +3,7 @@ hashlib, zarr's decoding)."""
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
@@ -33,3 +34,11 @@ def on_cores(work: Callable[[T], R], items: Iterable[T]) -> list[R]:
         return [work(item) for item in items]
     with ThreadPoolExecutor(workers) as pool:
         return list(pool.map(work, items))
+
+
+def on_cores_by_rows(work: Callable[[slice], R], rows: int, min_rows: int) -> list[R]:
+    """``work`` on consecutive row ranges that together cover ``rows``, one range per core (:func:`on_cores`),
+    each at least ``min_rows`` long (one range alone for fewer rows); results in row order."""
+    parts = max(1, min(cores(), rows // min_rows))
+    bounds = [rows * k // parts for k in range(parts + 1)]
+    return on_cores(work, [slice(a, b) for a, b in itertools.pairwise(bounds)])

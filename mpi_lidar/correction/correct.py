@@ -16,13 +16,10 @@ scan already corrected by the same model with the same options (same content has
 """
 from __future__ import annotations
 
-import itertools
 import time
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,9 +39,8 @@ from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.scans.geometry import BlockPotential
 from mpi_lidar.scans.scan import Scan
-from mpi_lidar.threads import cores
+from mpi_lidar.threads import on_cores_by_rows
 
-T = TypeVar("T")
 # Rows of a tile's per-pixel work (validity, the model's inputs) that one thread takes at least: NumPy
 # releases the GIL in its loops, so a tile's rows are split among the cores, each row computed as alone.
 PARALLEL_MIN_ROWS = 16_384
@@ -103,15 +99,13 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
     sensor = sensor or SensorConfig()
     tiles = row_tiles(*scan.shape, options.tile_pixels)
-    with RowThreads() as threads:
-        with clock("validity"):
-            flags, usable_depth = _validity_pass(scan, model, options, sensor, tiles, threads)
-        return _gate_and_predict(scan, model, options, sensor, tiles, flags, usable_depth, threads, clock,
-                                 started)
+    with clock("validity"):
+        flags, usable_depth = _validity_pass(scan, model, options, sensor, tiles)
+    return _gate_and_predict(scan, model, options, sensor, tiles, flags, usable_depth, clock, started)
 
 
 def _validity_pass(scan: Scan, model: CorrectionModel, options: CorrectionOptions, sensor: SensorConfig,
-                   tiles: list[slice], threads: RowThreads) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+                   tiles: list[slice]) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
     """Validity and model range of every pixel, tile by tile: the flags (H*W,) (NOT_NEEDED where valid and in
     range) and the highest-frequency depth of the usable pixels (H*W,) [m] (NaN elsewhere)."""
     f = len(scan.frequencies_hz)
@@ -128,13 +122,13 @@ def _validity_pass(scan: Scan, model: CorrectionModel, options: CorrectionOption
             flags[where] = part_flags
             usable_depth[where] = np.where(~np.isin(part_flags, invalid), top, np.nan)
 
-        threads.map(check, raw.shape[0])
+        on_cores_by_rows(check, raw.shape[0], PARALLEL_MIN_ROWS)
     return flags, usable_depth
 
 
 def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOptions, sensor: SensorConfig,
                       tiles: list[slice], flags: NDArray[np.uint8], usable_depth: NDArray[np.float32],
-                      threads: RowThreads, clock: _StageClock, started: float) -> Correction:
+                      clock: _StageClock, started: float) -> Correction:
     """The gate over the whole scan, then the model on the pixels it lets through, tile by tile
     (:func:`correct_scan` after its first pass)."""
     h, w = scan.shape
@@ -173,7 +167,7 @@ def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOpt
         gate_cpu, gate_wall = time.process_time() - tile_cpu, time.perf_counter() - tile_started
         if needs.size:
             depth[pixels.start + needs], inputs_cpu, inputs_wall = _predict_pixels(
-                threads, model, raw[needs], pixels.start + needs, potential)
+                model, raw[needs], pixels.start + needs, potential)
             gate_cpu, gate_wall = gate_cpu + inputs_cpu, gate_wall + inputs_wall
         flags[pixels.start + needs] = Flag.CORRECTED
         # The pixel-wise gate and the geometric inputs are the gate's share of the tile; the model's inputs and
@@ -200,13 +194,13 @@ def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
             "threshold were left as measured (flag uncalibrated)")
 
 
-def _predict_pixels(threads: RowThreads, model: CorrectionModel, raw: NDArray, pixels: NDArray,
+def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
                     potential: BlockPotential | None) -> tuple[NDArray[np.float64], float, float]:
     """Corrected depth of raw rows (n, 2F) of flat pixel indices ``pixels`` (n,), and the CPU seconds and the
     longest wall seconds the geometric inputs took (the gate's share).
 
     The model's inputs, with the geometric ones of ``potential`` where the model takes them, are built in
-    row ranges on ``threads`` into one array; the model then predicts them all at once.
+    row ranges on the cores into one array; the model then predicts them all at once.
     """
     features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)
 
@@ -220,34 +214,9 @@ def _predict_pixels(threads: RowThreads, model: CorrectionModel, raw: NDArray, p
         model.spec.transform_into(raw[rows], geometric, features[rows])
         return gate_share
 
-    shares = threads.map(build, raw.shape[0])
+    shares = on_cores_by_rows(build, raw.shape[0], PARALLEL_MIN_ROWS)
     return (model.depth_from_features(raw, features), sum(cpu for cpu, _ in shares),
             max(wall for _, wall in shares))
-
-
-class RowThreads:
-    """One thread per core (:func:`mpi_lidar.threads.cores`) for per-row work: :meth:`map` runs it on
-    consecutive row ranges, one per thread (one range alone below :data:`PARALLEL_MIN_ROWS` rows a thread).
-    Each row's result is the same either way."""
-
-    def __init__(self, workers: int | None = None):
-        self.workers = workers or cores()
-        self._pool = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
-
-    def __enter__(self) -> RowThreads:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
-
-    def map(self, work: Callable[[slice], T], rows: int) -> list[T]:
-        parts = max(1, min(self.workers, rows // PARALLEL_MIN_ROWS))
-        bounds = [rows * k // parts for k in range(parts + 1)]
-        ranges = [slice(a, b) for a, b in itertools.pairwise(bounds)]
-        if parts == 1 or self._pool is None:
-            return [work(part) for part in ranges]
-        return list(self._pool.map(work, ranges))
 
 
 def row_tiles(height: int, width: int, tile_pixels: int) -> list[slice]:

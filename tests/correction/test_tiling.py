@@ -11,9 +11,10 @@ import pytest
 from benchmarks.correction import finer_scan
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
-from mpi_lidar.correction.correct import PARALLEL_MIN_ROWS, RowThreads, row_tiles
+from mpi_lidar.correction.correct import PARALLEL_MIN_ROWS, row_tiles
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.simulation.scenes import cornered_board, render
+from mpi_lidar.threads import on_cores_by_rows
 from tests.model_factory import tiny_model
 
 
@@ -59,14 +60,18 @@ def test_correct_scan__geometry_gate_corrects_near_the_corner_and_says_what_it_c
     assert all(seconds >= 0 for seconds in correction.cpu_s.values())
 
 
-def test_row_threads__ranges_cover_every_row_once_in_order():
-    with RowThreads(3) as threads:
-        found = threads.map(lambda rows: (rows.start, rows.stop), 3 * PARALLEL_MIN_ROWS + 1)
-        assert found == [(0, PARALLEL_MIN_ROWS), (PARALLEL_MIN_ROWS, 2 * PARALLEL_MIN_ROWS),
-                         (2 * PARALLEL_MIN_ROWS, 3 * PARALLEL_MIN_ROWS + 1)]
-        assert threads.map(lambda rows: (rows.start, rows.stop), 2 * PARALLEL_MIN_ROWS - 1) == [
-            (0, 2 * PARALLEL_MIN_ROWS - 1)]  # too few rows for two threads
-        assert threads.map(lambda rows: (rows.start, rows.stop), 0) == [(0, 0)]
+def test_on_cores_by_rows__ranges_cover_every_row_once_in_order(monkeypatch):
+    monkeypatch.setattr("os.cpu_count", lambda: 3)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+
+    def ranges(rows: int) -> list[tuple[int, int]]:
+        return on_cores_by_rows(lambda part: (part.start, part.stop), rows, PARALLEL_MIN_ROWS)
+
+    found = ranges(3 * PARALLEL_MIN_ROWS + 1)
+    assert found == [(0, PARALLEL_MIN_ROWS), (PARALLEL_MIN_ROWS, 2 * PARALLEL_MIN_ROWS),
+                     (2 * PARALLEL_MIN_ROWS, 3 * PARALLEL_MIN_ROWS + 1)]
+    assert ranges(2 * PARALLEL_MIN_ROWS - 1) == [(0, 2 * PARALLEL_MIN_ROWS - 1)]  # too few rows for two threads
+    assert ranges(0) == [(0, 0)]
 
 
 def test_correct_scan__threads_share_the_rows_to_the_same_bits(board, model, monkeypatch):
