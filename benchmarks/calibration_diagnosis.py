@@ -1,19 +1,19 @@
-"""Why the self-calibrated footprint falls below the truth as the multipath grows: each suspect taken out alone.
+"""Where the self-calibrated footprint errs as the multipath grows: each suspect taken out alone.
 
 Run: .venv/bin/python -m benchmarks.calibration_diagnosis [--quick] [--seed 1]
 Renders corners at several true footprints A_fp and prints, per corner, the ratio estimate / truth of:
 
-1. ``shipped``: :func:`mpi_lidar.correction.calibration.estimate_footprint` as correction runs it;
+1. ``shipped``: :func:`mpi_lidar.correction.calibration.estimate_footprint` as correction runs it (the flat
+   surfaces as planes continued beyond the view);
 2. ``amplitude alone``: the footprint its amplitude check finds (the same model fitted to the amplitude,
-   one albedo per surface eliminated);
+   one albedo per surface eliminated, started from the depth's estimate);
 3. ``true albedo``: the shipped estimate with each surface's true albedo instead of its amplitude's;
 4. ``exact, planes``: the same planes fit, its multipath model worked out per pixel from the exact surfaces
-   in the field of view (true planes, true albedo, the renderer's 2 cm clamp) instead of the scan's blocks;
+   in the field of view only (true planes, true albedo, the renderer's 2 cm clamp);
 5. ``exact, reference``: that exact model against the reference depth, without planes.
 
 A ``*`` marks a significant estimate: rows 4 and 5 without the amplitude check, row 2 on its statistical
-uncertainty alone. ``--quick``
-runs one corner at two footprints on fewer pixels (for a test).
+uncertainty alone. ``--quick`` runs one corner at two footprints on fewer pixels (for a test).
 """
 
 from __future__ import annotations
@@ -114,8 +114,8 @@ def diagnose(angle: float, distance: float, albedo: float, true_m2: float, seed:
     solve = calibration._Problem._solve
 
     def kept_amplitude_fit(problem: calibration._Problem, method: str, use_depth: bool, use_amplitude: bool,
-                           start_m2: float = 0.0) -> calibration.FootprintEstimate:
-        found = solve(problem, method, use_depth, use_amplitude, start_m2)
+                           **options: float) -> calibration.FootprintEstimate:
+        found = solve(problem, method, use_depth, use_amplitude, **options)
         if use_amplitude and not use_depth:
             amplitude_fits.append(found)
         return found

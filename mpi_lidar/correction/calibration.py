@@ -27,12 +27,14 @@ against it directly and the planes are not needed.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
+from mpi_lidar.correction.plane_partners import PlanePartners
 from mpi_lidar.correction.validity import quadrature_noise_v2
 from mpi_lidar.scans.geometry import FacingBlocks, nanmedian_last, to_blocks
 from mpi_lidar.scans.scan import Scan
@@ -63,6 +65,8 @@ PLAIN_ITERATIONS = 4
 HUBER_K = 2.0
 # The fit stops once a step changes A by less than this share of it: far below the systematic uncertainty.
 CONVERGED_STEP = 1e-3
+# The amplitude's check only has to agree to a factor AMPLITUDE_AGREEMENT: a 1 % step ends it.
+CHECK_STEP = 1e-2
 # Estimates of A, each with the albedos less the light the multipath adds at the previous one.
 ALBEDO_ITERATIONS = 2
 # Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
@@ -135,13 +139,12 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         return NOTHING_MEASURED
     components, labels = surface_labels(blocks)
     unit_kappa = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
-    if reference:
-        labels = np.where(blocks.usable.ravel(), 0, -1)
-    pixels = _fit_pixels(blocks, labels, unit_kappa, valid, max_pixels)
+    # Against a reference every surface, flat or not, measures the bias; the partners are the flat surfaces.
+    fitted = np.where(blocks.usable.ravel(), 0, -1) if reference else labels
+    pixels = _fit_pixels(blocks, fitted, unit_kappa, valid, max_pixels)
     if pixels.size == 0:
         return NOTHING_MEASURED
     ys, xs = np.divmod(pixels, blocks.shape[1])
-    coordinates = blocks.pixel_coordinates(pixels)
     depth = scan.depth[:, ys, xs].astype(np.float64).T
     amplitude = scan.amplitude[:, ys, xs].astype(np.float64).T
     freqs = np.asarray(scan.frequencies_hz, dtype=np.float64)
@@ -149,9 +152,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     sigma = quadrature_noise_v2(sensor, scan.frequencies_hz, amplitude) / np.maximum(amplitude, 1e-12)
     sigma = np.maximum(sigma * metres_per_rad, 1e-5)
     usable = np.isfinite(depth).all(1) & np.isfinite(sigma).all(1)
-    pixel_rays = scan.pixel_rays(ys, xs)
-    block_of_pixel = (ys // blocks.block_pixels) * blocks.usable.shape[1] + xs // blocks.block_pixels
-    surface = labels[block_of_pixel]
+    coupling = PixelCoupling(scan, blocks, components, labels, pixels, depth[:, -1], sensor)
     reference_depth = scan.reference_depth.ravel()[pixels].astype(np.float64) if reference else None
     # Multipath adds light, so the amplitude overstates the albedo most where the partners that matter lie
     # (the strip along an edge); each estimate of A takes that excess off the albedos for the next.
@@ -161,19 +162,73 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     area = 0.0
     block_phasors = BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
     for iteration in range(ALBEDO_ITERATIONS):
-        unit_phasor = block_phasors(albedo)
-        phasor, kappa = _pixel_phasors(blocks, unit_phasor, unit_kappa, coordinates)
+        phasor, kappa = coupling(albedo)
         problem = _Problem(depth[usable], sigma[usable], phasor[usable], kappa[usable], metres_per_rad,
-                           amplitude[usable] / sensor.gamma_r_v2, pixel_rays[usable], surface[usable],
+                           amplitude[usable] / sensor.gamma_r_v2, coupling.rays[usable], coupling.surface[usable],
                            None if reference_depth is None else reference_depth[usable])
         last = iteration == ALBEDO_ITERATIONS - 1
         found = problem.solve("reference" if reference else "planes", check=last, start_m2=area)
         if last or not np.isfinite(found.area_m2) or found.area_m2 <= 0:
             break
         area = found.area_m2
-        gain = np.abs(1.0 + area * unit_phasor[:, -1] / np.maximum(area * unit_kappa, 1.0))
+        gain = np.abs(1.0 + area * block_phasors(albedo)[:, -1] / np.maximum(area * unit_kappa, 1.0))
         albedo = surface_albedo(measured_albedo / gain, components, unit_kappa)
     return found
+
+
+class PixelCoupling:
+    """The unit-footprint multipath phasor S_f (n, F) and white kappa (n,) of the fit's pixels, for any albedos.
+
+    Flat partners come from :class:`PlanePartners`, each pixel on its own surface's plane: worked out at the
+    block centres and interpolated (:func:`_pixel_phasors`), and per pixel where the interpolation would
+    reach a block of another surface or of none (the coupling changes fastest there, at an edge). Curved
+    partners, and every partner of a pixel on no plane (against a reference depth any surface is measured),
+    keep their block pairs (:class:`BlockPhasors`). Each pixel's surface is the one of its block or the
+    blocks around it whose plane lies nearest its measured range.
+    """
+
+    def __init__(self, scan: Scan, blocks: FacingBlocks, components: NDArray, labels: NDArray, pixels: NDArray,
+                 measured_range: NDArray, sensor: SensorConfig):
+        self.blocks = blocks
+        self.partners = PlanePartners(scan, blocks, components, labels)
+        grid = labels.reshape(blocks.usable.shape)
+        ys, xs = np.divmod(pixels, blocks.shape[1])
+        b = blocks.block_pixels
+        self.rays = scan.pixel_rays(ys, xs)
+        self.coordinates = blocks.pixel_coordinates(pixels)
+        self.own_block = (ys // b) * grid.shape[1] + xs // b
+        self.surface = self.partners.nearest_surface(self.rays, measured_range, ys // b, xs // b, grid)
+        at = functools.partial(self.partners.at_points, frequencies_hz=scan.frequencies_hz,
+                               speed_of_light_m_per_s=sensor.speed_of_light_m_per_s)
+        block_rows, block_columns = np.divmod(np.arange(labels.size), grid.shape[1])
+        centre_range = np.linalg.norm(blocks.centres.reshape(-1, 3), axis=1)
+        block_surface = self.partners.nearest_surface(self.partners.block_rays, centre_range, block_rows,
+                                                      block_columns, grid)
+        self.block_phasor, block_kappa = at(self.partners.block_rays, block_surface)
+        self.block_kappa = block_kappa.sum(1)
+        self.exact = self.partners.near_other_surface(self.coordinates, self.surface, grid)
+        self.exact_phasor, exact_kappa = at(self.rays[self.exact], self.surface[self.exact])
+        self.exact_kappa = exact_kappa.sum(1)
+        self.on_plane = np.isin(self.surface, list(self.partners.planes))
+        self.block_sums = [(BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s, pairs),
+                            np.bincount(pairs[0], pairs[2], minlength=blocks.usable.size), rows)
+                           for pairs, rows in ((self.partners.curved, self.on_plane),
+                                               (self.partners.off_plane, ~self.on_plane)) if pairs[0].size]
+
+    def __call__(self, albedo: NDArray) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+        """S_f (n, F) and kappa (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""
+        partner_albedo = albedo[self.partners.partner_block]
+        block_phasor = albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_phasor)
+        phasor, kappa = _pixel_phasors(self.blocks, block_phasor, self.block_kappa, self.coordinates)
+        own = albedo[self.own_block[self.exact]]
+        phasor[self.exact] = own[:, None] * np.einsum("p,npf->nf", partner_albedo, self.exact_phasor)
+        kappa[self.exact] = self.exact_kappa
+        for phasors, block_kappa, rows in self.block_sums:
+            coordinates = (self.coordinates[0][rows], self.coordinates[1][rows])
+            pair_phasor, pair_kappa = _pixel_phasors(self.blocks, phasors(albedo), block_kappa, coordinates)
+            phasor[rows] += pair_phasor
+            kappa[rows] += pair_kappa
+        return phasor, kappa
 
 
 def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig) -> NDArray[np.float64]:
@@ -234,13 +289,15 @@ class BlockPhasors:
     renderer does (at A_fp K > 1 the multipath is scaled by 1 / (A_fp K)).
     """
 
-    def __init__(self, blocks: FacingBlocks, frequencies_hz: tuple[float, ...], speed_of_light_m_per_s: float):
-        pairs = blocks.pairs
+    def __init__(self, blocks: FacingBlocks, frequencies_hz: tuple[float, ...], speed_of_light_m_per_s: float,
+                 pairs: tuple[NDArray, NDArray, NDArray, NDArray] | None = None):
         self.block_count = blocks.usable.size
-        self.kappa = pairs.kappa(1.0)
-        self.block_a, self.block_b = blocks.index[pairs.a], blocks.index[pairs.b]
+        if pairs is None:
+            pairs = (blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b], blocks.pairs.kappa(1.0),
+                     blocks.pairs.distance_m)
+        self.block_a, self.block_b, self.kappa, distance_m = pairs
         freqs = np.asarray(frequencies_hz, dtype=np.float64)
-        phase = 4 * np.pi * pairs.distance_m[:, None] * freqs[None, :] / speed_of_light_m_per_s
+        phase = 4 * np.pi * distance_m[:, None] * freqs[None, :] / speed_of_light_m_per_s
         self.cos, self.sin = np.cos(phase), np.sin(phase)
 
     def __call__(self, albedo: NDArray) -> NDArray[np.complex128]:
@@ -426,12 +483,12 @@ class _Problem:
         amplitude does not show (a dark corner, where the predicted bias is tiny and any residual the
         planes leave looks like multipath) is not described by the model.
         """
-        check = self._solve(method, use_depth=False, use_amplitude=True).area_m2
+        check = self._solve(method, use_depth=False, use_amplitude=True, start_m2=area, tolerance=CHECK_STEP).area_m2
         return bool(np.isfinite(check) and area > 0 and check > 0
                     and 1 / AMPLITUDE_AGREEMENT <= check / area <= AMPLITUDE_AGREEMENT)
 
-    def _solve(self, method: str, use_depth: bool, use_amplitude: bool, start_m2: float = 0.0
-               ) -> FootprintEstimate:
+    def _solve(self, method: str, use_depth: bool, use_amplitude: bool, start_m2: float = 0.0,
+               tolerance: float = CONVERGED_STEP) -> FootprintEstimate:
         n = self.depth.shape[0]
         informative = int((self.kappa > 0).sum())
         if n < 10 or informative == 0:
@@ -474,7 +531,7 @@ class _Problem:
                 return FootprintEstimate(float("nan"), float("inf"), informative, self.surfaces, method)
             step = numerator / information
             area += step
-            if robust and abs(step) <= CONVERGED_STEP * max(abs(area), 1e-4):
+            if robust and abs(step) <= tolerance * max(abs(area), 1e-4):
                 break
         sigma_area = spread / np.sqrt(information) if information > 0 else float("inf")
         return FootprintEstimate(float(area), float(sigma_area), informative, self.surfaces, method)
@@ -497,8 +554,9 @@ class _Problem:
         slope = gain_slope - mean_slope[self.surface][:, None]
         z = residual / self.sigma_log
         spread = 1.4826 * float(np.median(np.abs(z))) or 1.0
-        if robust:
+        if robust:  # the weights of this step's residuals, as the depth's are
             weights = _huber(z, spread)
+            weight = np.where(trusted, weights / self.sigma_log**2, 0.0)
         return float((weight * slope * residual).sum()), float((weight * slope**2).sum()), weights, spread
 
     def _anchored(self) -> _Problem:

@@ -190,13 +190,14 @@ def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(
     assert all(row["auto_mm"] == row["raw_mm"] for row in wall)
 
 
-def test_calibration_diagnosis__planes_fall_low_where_the_reference_recovers_the_footprint():
+def test_calibration_diagnosis__the_surfaces_beyond_the_view_carry_the_strong_multipath():
     from benchmarks.calibration_diagnosis import diagnose
 
     weak, strong = (diagnose(60, 2.4, 0.9, true_m2, seed=1, max_pixels=2_000) for true_m2 in (0.016, 0.1))
     for found, true_m2 in ((weak, 0.016), (strong, 0.1)):
         # Independent of the scan's blocks and planes: the exact surfaces against the reference depth.
         assert 1 / 1.5 <= found["exact, reference"].area_m2 / true_m2 <= 1.5
-    assert weak["shipped"].area_m2 / 0.016 >= 1 / 1.5, "weak multipath: the scan's own planes measure it"
-    assert strong["shipped"].area_m2 / 0.1 < 0.75, "strong multipath in a narrow view: the planes take up part"
-    assert strong["exact, planes"].area_m2 < strong["exact, reference"].area_m2 / 2, "even with exact surfaces"
+    assert 1 / 1.5 <= weak["shipped"].area_m2 / 0.016 <= 1.5, "weak multipath: the scan's own planes measure it"
+    # Planes fitted to a narrow view, with partners only where the view sees them, take up the multipath.
+    assert strong["exact, planes"].area_m2 < strong["exact, reference"].area_m2 / 2
+    assert strong["shipped"].area_m2 > 0.1 / 1.5, "the partners continued beyond the view give it back"

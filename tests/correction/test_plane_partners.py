@@ -1,0 +1,106 @@
+"""The calibration's partners: flat surfaces as planes continued beyond the view, against independent sums."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpi_lidar.config import Config
+from mpi_lidar.correction.calibration import surface_labels
+from mpi_lidar.correction.plane_partners import PlanePartners, _coupling_at, _on_plane, _phasor_sums
+from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
+from mpi_lidar.scans.geometry import DEFAULT_MIN_COS, facing_blocks
+from mpi_lidar.simulation.scenes import corner, render
+from tests.correction.test_calibration import estimate, rendered
+
+C = Config().sensor.speed_of_light_m_per_s
+
+
+@pytest.fixture(scope="module")
+def corner_scan():
+    return render(corner(90.0, 2.4, 0.5), Config(), np.random.default_rng(3), coupling_gain=0.0)
+
+
+@pytest.fixture(scope="module")
+def corner_partners(corner_scan):
+    depth = corner_scan.depth[-1]
+    blocks = facing_blocks(np.where(np.isfinite(depth), depth, np.nan), corner_scan.rays())
+    components, labels = surface_labels(blocks)
+    return blocks, labels, PlanePartners(corner_scan, blocks, components, labels)
+
+
+def test_coupling_at__matches_the_renderers_pairwise_coupling():
+    rng = np.random.default_rng(0)
+    normal_a, normal_b = np.array([0.6, 0.0, -0.8]), np.array([-0.6, 0.0, -0.8])
+    points = np.array([0.0, 0.0, 2.0]) + rng.uniform(-0.3, 0.0, (40, 1)) * np.array([0.8, 0.0, 0.6]) \
+        + rng.uniform(-0.2, 0.2, (40, 1)) * np.array([0.0, 1.0, 0.0])
+    centres = np.array([0.0, 0.0, 2.0]) + rng.uniform(0.005, 0.5, (300, 1)) * np.array([0.8, 0.0, -0.6]) \
+        + rng.uniform(-0.4, 0.4, (300, 1)) * np.array([0.0, 1.0, 0.0])
+    areas = rng.uniform(1e-4, 4e-4, 300)
+    freqs = (12.5e6, 18.75e6, 25e6, 31.25e6)
+    found = _coupling_at(points, normal_a, centres, areas, normal_b, freqs, C)
+    # Independent: the renderer's pair geometry and coupling, pair by pair, with cosines and sines.
+    r, cos_a, cos_b = pair_geometry(points[:, None], normal_a, centres[None], normal_b)
+    cos_i = -(points / np.linalg.norm(points, axis=1, keepdims=True)) @ normal_a
+    kappa = footprint_coupling(cos_a, cos_b, areas[None], np.maximum(r, np.sqrt(areas)[None]), cos_i[:, None], 1.0)
+    kappa = np.where((cos_a > DEFAULT_MIN_COS) & (cos_b > DEFAULT_MIN_COS), kappa, 0.0)
+    np.testing.assert_allclose(found[:, 0].real, kappa.sum(1), rtol=1e-4)
+    for k, f in enumerate(freqs):
+        expected = (kappa * np.exp(1j * 4 * np.pi * f * r / C)).sum(1)
+        np.testing.assert_allclose(found[:, 1 + k], expected, rtol=1e-4, atol=1e-6 * np.abs(expected).max())
+
+
+def test_phasor_sums__powers_of_a_common_wave_equal_the_direct_sums():
+    rng = np.random.default_rng(1)
+    kappa, r = rng.uniform(0, 1, (5, 200)), rng.uniform(0.01, 3.0, (5, 200))
+    harmonic = 4 * np.pi * np.array([12.5e6, 18.75e6, 25e6, 31.25e6]) / C
+    unrelated = 4 * np.pi * np.array([10e6, 10e6 * np.sqrt(2)]) / C  # no common multiple: direct sums
+    for wavenumbers in (harmonic, unrelated):
+        direct = np.stack([(kappa * np.exp(1j * k * r)).sum(1) for k in wavenumbers], axis=1)
+        np.testing.assert_allclose(_phasor_sums(kappa, r, wavenumbers), direct, rtol=1e-10)
+
+
+def test_nearest_surface__a_block_across_the_edge_gives_each_pixel_its_own_wall(corner_scan, corner_partners):
+    blocks, labels, partners = corner_partners
+    grid = labels.reshape(blocks.usable.shape)
+    reference = corner_scan.reference_depth
+    ys, xs = np.nonzero(np.isfinite(reference) & (grid[np.arange(reference.shape[0])[:, None] // blocks.block_pixels,
+                                                        np.arange(reference.shape[1])[None] // blocks.block_pixels]
+                                                   >= 0))
+    rays = corner_scan.pixel_rays(ys, xs)
+    true_right = (rays * reference[ys, xs][:, None])[:, 0] > 0  # the corner's edge is the plane x = 0
+    block_label = grid[ys // blocks.block_pixels, xs // blocks.block_pixels]
+    found = partners.nearest_surface(rays, corner_scan.depth[-1][ys, xs].astype(np.float64),
+                                     ys // blocks.block_pixels, xs // blocks.block_pixels, grid)
+    right_label, left_label = (np.bincount(block_label[side]).argmax() for side in (true_right, ~true_right))
+    assert right_label != left_label
+    wrong_block = (block_label == right_label) != true_right
+    assert wrong_block.sum() >= 10, "blocks across the edge hold pixels of the other wall"
+    assert np.mean((found == right_label) == true_right) > 0.999
+    assert np.isin(found, [left_label, right_label]).all()
+
+
+def test_patches__a_board_continues_beyond_the_view_and_nothing_lies_in_front(corner_scan, corner_partners):
+    blocks, _, partners = corner_partners
+    rays = corner_scan.rays().reshape(-1, 3)
+    for centres, areas in partners.patches.values():
+        directions = centres / np.linalg.norm(centres, axis=1, keepdims=True)
+        beyond = (directions @ rays.T).max(1) < np.cos(np.deg2rad(0.5))
+        assert areas[beyond].sum() > 0.5 * areas[~beyond].sum(), "the board runs on beyond the view"
+    # Every patch lies on its plane.
+    for surface, (centres, _) in partners.patches.items():
+        normal, centre, _ = partners.planes[surface]
+        np.testing.assert_allclose((centres - centre) @ normal, 0.0, atol=1e-9)
+
+
+def test_on_plane__points_lie_on_the_plane_along_their_rays():
+    plane = (np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 2.0]), 1.0)
+    rays = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    np.testing.assert_allclose(_on_plane(rays, plane), [[0.0, 0.0, 2.0], [1.5, 0.0, 2.0]])
+
+
+def test_estimate__a_corner_without_multipath_measures_no_footprint():
+    # Pixels read on the other wall's plane would look like a bias growing towards the edge.
+    found = [estimate(rendered(corner(90.0, 2.4, 0.5), 0.0, seed=seed)) for seed in (0, 1)]
+    assert all(abs(f.area_m2) < 0.003 for f in found), [f.area_m2 for f in found]
+    assert not any(f.significant and f.area_m2 > 0.003 for f in found)
