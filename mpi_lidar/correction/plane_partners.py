@@ -39,9 +39,9 @@ REACH = 2.0
 # modelled as planes nor partners: a strip along an edge is the bend of the multipath.
 MIN_SPAN_BLOCKS = 3
 # Patch side next to a receiving surface [m], growing by one such side every GRADING_M further from it: the
-# coupling falls as 1 / r^4, so far patches may be coarse (finer ones change the footprint found by < 2 %).
+# coupling falls as 1 / r^4, so far patches may be coarse.
 PATCH_M = 0.02
-GRADING_M = 0.1
+GRADING_M = 0.05
 # Within the view a patch counts where it lies no nearer than this [m] in front of what the scan measured
 # there (the multipath moves the measured surface by centimetres near an edge).
 FRONT_TOLERANCE_M = 0.05
