@@ -81,12 +81,18 @@ def test_nearest_surface__a_block_across_the_edge_gives_each_pixel_its_own_wall(
 
 
 def test_patches__a_board_continues_beyond_the_view_and_nothing_lies_in_front(corner_scan, corner_partners):
-    blocks, _, partners = corner_partners
+    _, _, partners = corner_partners
     rays = corner_scan.rays().reshape(-1, 3)
+    measured = corner_scan.depth[-1].ravel().astype(np.float64)
     for centres, areas in partners.patches.values():
-        directions = centres / np.linalg.norm(centres, axis=1, keepdims=True)
-        beyond = (directions @ rays.T).max(1) < np.cos(np.deg2rad(0.5))
+        distance = np.linalg.norm(centres, axis=1)
+        alignment = (centres / distance[:, None]) @ rays.T
+        beyond = alignment.max(1) < np.cos(np.deg2rad(0.5))
         assert areas[beyond].sum() > 0.5 * areas[~beyond].sum(), "the board runs on beyond the view"
+        # In view, a patch in front of what the scan measured would have been seen (tolerance: the patch
+        # test's 5 cm and a block's depth spread).
+        behind = measured[alignment[~beyond].argmax(1)]
+        assert np.all(distance[~beyond] >= behind - 0.1)
     # Every patch lies on its plane.
     for surface, (centres, _) in partners.patches.items():
         normal, centre, _ = partners.planes[surface]
