@@ -10,9 +10,11 @@ and with the shape the geometry predicts, while far from the edge the surfaces a
 (curved surfaces, the strongest bias right at an edge) and without strips that have no pixels far from their
 partners. The model of every pixel and frequency f is the renderer's two-path model at unit footprint:
 ratio = A S_f, S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c}, capped like it at kappa = 1, with the
-depth bias (c / 4 pi f) arg(1 + ratio). The albedos rho come from each surface's amplitude far from its
-partners (Gamma = Gamma_R rho cos_i / d^2), less the light the multipath adds at the current estimate, so
-dark partners predict less multipath than white ones.
+depth bias (c / 4 pi f) arg(1 + ratio). The flat partners B are planes continued beyond the field of view
+(:mod:`mpi_lidar.correction.plane_partners`), each pixel on its own surface's plane (:class:`PixelCoupling`).
+The albedos rho come from each surface's amplitude far from its partners (Gamma = Gamma_R rho cos_i / d^2),
+less the light the multipath adds at the current estimate, so dark partners predict less multipath than
+white ones.
 
 Each surface's plane is fitted to the share of its pixels with the least predicted coupling (the anchors),
 after the predicted bias is taken off, and A is fitted to the other pixels' depth over their plane: a
