@@ -67,6 +67,10 @@ class PlanePartners:
         self.partner_block = np.array([np.flatnonzero(components == p)[0] for p in self.partners], dtype=np.intp)
         self.curved, self.off_plane = _block_pairs(blocks, components, labels, narrow, set(self.planes),
                                                    set(self.patches))
+        # The planes each surface receives light from: those its blocks have facing pairs with.
+        a, b = blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b]
+        self.facing = {own: {int(p) for p in np.unique(components[b[labels[a] == own]])} & set(self.patches)
+                       for own in self.planes}
 
     def at_points(self, rays: NDArray, surface: NDArray, frequencies_hz: tuple[float, ...],
                   speed_of_light_m_per_s: float) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
@@ -80,15 +84,22 @@ class PlanePartners:
             if int(own) not in self.planes:
                 continue
             rows = np.flatnonzero(surface == own)
+            normal_a, centre_a, _ = self.planes[int(own)]
             points = _on_plane(rays[rows], self.planes[int(own)])
             for column, partner in enumerate(self.partners):
-                if partner == own:
+                if partner not in self.facing[int(own)]:
                     continue
+                normal_b, centre_b, _ = self.planes[partner]
                 centres, areas = self.patches[partner]
-                values = _coupling_at(points, self.planes[int(own)][0], centres, areas, self.planes[partner][0],
-                                      frequencies_hz, speed_of_light_m_per_s)
-                kappa[rows, column] = values[:, 0].real
-                phasor[rows, column] = values[:, 1:]
+                # Only patches in front of the receiving plane and points in front of the partner's face.
+                ahead = (centres - centre_a) @ normal_a > 0
+                lit = (points - centre_b) @ normal_b > 0
+                if not ahead.any() or not lit.any():
+                    continue
+                values = _coupling_at(points[lit], normal_a, centres[ahead], areas[ahead], normal_b, frequencies_hz,
+                                      speed_of_light_m_per_s)
+                kappa[rows[lit], column] = values[:, 0].real
+                phasor[rows[lit], column] = values[:, 1:]
         return phasor, kappa
 
     def nearest_surface(self, rays: NDArray, range_m: NDArray, block_rows: NDArray, block_columns: NDArray,
