@@ -69,6 +69,10 @@ HUBER_K = 2.0
 CONVERGED_STEP = 1e-3
 # The amplitude's check only has to agree to a factor AMPLITUDE_AGREEMENT: a 1 % step ends it.
 CHECK_STEP = 1e-2
+# Relative step of A for the planes' derivative.
+PLANE_STEP = 1e-3
+# Footprints [m^2] the depth fit may start from: 0 and 1 mm^2 ... 0.5 m^2 in factors of two.
+START_GRID_M2 = (0.0, *(1e-3 * 2.0**k for k in range(10)))
 # Estimates of A, each with the albedos less the light the multipath adds at the previous one.
 ALBEDO_ITERATIONS = 2
 # Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
@@ -466,9 +470,11 @@ class _Problem:
         the spread of the estimate over rendered scenes the scan's geometry describes only in part (partners
         beyond the field of view, 3 cm blocks). ``check``: compare with the amplitude (see
         :meth:`_amplitude_agrees`); an estimate that fails the check is not significant. ``start_m2``: the
-        footprint the depth fit starts from (an earlier estimate saves iterations); the amplitude's starts from 0.
+        footprint the depth fit starts from (an earlier estimate saves iterations; without one, the best of a
+        coarse grid, :meth:`_best_start`); the amplitude's starts from the depth's estimate.
         """
         problem = self if self.reference is not None else self._anchored()
+        start_m2 = start_m2 or problem._best_start()
         found = problem._solve(method, use_depth=True, use_amplitude=False, start_m2=start_m2)
         if not np.isfinite(found.area_m2) or abs(found.area_m2) > MAX_PLAUSIBLE_M2:
             # No receiver sees a square metre: such a number comes from a few spurious facing blocks.
@@ -477,6 +483,29 @@ class _Problem:
         if check and self.reference is None and not problem._amplitude_agrees(method, found.area_m2):
             sigma = max(sigma, abs(found.area_m2))  # the scan is not what the model describes: not significant
         return FootprintEstimate(found.area_m2, sigma, found.pixels, found.surfaces, method)
+
+    def _best_start(self) -> float:
+        """The footprint of :data:`START_GRID_M2` whose depth residuals over the fit rows are smallest (median
+        of the standardized residuals, each footprint over the rows it trusts).
+
+        Where the multipath is strong the residuals are not convex in A: the planes, anchored on pixels that
+        are themselves biased, take up part of the bias, and a fit started from A = 0 can settle on a second,
+        smaller minimum (even a negative footprint) while the true one lies near 0.1 m^2.
+        """
+        anchor = self.anchor if self.reference is None else np.zeros(self.depth.shape[0], dtype=bool)
+        fit_rows = (self.kappa > 0) & ~anchor
+        best, best_spread = 0.0, np.inf
+        for area in START_GRID_M2:
+            bias = self.bias(area)[0]
+            surface_range = self.reference if self.reference is not None else self._plane_range(bias, anchor)[0]
+            rows = fit_rows & (area * self.kappa <= MAX_FIT_COUPLING) & np.isfinite(surface_range)
+            if rows.sum() < MIN_INFORMATIVE_PIXELS:
+                continue
+            z = (self.depth[rows] - surface_range[rows, None] - bias[rows]) / self.sigma[rows]
+            spread = float(np.median(np.abs(z)))
+            if spread < best_spread:
+                best, best_spread = float(area), spread
+        return best
 
     def _amplitude_agrees(self, method: str, area: float) -> bool:
         """Whether the amplitude tells the same footprint as the depth, to a factor ``AMPLITUDE_AGREEMENT``.
@@ -509,6 +538,12 @@ class _Problem:
             planes = None
             if self.reference is None:
                 surface_range, planes = self._plane_range(bias, anchor)
+                if use_depth:
+                    # The planes move with A (their anchors' predicted bias is taken off): the residual's
+                    # derivative holds that motion too, or the fit settles where the residuals are not least.
+                    step_m2 = PLANE_STEP * max(abs(area), 1e-3)
+                    moved = self._plane_range(bias + step_m2 * slope, anchor)[0]
+                    slope = slope + ((moved - surface_range) / step_m2)[:, None]
             else:
                 surface_range = self.reference
             # A surface whose plane could not be fitted (too few anchors) has no range: its rows are left out.

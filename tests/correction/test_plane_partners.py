@@ -110,3 +110,11 @@ def test_estimate__a_corner_without_multipath_measures_no_footprint():
     found = [estimate(rendered(corner(90.0, 2.4, 0.5), 0.0, seed=seed)) for seed in (0, 1)]
     assert all(abs(f.area_m2) < 0.003 for f in found), [f.area_m2 for f in found]
     assert not any(f.significant and f.area_m2 > 0.003 for f in found)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_estimate__strong_multipath_finds_the_least_residuals_not_the_first_fixed_point(seed):
+    # The residuals are not convex in A here: from A = 0 the fit settled on a negative footprint.
+    found = estimate(rendered(corner(60.0, 1.4, 0.5), 0.1, seed=seed))
+    assert found.significant
+    assert 1 / 1.5 <= found.area_m2 / 0.1 <= 1.5
