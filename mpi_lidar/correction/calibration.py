@@ -20,11 +20,11 @@ Each surface's plane is fitted to the share of its pixels with the least predict
 after the predicted bias is taken off, and A is fitted to the other pixels' depth over their plane: a
 Gauss-Newton fit weighted by the moment model's noise at each pixel's amplitude, with Huber weights against
 outliers, whose derivative includes the planes' own motion with A and which starts from the best footprint
-of a coarse grid (the residuals are not convex in A where the multipath is strong). The uncertainty is the statistical one (scaled
-by the robust spread of the standardized residuals) combined with a systematic share of the estimate, the
-spread measured on rendered corners. Multipath adds light as well as range: the same model fitted to the
-amplitude (one albedo per surface eliminated) must tell the same footprint to a factor of three, or the
-estimate is not significant. With a reference depth (``reference=True``) the depth residual is measured
+of a coarse grid (the residuals are not convex in A where the multipath is strong). The uncertainty is the
+statistical one (scaled by the robust spread of the standardized residuals) combined with a systematic
+share of the estimate, the spread measured on rendered corners. Multipath adds light as well as range: the
+same model fitted to the amplitude (one albedo per surface eliminated) must tell the same footprint to a
+factor of three, or the estimate is not significant. With a reference depth (``reference=True``) the depth residual is measured
 against it directly and the planes are not needed.
 """
 
