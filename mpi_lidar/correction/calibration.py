@@ -24,8 +24,8 @@ of a coarse grid (the residuals are not convex in A where the multipath is stron
 statistical one (scaled by the robust spread of the standardized residuals) combined with a systematic
 share of the estimate, the spread measured on rendered corners. Multipath adds light as well as range: the
 same model fitted to the amplitude (one albedo per surface eliminated) must tell the same footprint to a
-factor of three, or the estimate is not significant. With a reference depth (``reference=True``) the depth residual is measured
-against it directly and the planes are not needed.
+factor of three, or the estimate is not significant. With a reference depth (``reference=True``) the depth
+residual is measured against it directly and the planes are not needed.
 """
 
 from __future__ import annotations
