@@ -211,13 +211,13 @@ class PixelCoupling:
         centre_range = np.linalg.norm(blocks.centres.reshape(-1, 3), axis=1)
         block_surface = self.partners.nearest_surface(self.partners.block_rays, centre_range, block_rows,
                                                       block_columns, grid)
-        self.block_phasor, block_kappa = at(self.partners.block_rays, block_surface)
-        self.block_kappa = block_kappa.sum(1)
+        self.block_plane_phasor, block_kappa = at(self.partners.block_rays, block_surface)
+        self.block_plane_kappa = block_kappa.sum(1)
         self.exact = self.partners.near_other_surface(self.coordinates, self.surface, grid)
-        self.exact_phasor, exact_kappa = at(self.rays[self.exact], self.surface[self.exact])
-        self.exact_kappa = exact_kappa.sum(1)
+        self.exact_plane_phasor, exact_kappa = at(self.rays[self.exact], self.surface[self.exact])
+        self.exact_plane_kappa = exact_kappa.sum(1)
         self.on_plane = np.isin(self.surface, list(self.partners.planes))
-        self.block_sums = [(BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s, pairs),
+        self.pair_sums = [(BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s, pairs),
                             np.bincount(pairs[0], pairs[2], minlength=blocks.usable.size), rows)
                            for pairs, rows in ((self.partners.curved, self.on_plane),
                                                (self.partners.off_plane, ~self.on_plane)) if pairs[0].size]
@@ -225,12 +225,12 @@ class PixelCoupling:
     def __call__(self, albedo: NDArray) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
         """S_f (n, F) and kappa (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""
         partner_albedo = albedo[self.partners.partner_block]
-        block_phasor = albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_phasor)
-        phasor, kappa = _pixel_phasors(self.blocks, block_phasor, self.block_kappa, self.coordinates)
+        block_phasor = albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_plane_phasor)
+        phasor, kappa = _pixel_phasors(self.blocks, block_phasor, self.block_plane_kappa, self.coordinates)
         own = albedo[self.own_block[self.exact]]
-        phasor[self.exact] = own[:, None] * np.einsum("p,npf->nf", partner_albedo, self.exact_phasor)
-        kappa[self.exact] = self.exact_kappa
-        for phasors, block_kappa, rows in self.block_sums:
+        phasor[self.exact] = own[:, None] * np.einsum("p,npf->nf", partner_albedo, self.exact_plane_phasor)
+        kappa[self.exact] = self.exact_plane_kappa
+        for phasors, block_kappa, rows in self.pair_sums:
             coordinates = (self.coordinates[0][rows], self.coordinates[1][rows])
             pair_phasor, pair_kappa = _pixel_phasors(self.blocks, phasors(albedo), block_kappa, coordinates)
             phasor[rows] += pair_phasor
@@ -485,6 +485,22 @@ class _Problem:
             sigma = max(sigma, abs(found.area_m2))  # the scan is not what the model describes: not significant
         return FootprintEstimate(found.area_m2, sigma, found.pixels, found.surfaces, method)
 
+    def _anchor_and_fit_rows(self) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        """The rows that fix the planes (none against a reference) and the rows A is fitted to."""
+        anchor = self.anchor if self.reference is None else np.zeros(self.depth.shape[0], dtype=bool)
+        return anchor, (self.kappa > 0) & ~anchor
+
+    def _surface_range(self, bias: NDArray, anchor: NDArray) -> tuple[NDArray, NDArray | None]:
+        """The range (n,) each row's depth is measured against, and the planes (None against a reference)."""
+        if self.reference is not None:
+            return self.reference, None
+        return self._plane_range(bias, anchor)
+
+    def _trusted(self, area: float, surface_range: NDArray) -> NDArray[np.bool_]:
+        """Rows (n,) the fit at footprint ``area`` uses: coupling within the model's reach, and a surface
+        whose plane could be fitted (a surface with too few anchors has no range)."""
+        return (abs(area) * self.kappa <= MAX_FIT_COUPLING) & np.isfinite(surface_range)
+
     def _best_start(self) -> float:
         """The footprint of :data:`START_GRID_M2` whose depth residuals over the fit rows are smallest (median
         of the standardized residuals, each footprint over the rows it trusts).
@@ -493,13 +509,12 @@ class _Problem:
         are themselves biased, take up part of the bias, and a fit started from A = 0 can settle on a second,
         smaller minimum (even a negative footprint) while the true one lies near 0.1 m^2.
         """
-        anchor = self.anchor if self.reference is None else np.zeros(self.depth.shape[0], dtype=bool)
-        fit_rows = (self.kappa > 0) & ~anchor
+        anchor, fit_rows = self._anchor_and_fit_rows()
         best, best_spread = 0.0, np.inf
         for area in START_GRID_M2:
             bias = self.bias(area)[0]
-            surface_range = self.reference if self.reference is not None else self._plane_range(bias, anchor)[0]
-            rows = fit_rows & (area * self.kappa <= MAX_FIT_COUPLING) & np.isfinite(surface_range)
+            surface_range = self._surface_range(bias, anchor)[0]
+            rows = fit_rows & self._trusted(area, surface_range)
             if rows.sum() < MIN_INFORMATIVE_PIXELS:
                 continue
             z = (self.depth[rows] - surface_range[rows, None] - bias[rows]) / self.sigma[rows]
@@ -525,8 +540,7 @@ class _Problem:
         informative = int((self.kappa > 0).sum())
         if n < 10 or informative == 0:
             return FootprintEstimate(float("nan"), float("inf"), informative, self.surfaces, method)
-        anchor = self.anchor if self.reference is None else np.zeros(n, dtype=bool)
-        fit_rows = (self.kappa > 0) & ~anchor
+        anchor, fit_rows = self._anchor_and_fit_rows()
         area = start_m2
         robust_depth, robust_amplitude = np.ones_like(self.depth), np.ones_like(self.depth)
         spread, information = 1.0, 0.0
@@ -536,19 +550,14 @@ class _Problem:
         for iteration in range(MAX_ITERATIONS):
             robust = iteration >= plain
             bias, slope, gain, gain_slope = self.bias(area, amplitude=use_amplitude)
-            planes = None
-            if self.reference is None:
-                surface_range, planes = self._plane_range(bias, anchor)
-                if use_depth:
-                    # The planes move with A (their anchors' predicted bias is taken off): the residual's
-                    # derivative holds that motion too, or the fit settles where the residuals are not least.
-                    step_m2 = PLANE_STEP * max(abs(area), 1e-3)
-                    moved = self._plane_range(bias + step_m2 * slope, anchor)[0]
-                    slope = slope + ((moved - surface_range) / step_m2)[:, None]
-            else:
-                surface_range = self.reference
-            # A surface whose plane could not be fitted (too few anchors) has no range: its rows are left out.
-            trusted = ((abs(area) * self.kappa <= MAX_FIT_COUPLING) & np.isfinite(surface_range))[:, None]
+            surface_range, planes = self._surface_range(bias, anchor)
+            if planes is not None and use_depth:
+                # The planes move with A (their anchors' predicted bias is taken off): the residual's
+                # derivative holds that motion too, or the fit settles where the residuals are not least.
+                step_m2 = PLANE_STEP * max(abs(area), 1e-3)
+                moved = self._plane_range(bias + step_m2 * slope, anchor)[0]
+                slope = slope + ((moved - surface_range) / step_m2)[:, None]
+            trusted = self._trusted(area, surface_range)[:, None]
             residual = np.where(trusted, self.depth - np.nan_to_num(surface_range)[:, None] - bias, 0.0)
             numerator = information = 0.0
             if use_depth:
