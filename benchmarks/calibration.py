@@ -1,6 +1,6 @@
 """Per-scan self-calibration of the receiver footprint A_fp: does "auto" correct as well as the true footprint?
 
-Run: .venv/bin/python -m benchmarks.calibration --model DIR [--quick] [--seed 0]
+Run: .venv/bin/python -m benchmarks.calibration --model DIR [--quick | --held-out] [--seed 0]
  or: .venv/bin/python -m benchmarks.calibration --model DIR --cost  (CPU the calibration adds to 1000 x 1000)
 Renders every scene of the set with each true footprint A_fp (coupling gain A_fp / pi r^2, r the default
 footprint radius), corrects it with the true A_fp and with ``footprint_area_m2="auto"`` (the scan measures
@@ -10,7 +10,8 @@ and the footprint the scan measured against the true one. A summary checks the t
 than raw by more than 0.05 mm, at the edge within 10 % of the true-A_fp correction and at least 40 % better
 than raw where the raw edge error is above 3 mm, and the estimate within a factor 1.5 on corners whose edge
 multipath (the mean signed raw error there) is above 2 mm. ``--quick`` runs two scenes at two footprints (for a
-test).
+test); ``--held-out`` runs, instead of the main set, five corners kept out of the method's development
+(:data:`HELD_OUT`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.scenes import _edge, edge_region, mae_mm
+from benchmarks.scenes import EDGE_RADIUS_M, mae_mm
 from mpi_lidar.config import Config
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.learning.model import CorrectionModel, load_model
@@ -41,13 +42,27 @@ from mpi_lidar.simulation.scenes import (
     render,
 )
 
-Case = tuple[str, Callable[[], Scene], tuple[float, float] | None]  # label, factory, (x, z) of the corner edge
+EdgeLine = tuple[np.ndarray, np.ndarray]  # a point on a corner's edge and the edge's unit direction
+Case = tuple[str, Callable[[], Scene], EdgeLine | None]  # label, factory, the corner's edge
 
 # (angle [deg], edge distance [m], albedo): a spread over the three axes rather than their full product.
 CORNERS = ((60, 1.4, 0.5), (60, 2.4, 0.9), (90, 1.4, 0.9), (90, 2.0, 0.1), (90, 2.4, 0.5), (120, 1.4, 0.9),
            (120, 2.0, 0.5))
 FOOTPRINTS_M2 = (0.001, 0.004, 0.016, 0.041, 0.1)
 QUICK_FOOTPRINTS_M2 = (0.002, 0.041)
+# Corners held out of the method's development (``--held-out``): other angles, distances and albedos, boards
+# far beyond the view, ending inside it or at its border, a view off the bisector, a horizontal edge and two
+# albedos. (label, angle [deg], edge distance [m], albedo, the corner's keyword arguments)
+HELD_OUT: tuple[tuple[str, float, float, float, dict[str, float]], ...] = (
+    ("corner 75 deg, 1.8 m, albedo 0.3, boards 1 m, yaw 10 deg", 75, 1.8, 0.3, {"board_m": 1.0, "yaw_deg": 10}),
+    ("corner 105 deg, 2.2 m, albedo 0.7, boards 0.25 m, yaw -15 deg", 105, 2.2, 0.7,
+     {"board_m": 0.25, "yaw_deg": -15}),
+    ("corner 90 deg, 2 m, albedo 0.6, horizontal edge", 90, 2.0, 0.6,
+     {"board_m": 0.6, "half_height_m": 0.5, "roll_deg": 90}),
+    ("corner 80 deg, 2.3 m, albedo 0.8 / 0.3, boards 0.2 m high", 80, 2.3, 0.8,
+     {"half_height_m": 0.2, "albedo_right": 0.3}),
+    ("corner 90 deg, 1.6 m, albedo 0.5, boards 0.8 m, yaw 25 deg", 90, 1.6, 0.5, {"board_m": 0.8, "yaw_deg": 25}),
+)
 
 # Targets of the summary.
 MAX_AUTO_HARM_MM = 0.05
@@ -63,15 +78,38 @@ HEADER = ("| scene | true A_fp [m^2] | raw MAE [mm] | corrected, true A_fp [mm] 
           "|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
+def edge_line(distance: float, roll_deg: float = 0.0) -> EdgeLine:
+    """The edge of a corner ``distance`` away on the view's axis, vertical unless rolled by ``roll_deg``."""
+    roll = np.deg2rad(roll_deg)
+    return np.array([0.0, 0.0, distance]), np.array([-np.sin(roll), np.cos(roll), 0.0])
+
+
+def edge_line_region(scan: Scan, edge: EdgeLine) -> np.ndarray:
+    """Pixels whose true surface point lies within EDGE_RADIUS_M of the corner's edge line."""
+    point, direction = edge
+    offsets = scan.reference_depth[..., None] * scan.rays() - point
+    across = offsets - (offsets @ direction)[..., None] * direction
+    return np.linalg.norm(across, axis=-1) <= EDGE_RADIUS_M
+
+
 def corner_case(angle: float, distance: float, albedo: float) -> Case:
     return (f"corner {angle:g} deg, {distance:g} m, albedo {albedo:g}",
-            lambda: corner(float(angle), distance, albedo), _edge(distance))
+            lambda: corner(float(angle), distance, albedo), edge_line(distance))
 
 
-def scene_cases(quick: bool) -> list[Case]:
-    """The scenes of the run: corners (with an edge region) and scenes without facing surfaces or with several."""
+def held_out_cases() -> list[Case]:
+    return [(label, lambda a=angle, d=distance, r=albedo, k=shape: corner(float(a), d, r, **k),
+             edge_line(distance, shape.get("roll_deg", 0.0)))
+            for label, angle, distance, albedo, shape in HELD_OUT]
+
+
+def scene_cases(quick: bool, held_out: bool = False) -> list[Case]:
+    """The scenes of the run: corners (with an edge region) and scenes without facing surfaces or with several;
+    with ``held_out`` the corners kept out of the method's development instead."""
     if quick:
         return [corner_case(90, 2.0, 0.5), ("flat wall 0 deg", lambda: flat_wall(0.0), None)]
+    if held_out:
+        return held_out_cases()
     cases = [corner_case(*spec) for spec in CORNERS]
     cases += [(f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt)), None) for tilt in (0, 45)]
     return [*cases, ("cylinder", cylinder_scene, None), ("multi-object (Fig. 8)", multi_object, None)]
@@ -91,21 +129,21 @@ def usable_pixels(scan: Scan, *flag_maps: np.ndarray) -> np.ndarray:
     return usable
 
 
-def measure_row(label: str, scan: Scan, edge: tuple[float, float] | None, model: CorrectionModel,
+def measure_row(label: str, scan: Scan, edge: EdgeLine | None, model: CorrectionModel,
                 true_m2: float) -> dict[str, Any]:
     """Raw, true-A_fp and auto MAEs of one rendered scan, and the footprint it measured."""
     known = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=true_m2))
     auto = correct_scan(scan, model, CorrectionOptions(footprint_area_m2="auto"))
     usable = usable_pixels(scan, known.flags, auto.flags)
-    near = usable & edge_region(scan, edge) if edge else np.zeros_like(usable)
+    near = usable & edge_line_region(scan, edge) if edge is not None else np.zeros_like(usable)
     raw, reference = scan.depth[-1], scan.reference_depth
     estimate = auto.calibration
     row: dict[str, Any] = {"scene": label, "corner": edge is not None, "true_m2": true_m2}
     for name, depth in (("raw", raw), ("true", known.depth), ("auto", auto.depth)):
         row[f"{name}_mm"] = mae_mm(depth, reference, usable)
-        row[f"edge_{name}_mm"] = mae_mm(depth, reference, near) if edge else float("nan")
+        row[f"edge_{name}_mm"] = mae_mm(depth, reference, near) if edge is not None else float("nan")
     # The multipath near the edge: the mean signed raw error there (the noise averages out, the bias does not).
-    row["edge_multipath_mm"] = float(1e3 * np.mean((raw - reference)[near])) if edge and near.any() else float("nan")
+    row["edge_multipath_mm"] = float(1e3 * np.mean((raw - reference)[near])) if near.any() else float("nan")
     row["estimate_m2"] = estimate.area_m2 if estimate is not None else float("nan")
     row["sigma_m2"] = estimate.sigma_m2 if estimate is not None else float("inf")
     row["significant"] = bool(estimate is not None and estimate.significant)
@@ -113,13 +151,13 @@ def measure_row(label: str, scan: Scan, edge: tuple[float, float] | None, model:
     return row
 
 
-def run(model_path: str, quick: bool = False, seed: int = 0,
+def run(model_path: str, quick: bool = False, seed: int = 0, held_out: bool = False,
         on_row: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
     """One row per scene and true footprint (see :func:`measure_row`); ``on_row`` sees each as it is done."""
     model = load_model(model_path)
     config = Config()
     rows = []
-    for scene_index, (label, factory, edge) in enumerate(scene_cases(quick)):
+    for scene_index, (label, factory, edge) in enumerate(scene_cases(quick, held_out)):
         scene = factory()  # the geometry does not depend on the footprint: build it once
         for footprint_index, true_m2 in enumerate(QUICK_FOOTPRINTS_M2 if quick else FOOTPRINTS_M2):
             rng = np.random.default_rng([seed, scene_index, footprint_index])
@@ -224,6 +262,8 @@ def main() -> None:
     parser.add_argument("--model", required=True, help="Directory of a trained correction model.")
     parser.add_argument("--quick", action="store_true", help="Two scenes at two footprints only (for a test).")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--held-out", action="store_true",
+                        help="The corners kept out of the method's development instead of the main set.")
     parser.add_argument("--cost", action="store_true",
                         help="Only the CPU time the calibration adds to correcting a 1000 x 1000 scan.")
     args = parser.parse_args()
@@ -231,10 +271,10 @@ def main() -> None:
         print("\n".join(calibration_cost(args.model)))
         return
     print(f"Machine: {platform.node()} ({platform.machine()}), {date.today()}; model {args.model}, "
-          f"seed {args.seed}{', quick' if args.quick else ''}\n")
+          f"seed {args.seed}{', quick' if args.quick else ''}{', held-out corners' if args.held_out else ''}\n")
     print(HEADER, flush=True)
     start = time.perf_counter()
-    rows = run(args.model, args.quick, args.seed, on_row=lambda row: print(format_row(row), flush=True))
+    rows = run(args.model, args.quick, args.seed, args.held_out, on_row=lambda row: print(format_row(row), flush=True))
     print("\nSummary:\n")
     print("\n".join(summary(rows)))
     print(f"\nWall time: {time.perf_counter() - start:.0f} s for {len(rows)} rows")

@@ -350,19 +350,32 @@ def cornered_board(height: int = 120, width: int = 160, albedo: float = 0.8) -> 
     return Scene("cornered_board", boards, *_grid(height, width, 0.14, 0.105))
 
 
-def _board(edge: NDArray, along: NDArray, length: float, half_height: float, albedo: float) -> Rectangle:
+def _board(edge: NDArray, along: NDArray, length: float, half_height: float | NDArray, albedo: float) -> Rectangle:
+    """A board running ``length`` from ``edge`` along ``along``; ``half_height`` is its half extent along the
+    edge, as a length (the edge vertical) or as that half-extent vector."""
     centre = edge + along * length / 2
-    return Rectangle(tuple(centre), tuple(along * length / 2), (0.0, half_height, 0.0), albedo)
+    up = np.array([0.0, half_height, 0.0]) if np.isscalar(half_height) else np.asarray(half_height)
+    return Rectangle(tuple(centre), tuple(along * length / 2), tuple(up), albedo)
 
 
 def corner(angle_deg: float = 90.0, distance_m: float = 2.0, albedo: float = 0.8, height: int = 96,
-           width: int = 128) -> Scene:
-    """A concave corner of two boards meeting at ``angle_deg`` with its edge ``distance_m`` away, facing us."""
-    half = np.deg2rad(angle_deg) / 2
+           width: int = 128, *, board_m: float = 0.5, half_height_m: float = 0.35, yaw_deg: float = 0.0,
+           roll_deg: float = 0.0, albedo_right: float | None = None) -> Scene:
+    """A concave corner of two boards meeting at ``angle_deg`` with its edge ``distance_m`` away, facing us.
+
+    The boards run ``board_m`` from the edge and ``half_height_m`` either side of the view's axis along it
+    (the defaults reach beyond the view from 1.4 m on). ``yaw_deg`` turns the corner about its edge, so the
+    view is off its bisector; ``roll_deg`` turns the whole corner about the view's axis (90: a horizontal
+    edge, as where a wall meets the floor). ``albedo_right`` gives the right board its own albedo.
+    """
+    half, yaw, roll = np.deg2rad(angle_deg) / 2, np.deg2rad(yaw_deg), np.deg2rad(roll_deg)
+    turn = np.array([[np.cos(roll), -np.sin(roll), 0.0], [np.sin(roll), np.cos(roll), 0.0], [0.0, 0.0, 1.0]])
     edge = np.array([0.0, 0.0, distance_m])
-    left = np.array([-np.sin(half), 0.0, -np.cos(half)])
-    right = np.array([np.sin(half), 0.0, -np.cos(half)])
-    boards = (_board(edge, left, 0.5, 0.35, albedo), _board(edge, right, 0.5, 0.35, albedo))
+    left = turn @ np.array([-np.sin(half + yaw), 0.0, -np.cos(half + yaw)])
+    right = turn @ np.array([np.sin(half - yaw), 0.0, -np.cos(half - yaw)])
+    up = turn @ np.array([0.0, half_height_m, 0.0])
+    boards = (_board(edge, left, board_m, up, albedo),
+              _board(edge, right, board_m, up, albedo if albedo_right is None else albedo_right))
     return Scene(f"corner_{angle_deg:g}deg_{distance_m:g}m_a{albedo:g}", boards,
                  *_grid(height, width, 0.12, 0.09), notes={"angle_deg": angle_deg})
 

@@ -190,6 +190,20 @@ def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(
     assert all(row["auto_mm"] == row["raw_mm"] for row in wall)
 
 
+def test_calibration_benchmark__the_edge_region_follows_a_rolled_edge():
+    from benchmarks.calibration import edge_line, edge_line_region
+    from benchmarks.scenes import edge_region
+
+    upright = render(corner(90.0, 2.0, 0.8, height=24, width=32), Config(), np.random.default_rng(0))
+    # The vertical edge: the same pixels as the scene benchmark's own (x, z) distance.
+    np.testing.assert_array_equal(edge_line_region(upright, edge_line(2.0)), edge_region(upright, (0.0, 2.0)))
+    rolled = render(corner(90.0, 2.0, 0.8, height=24, width=32, roll_deg=90.0), Config(), np.random.default_rng(0))
+    near = edge_line_region(rolled, edge_line(2.0, roll_deg=90.0))
+    points = rolled.reference_depth[..., None] * rolled.rays()
+    np.testing.assert_array_equal(near, np.hypot(points[..., 1], points[..., 2] - 2.0) <= 0.2)
+    assert near.any() and not near.all()
+
+
 def test_calibration_diagnosis__the_surfaces_beyond_the_view_carry_the_strong_multipath():
     from benchmarks.calibration_diagnosis import diagnose
 

@@ -73,6 +73,32 @@ def test_render__corner_bias_is_positive_and_falls_away_from_the_edge():
     np.testing.assert_allclose(single.depth[-1][finite], single.reference_depth[finite], atol=1e-5)
 
 
+def _hit_points(scene):
+    scan = render(scene, NOISELESS, np.random.default_rng(0), coupling_gain=0.0)
+    points = (scan.reference_depth[..., None] * grid_rays(scene.azimuth_rad, scene.elevation_rad)).reshape(-1, 3)
+    return points[np.isfinite(points).all(1)].astype(np.float64)
+
+
+def test_corner__a_rolled_corner_has_a_horizontal_edge():
+    # Each board of a 90-degree corner with its edge at z = 2 m, turned to run up and down from a horizontal
+    # edge, holds the points with |y| = 2 - z.
+    x, y, z = _hit_points(corner(90.0, 2.0, 0.6, height=24, width=32, roll_deg=90.0)).T
+    np.testing.assert_allclose(np.abs(y), 2.0 - z, atol=1e-5)
+    assert (y > 0.01).any() and (y < -0.01).any() and np.ptp(x) > 0.3
+
+
+def test_corner__yaw_turns_the_boards_about_the_edge_and_ends_them_at_their_length():
+    half, yaw = np.deg2rad(50.0), np.deg2rad(15.0)
+    scene = corner(100.0, 2.2, 0.7, height=24, width=48, board_m=0.25, yaw_deg=15.0, albedo_right=0.3)
+    x, _, z = _hit_points(scene).T
+    left, right = x < 0, x > 0
+    # From the edge (0, 2.2) the left board runs at half + yaw from the view's axis, the right at half - yaw.
+    np.testing.assert_allclose(-x[left], (2.2 - z[left]) * np.tan(half + yaw), atol=1e-5)
+    np.testing.assert_allclose(x[right], (2.2 - z[right]) * np.tan(half - yaw), atol=1e-5)
+    assert np.hypot(x, 2.2 - z).max() <= 0.25 + 1e-6, "no point beyond the boards' length"
+    assert [surface.albedo for surface in scene.surfaces] == [0.7, 0.3]
+
+
 def test_light_transport__one_patch_matches_the_two_path_closed_form():
     """A single small patch in front of a board: the depth bias is the closed form of eq 11 with its ratio."""
     board = Rectangle((0.0, 0.0, 2.0), (0.5, 0.0, 0.0), (0.0, 0.5, 0.0), albedo=0.8)
