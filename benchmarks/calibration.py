@@ -260,10 +260,11 @@ def calibration_cost(model_path: str, side: int = 1000, repeats: int = 3) -> lis
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", required=True, help="Directory of a trained correction model.")
-    parser.add_argument("--quick", action="store_true", help="Two scenes at two footprints only (for a test).")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--held-out", action="store_true",
+    scenes = parser.add_mutually_exclusive_group()
+    scenes.add_argument("--quick", action="store_true", help="Two scenes at two footprints only (for a test).")
+    scenes.add_argument("--held-out", action="store_true",
                         help="The corners kept out of the method's development instead of the main set.")
+    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cost", action="store_true",
                         help="Only the CPU time the calibration adds to correcting a 1000 x 1000 scan.")
     args = parser.parse_args()
