@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.scenes import EDGE_RADIUS_M, mae_mm
+from benchmarks.scenes import EdgeLine, edge_line, edge_line_region, mae_mm
 from mpi_lidar.config import Config
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.learning.model import CorrectionModel, load_model
@@ -42,7 +42,6 @@ from mpi_lidar.simulation.scenes import (
     render,
 )
 
-EdgeLine = tuple[np.ndarray, np.ndarray]  # a point on a corner's edge and the edge's unit direction
 Case = tuple[str, Callable[[], Scene], EdgeLine | None]  # label, factory, the corner's edge
 
 # (angle [deg], edge distance [m], albedo): a spread over the three axes rather than their full product.
@@ -76,20 +75,6 @@ HEADER = ("| scene | true A_fp [m^2] | raw MAE [mm] | corrected, true A_fp [mm] 
           "| edge true A_fp [mm] | edge auto [mm] | edge multipath [mm] | estimated A_fp [m^2] (+-sigma) "
           "| estimate / true | significant |\n"
           "|---|---|---|---|---|---|---|---|---|---|---|---|")
-
-
-def edge_line(distance: float, roll_deg: float = 0.0) -> EdgeLine:
-    """The edge of a corner ``distance`` away on the view's axis, vertical unless rolled by ``roll_deg``."""
-    roll = np.deg2rad(roll_deg)
-    return np.array([0.0, 0.0, distance]), np.array([-np.sin(roll), np.cos(roll), 0.0])
-
-
-def edge_line_region(scan: Scan, edge: EdgeLine) -> np.ndarray:
-    """Pixels whose true surface point lies within EDGE_RADIUS_M of the corner's edge line."""
-    point, direction = edge
-    offsets = scan.reference_depth[..., None] * scan.rays() - point
-    across = offsets - (offsets @ direction)[..., None] * direction
-    return np.linalg.norm(across, axis=-1) <= EDGE_RADIUS_M
 
 
 def corner_case(angle: float, distance: float, albedo: float) -> Case:

@@ -49,21 +49,26 @@ from mpi_lidar.simulation.scenes import (
 EDGE_RADIUS_M = 0.2
 
 
-def _edge(distance_m: float) -> tuple[float, float]:
-    return 0.0, distance_m  # (x, z) of a vertical corner edge
+EdgeLine = tuple[np.ndarray, np.ndarray]  # a point on a corner's edge and the edge's unit direction
 
 
-def scene_set() -> list[tuple[str, Callable[[], Scene], tuple[float, float] | None]]:
+def edge_line(distance: float, roll_deg: float = 0.0) -> EdgeLine:
+    """The edge of a corner ``distance`` away on the view's axis, vertical unless rolled by ``roll_deg``."""
+    roll = np.deg2rad(roll_deg)
+    return np.array([0.0, 0.0, distance]), np.array([-np.sin(roll), np.cos(roll), 0.0])
+
+
+def scene_set() -> list[tuple[str, Callable[[], Scene], EdgeLine | None]]:
     """(label, scene factory, (x, z) of the vertical corner edge or None) of the evaluation set."""
-    scenes: list[tuple[str, Callable[[], Scene], tuple[float, float] | None]] = [
+    scenes: list[tuple[str, Callable[[], Scene], EdgeLine | None]] = [
         (f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt)), None) for tilt in (0, 30, 60)]
     scenes += [("cylinder", cylinder_scene, None), ("sphere", sphere_scene, None)]
     for angle, distance, albedo in ((60, 2.0, 0.8), (90, 2.0, 0.8), (120, 2.0, 0.8), (90, 1.8, 0.8),
                                     (90, 2.3, 0.8), (90, 2.0, 0.3)):
         scenes.append((f"corner {angle} deg, {distance} m, albedo {albedo}",
-                       lambda a=angle, d=distance, r=albedo: corner(float(a), d, r), _edge(distance)))
-    scenes += [("cornered board (Fig. 7)", cornered_board, _edge(2.25)),
-               ("wooden corner (Fig. 10)", wooden_corner, _edge(2.3)),
+                       lambda a=angle, d=distance, r=albedo: corner(float(a), d, r), edge_line(distance)))
+    scenes += [("cornered board (Fig. 7)", cornered_board, edge_line(2.25)),
+               ("wooden corner (Fig. 10)", wooden_corner, edge_line(2.3)),
                ("multi-object (Fig. 8)", multi_object, None)]
     return scenes
 
@@ -85,10 +90,12 @@ def external_corner(footprint_radius_m: float, config: Config, rng: np.random.Ge
                              reference_mask=reference.reference_mask)
 
 
-def edge_region(scan: Scan, edge_xz: tuple[float, float]) -> np.ndarray:
-    """Pixels whose true surface point lies within EDGE_RADIUS_M of the vertical corner edge line."""
-    points = scan.reference_depth[..., None] * scan.rays()
-    return np.hypot(points[..., 0] - edge_xz[0], points[..., 2] - edge_xz[1]) <= EDGE_RADIUS_M
+def edge_line_region(scan: Scan, edge: EdgeLine) -> np.ndarray:
+    """Pixels whose true surface point lies within EDGE_RADIUS_M of the corner's edge line."""
+    point, direction = edge
+    offsets = scan.reference_depth[..., None] * scan.rays() - point
+    across = offsets - (offsets @ direction)[..., None] * direction
+    return np.linalg.norm(across, axis=-1) <= EDGE_RADIUS_M
 
 
 def mae_mm(values: np.ndarray, reference: np.ndarray, where: np.ndarray) -> float:
@@ -148,13 +155,13 @@ def main() -> None:
     print("| scene | model | gate | min bias [mm] | gated out | raw MAE [mm] | corrected MAE [mm] | masked raw "
           "[mm] | masked corrected [mm] | edge raw [mm] | edge corrected [mm] | gate ms |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    items: list[tuple[str, Scan, tuple[float, float] | None, float | None]] = []
+    items: list[tuple[str, Scan, EdgeLine | None, float | None]] = []
     for index, (label, factory, edge) in enumerate(scene_set()):
         items.append((label, render(factory(), config, np.random.default_rng([args.seed, index])), edge, None))
     for k, radius in enumerate((0.004, DEFAULT_FOOTPRINT_RADIUS_M * 2)):
         scan = external_corner(radius, config, np.random.default_rng([args.seed, 100 + k]))
         area = footprint_area(radius, MATCHED_FOOTPRINT_GAIN) if args.matched_footprint else None
-        items.append((f"external corner 90 deg, footprint {radius * 1e3:g} mm", scan, _edge(2.0), area))
+        items.append((f"external corner 90 deg, footprint {radius * 1e3:g} mm", scan, edge_line(2.0), area))
     for label, scan, edge, footprint_area_m2 in items:
         for path, model in models.items():
             for gate in gates:
@@ -170,13 +177,13 @@ def main() -> None:
                     gated = np.isin(correction.flags, [Flag.NOT_NEEDED, Flag.NO_MULTIPATH])[in_range].mean()
                     raw, ref = scan.depth[-1], scan.reference_depth
                     masked = usable & scan.reference_mask
-                    near = usable & edge_region(scan, edge) if edge else np.zeros_like(usable)
+                    near = usable & edge_line_region(scan, edge) if edge is not None else np.zeros_like(usable)
                     cells = [label, path.rstrip("/").split("/")[-1], gate,
                              f"{threshold:g}" if gate == "geometry" else "", f"{100 * gated:.1f} %",
                              f"{mae_mm(raw, ref, usable):.3f}", f"{mae_mm(correction.depth, ref, usable):.3f}",
                              f"{mae_mm(raw, ref, masked):.3f}", f"{mae_mm(correction.depth, ref, masked):.3f}",
-                             f"{mae_mm(raw, ref, near):.3f}" if edge else "",
-                             f"{mae_mm(correction.depth, ref, near):.3f}" if edge else "",
+                             f"{mae_mm(raw, ref, near):.3f}" if edge is not None else "",
+                             f"{mae_mm(correction.depth, ref, near):.3f}" if edge is not None else "",
                              f"{1e3 * correction.gate_s:.0f}"]
                     print("| " + " | ".join(cells) + " |", flush=True)
 

@@ -346,15 +346,14 @@ def cornered_board(height: int = 120, width: int = 160, albedo: float = 0.8) -> 
     yaw = np.deg2rad(12)
     left = np.array([-np.cos(np.pi / 4 + yaw), 0.0, -np.sin(np.pi / 4 + yaw)])  # from the edge along each board
     right = np.array([np.cos(np.pi / 4 - yaw), 0.0, -np.sin(np.pi / 4 - yaw)])
-    boards = (_board(edge, left, 0.45, 0.35, albedo), _board(edge, right, 0.45, 0.35, albedo))
+    up = np.array([0.0, 0.35, 0.0])
+    boards = (_board(edge, left, 0.45, up, albedo), _board(edge, right, 0.45, up, albedo))
     return Scene("cornered_board", boards, *_grid(height, width, 0.14, 0.105))
 
 
-def _board(edge: NDArray, along: NDArray, length: float, half_height: float | NDArray, albedo: float) -> Rectangle:
-    """A board running ``length`` from ``edge`` along ``along``; ``half_height`` is its half extent along the
-    edge, as a length (the edge vertical) or as that half-extent vector."""
+def _board(edge: NDArray, along: NDArray, length: float, up: NDArray, albedo: float) -> Rectangle:
+    """A board running ``length`` from ``edge`` along ``along`` and ``up`` (its half extent) either side."""
     centre = edge + along * length / 2
-    up = np.array([0.0, half_height, 0.0]) if np.isscalar(half_height) else np.asarray(half_height)
     return Rectangle(tuple(centre), tuple(along * length / 2), tuple(up), albedo)
 
 

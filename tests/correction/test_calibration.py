@@ -191,12 +191,13 @@ def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(
 
 
 def test_calibration_benchmark__the_edge_region_follows_a_rolled_edge():
-    from benchmarks.calibration import edge_line, edge_line_region
-    from benchmarks.scenes import edge_region
+    from benchmarks.scenes import edge_line, edge_line_region
 
     upright = render(corner(90.0, 2.0, 0.8, height=24, width=32), Config(), np.random.default_rng(0))
-    # The vertical edge: the same pixels as the scene benchmark's own (x, z) distance.
-    np.testing.assert_array_equal(edge_line_region(upright, edge_line(2.0)), edge_region(upright, (0.0, 2.0)))
+    # The vertical edge: the pixels within 20 cm of the line x = 0, z = 2 m.
+    upright_points = upright.reference_depth[..., None] * upright.rays()
+    np.testing.assert_array_equal(edge_line_region(upright, edge_line(2.0)),
+                                  np.hypot(upright_points[..., 0], upright_points[..., 2] - 2.0) <= 0.2)
     rolled = render(corner(90.0, 2.0, 0.8, height=24, width=32, roll_deg=90.0), Config(), np.random.default_rng(0))
     near = edge_line_region(rolled, edge_line(2.0, roll_deg=90.0))
     points = rolled.reference_depth[..., None] * rolled.rays()
