@@ -580,8 +580,24 @@ class _Problem:
             area += step
             if robust and abs(step) <= tolerance * max(abs(area), 1e-4):
                 break
-        sigma_area = spread / np.sqrt(information) if information > 0 else float("inf")
-        return FootprintEstimate(float(area), float(sigma_area), informative, self.surfaces, method)
+        variance = 1.0 / information
+        if planes is not None and use_depth:
+            variance += self._plane_noise(weight * slope, surface_range, bias, anchor) / information**2
+        return FootprintEstimate(float(area), float(spread * np.sqrt(variance)), informative, self.surfaces, method)
+
+    def _plane_noise(self, weighted_slope: NDArray, surface_range: NDArray, bias: NDArray, anchor: NDArray) -> float:
+        """The variance the anchors' noise adds to the fit's numerator through the planes, in units of the
+        residuals' variance: sum over surfaces of h_s' M_s^-1 h_s.
+
+        A plane u (u . ray = 1 / range) fitted to the anchors with their inverse variances has covariance
+        M_s^-1, its normal matrix; a fit row's range then moves by -range^2 ray . du, and the numerator
+        sum w g r by h_s . du with h_s the sum over the surface's fit rows of w g range^2 ray. On a narrow
+        surface, whose plane rests on a strip of anchors, this term outweighs the fit rows' own noise.
+        """
+        pull = np.nan_to_num(weighted_slope.sum(1) * surface_range**2)[:, None] * self.rays
+        pulls = self.members @ pull
+        matrices = self._plane_system(bias, anchor)[0]
+        return float(np.einsum("si,si->", pulls, np.linalg.solve(matrices, pulls[..., None])[..., 0]))
 
     def _amplitude_terms(self, planes: NDArray, surface_range: NDArray, gain: NDArray, gain_slope: NDArray,
                          trusted: NDArray, weights: NDArray, robust: bool) -> tuple[float, float, NDArray, float]:
@@ -632,17 +648,21 @@ class _Problem:
         The plane u . ray = 1 / range is a weighted least-squares fit per surface of the inverse-variance
         mean depth over the frequencies, each anchor weighted by its range noise (d(1/r) = dr / r^2).
         """
-        inverse_variance = self.inverse_variance
-        total = inverse_variance.sum(1)
-        depth = ((self.depth - bias) * inverse_variance).sum(1) / total
-        weight = np.where(anchor, depth**4 * total, 0.0)
-        weighted_members = self.members * weight
-        matrices = (weighted_members @ self.ray_outer).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
-        vectors = (weighted_members / depth) @ self.rays
+        matrices, vectors = self._plane_system(bias, anchor)
         planes = np.linalg.solve(matrices, vectors[..., None])[..., 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             inverse_range = np.einsum("ni,ni->n", self.rays, planes[self.surface])
             return np.where(inverse_range > 0, 1.0 / inverse_range, np.nan), planes
+
+    def _plane_system(self, bias: NDArray, anchor: NDArray) -> tuple[NDArray, NDArray]:
+        """Normal equations (matrices (S, 3, 3), vectors (S, 3)) of the surfaces' planes u . ray = 1 / range,
+        fitted to the anchors' inverse-variance mean depth over the frequencies less the predicted bias, each
+        anchor weighted by the inverse variance of 1 / range (d(1/r) = dr / r^2)."""
+        total = self.inverse_variance.sum(1)
+        depth = ((self.depth - bias) * self.inverse_variance).sum(1) / total
+        weighted_members = self.members * np.where(anchor, depth**4 * total, 0.0)
+        matrices = (weighted_members @ self.ray_outer).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
+        return matrices, (weighted_members / depth) @ self.rays
 
 
 def _huber(z: NDArray, spread: float) -> NDArray:

@@ -69,7 +69,7 @@ class PlanePartners:
                                                    set(self.patches))
         # The planes each surface receives light from: those its blocks have facing pairs with.
         a, b = blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b]
-        self.facing = {own: {int(p) for p in np.unique(components[b[labels[a] == own]])} & set(self.patches)
+        self.facing = {own: {int(p) for p in np.unique(components[b[labels[a] == own]])} & set(self.patches) - {own}
                        for own in self.planes}
 
     def at_points(self, rays: NDArray, surface: NDArray, frequencies_hz: tuple[float, ...],
@@ -105,7 +105,13 @@ class PlanePartners:
     def nearest_surface(self, rays: NDArray, range_m: NDArray, block_rows: NDArray, block_columns: NDArray,
                         labels: NDArray) -> NDArray[np.intp]:
         """Each point's flat surface: of the surfaces (``labels``, (Hb, Wb)) of its block and the eight around
-        it, the one whose plane lies nearest the range it measured; its block's label where none is a plane."""
+        it, the one whose plane lies nearest the range it measured; its block's label where none is a plane.
+
+        A surface whose plane the ray meets behind the plane of a surface facing it is no candidate: past
+        their shared edge the other surface is the one seen. Next to an edge the two planes lie within the
+        noise of each other, and a pixel given the wrong one there has no coupling, so it would join the
+        anchors and tilt its plane (on a 120-degree corner without multipath by 0.7 mm at the edge, read as
+        a footprint of several 10^-3 m^2)."""
         hb, wb = labels.shape
         surface = labels[block_rows, block_columns].copy()
         gap = np.full(surface.shape, np.inf)
@@ -119,9 +125,18 @@ class PlanePartners:
                     points = _on_plane(rays[rows], self.planes[int(plane_surface)])
                     with np.errstate(invalid="ignore"):
                         distance = np.abs(np.linalg.norm(points, axis=1) - range_m[rows])
+                        distance[self._behind_a_partner(points, int(plane_surface))] = np.inf
                         nearer = distance < gap[rows]
                     surface[rows[nearer]], gap[rows[nearer]] = plane_surface, distance[nearer]
         return surface
+
+    def _behind_a_partner(self, points: NDArray, surface: int) -> NDArray[np.bool_]:
+        """Points (n,) on ``surface``'s plane that lie behind the plane of a surface facing it."""
+        behind = np.zeros(points.shape[0], dtype=bool)
+        for partner in self.facing[surface]:
+            normal, centre, _ = self.planes[partner]
+            behind |= (points - centre) @ normal < 0
+        return behind
 
     def near_other_surface(self, coordinates: tuple[NDArray, NDArray], surface: NDArray, labels: NDArray
                            ) -> NDArray[np.bool_]:
@@ -161,17 +176,23 @@ def _narrow_components(blocks: FacingBlocks, components: NDArray) -> set[int]:
 def _surface_planes(blocks: FacingBlocks, labels: NDArray, narrow: set[int]
                     ) -> dict[int, tuple[NDArray, NDArray, float]]:
     """Per flat surface that is not narrow: unit normal (towards the scanner), visible centre [m] and the
-    distance of its farthest block from that centre [m]."""
-    centres, normals = blocks.centres.reshape(-1, 3), blocks.normals.reshape(-1, 3)
+    distance of its farthest block from that centre [m].
+
+    The plane is the least-squares plane through the surface's block centres. The blocks' own normals would
+    not do: fitted to 3 cm of noisy pixels whose noise runs along the rays, each tilts away from the ray
+    (errors in variables), and their sum turned a 90-degree corner 2.4 m away (albedo 0.5) into 86.5
+    degrees, whose coupling is 15 % stronger. The centres are means, free of that bias.
+    """
+    centres = blocks.centres.reshape(-1, 3)
     planes = {}
     for surface in np.unique(labels[labels >= 0]):
         if int(surface) in narrow:
             continue
-        members = np.flatnonzero(labels == surface)
-        normal = normals[members].sum(0)
-        normal /= np.linalg.norm(normal)
-        centre = centres[members].mean(0)
-        planes[int(surface)] = (normal, centre, float(np.linalg.norm(centres[members] - centre, axis=1).max()))
+        members = centres[labels == surface]
+        centre = members.mean(0)
+        normal = np.linalg.svd(members - centre, full_matrices=False)[2][-1]
+        normal = -normal if normal @ centre > 0 else normal
+        planes[int(surface)] = (normal, centre, float(np.linalg.norm(members - centre, axis=1).max()))
     return planes
 
 

@@ -7,7 +7,7 @@ import pytest
 import zarr
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction import CorrectionOptions, Flag, calibration, correct_scan
 from mpi_lidar.correction.calibration import FootprintEstimate, estimate_footprint, evenly_chosen, pool_estimates
 from mpi_lidar.correction.profile import SensorProfile, read_profile, write_profile
 from mpi_lidar.errors import MpiLidarError
@@ -60,6 +60,39 @@ def test_estimate__from_the_scans_own_surfaces_at_a_small_footprint():
 def test_estimate__a_flat_wall_measures_nothing_usable():
     found = estimate(rendered(flat_wall(0.0), 0.041))
     assert not found.significant
+
+
+def strip_corner_problem(depth: np.ndarray | None, true_m2: float, noise_m: float) -> calibration._Problem:
+    """The fit of a 90-degree corner 2 m away seen as two strips 10 cm high and 2-30 cm from the edge, each
+    pixel's coupling kappa = 0.13 / (pi^2 a^2) at the distance a from the edge; ``depth`` None: noiseless
+    at ``true_m2``."""
+    freqs = np.array(Config().frequencies_hz)
+    metres_per_rad = Config().sensor.speed_of_light_m_per_s / (4 * np.pi * freqs)
+    along_edge, up = np.meshgrid(np.linspace(0.02, 0.3, 40), np.linspace(-0.05, 0.05, 5), indexing="ij")
+    a = np.tile(along_edge.ravel(), 2)
+    side = np.repeat([-1.0, 1.0], along_edge.size)
+    points = np.column_stack([side * a * np.sqrt(0.5), np.tile(up.ravel(), 2), 2.0 - a * np.sqrt(0.5)])
+    true_range = np.linalg.norm(points, axis=1)
+    kappa = 0.13 / (np.pi**2 * a**2)
+    phasor = 0.5 * kappa[:, None] * np.exp(1j * a[:, None] * np.sqrt(2) / metres_per_rad[None])
+    sigma = np.full((a.size, freqs.size), noise_m)
+    arguments = (sigma, phasor, kappa, metres_per_rad, np.ones_like(sigma), points / true_range[:, None], side, None)
+    if depth is None:
+        depth = true_range[:, None] + calibration._Problem(np.zeros_like(sigma), *arguments).bias(true_m2)[0]
+    return calibration._Problem(depth, *arguments)
+
+
+def test_estimate__statistical_sigma_matches_the_scatter_over_noise_draws(monkeypatch):
+    # Each strip's plane rests on its far pixels (the anchors) and reaches the edge by extrapolation, so the
+    # anchors' noise moves the estimate more than the fit rows' own noise: sigma must hold both (Monte Carlo).
+    monkeypatch.setattr(calibration, "SYSTEMATIC_SHARE", 0.0)
+    rng = np.random.default_rng(0)
+    clean = strip_corner_problem(None, 0.02, 0.002).depth
+    found = [strip_corner_problem(clean + rng.normal(0.0, 0.002, clean.shape), 0.02, 0.002)
+             .solve("planes", check=False, start_m2=0.02) for _ in range(300)]
+    estimates = np.array([f.area_m2 for f in found])
+    assert np.median([f.sigma_m2 for f in found]) == pytest.approx(estimates.std(), rel=0.2)
+    assert estimates.mean() == pytest.approx(0.02, rel=0.1)
 
 
 @pytest.mark.parametrize(("shape", "share", "count"), [((50, 70), 0.3, 100), ((3, 5), 0.5, 2), ((400, 300), 0.01, 1000),
