@@ -53,6 +53,9 @@ MIN_SURFACE_BLOCKS = 3
 # surface with fewer anchors than this has no plane to measure against.
 ANCHOR_SHARE = 0.4
 MIN_ANCHOR_PIXELS = 50
+# A surface whose anchors lie along a line leaves its plane free to turn about it: the condition number of
+# the plane's normal matrix shows it (a few 10^3 on the boards of the benchmarks, above 10^17 on a line).
+MAX_PLANE_CONDITION = 1e8
 # Pixels the fit uses at most: a subsample on a regular stride keeps the cost a small share of correction
 # (the systematic uncertainty below dwarfs the statistical one long before).
 MAX_FIT_PIXELS = 12_000
@@ -623,14 +626,16 @@ class _Problem:
         return float((weight * slope * residual).sum()), float((weight * slope**2).sum()), weights, spread
 
     def _anchored(self) -> _Problem:
-        """This problem without the surfaces that have too few anchors to fix a plane.
+        """This problem without the surfaces whose anchors cannot fix a plane: too few, or along a line.
 
         A strip along an edge that the multipath bent away from its surface has pixels close to their
-        partners only: it has no plane to measure the bias against.
+        partners only: it has no plane to measure the bias against. A plane its anchors leave free to turn
+        could put any bias on its other pixels.
         """
         anchor = self._anchor_rows()
         anchors = np.bincount(self.surface, anchor, minlength=self.surfaces)
-        keep = anchors[self.surface] >= MIN_ANCHOR_PIXELS
+        fixed = np.linalg.cond(self._plane_system(np.zeros_like(self.depth), anchor)[0]) < MAX_PLANE_CONDITION
+        keep = ((anchors >= MIN_ANCHOR_PIXELS) & fixed)[self.surface]
         kept = _Problem(self.depth[keep], self.sigma[keep], self.phasor[keep], self.kappa[keep], self.metres_per_rad,
                         np.exp(self.log_amplitude[keep]), self.rays[keep], self.surface[keep], None)
         kept.anchor = anchor[keep]

@@ -95,6 +95,28 @@ def test_estimate__statistical_sigma_matches_the_scatter_over_noise_draws(monkey
     assert estimates.mean() == pytest.approx(0.02, rel=0.1)
 
 
+def test_estimate__a_surface_whose_anchors_lie_along_a_line_is_left_out():
+    # One row of pixels fixes no plane: it could turn about the row and put any bias on the surface's other
+    # pixels (on a rendered 60-degree corner such a strip made sigma 2 m^2). The row's 60 anchors are 40 % of
+    # its 150 pixels, so the corner keeps its own anchors.
+    clean = strip_corner_problem(None, 0.02, 0.002)
+    alone = strip_corner_problem(clean.depth + np.random.default_rng(1).normal(0.0, 0.002, clean.depth.shape),
+                                 0.02, 0.002)
+    row = np.column_stack([np.linspace(-0.3, 0.3, 150), np.full(150, 0.12), np.full(150, 2.2)])
+    row_kappa = np.where(np.arange(150) < 60, 1e-4, 5.0)
+    row_phasor = 0.5 * row_kappa[:, None] * np.exp(0.1j * np.arange(1, 5))[None]
+    both = calibration._Problem(
+        np.concatenate([alone.depth, np.linalg.norm(row, axis=1)[:, None] + np.zeros((1, 4))]),
+        np.concatenate([alone.sigma, np.full((150, 4), 0.002)]), np.concatenate([alone.phasor, row_phasor]),
+        np.concatenate([alone.kappa, row_kappa]), alone.metres_per_rad, np.ones((alone.depth.shape[0] + 150, 4)),
+        np.concatenate([alone.rays, row / np.linalg.norm(row, axis=1, keepdims=True)]),
+        np.concatenate([alone.surface, np.full(150, 2)]), None)
+    expected, found = (p.solve("planes", check=False, start_m2=0.02) for p in (alone, both))
+    assert found.surfaces == 2
+    assert found.area_m2 == pytest.approx(expected.area_m2, rel=1e-6)
+    assert found.sigma_m2 == pytest.approx(expected.sigma_m2, rel=1e-6)
+
+
 @pytest.mark.parametrize(("shape", "share", "count"), [((50, 70), 0.3, 100), ((3, 5), 0.5, 2), ((400, 300), 0.01, 1000),
                                                   ((40, 30), 0.9, 10_000), ((10, 10), 0.0, 5), ((100, 100), 1.0, 37)])
 def test_fit_pixels__row_by_row_stride_picks_what_the_flat_stride_picks(shape, share, count):
