@@ -258,7 +258,8 @@ def calibration_cost(model_path: str, side: int = 1000, repeats: int = 3) -> lis
     share = auto / given - 1
     return [f"Correction of a {side} x {side} cornered board: footprint given {given:.2f} CPU s, auto {auto:.2f} "
             f"CPU s (median of {repeats}): calibration adds {100 * share:.0f} % against <= 20 %: "
-            f"{_verdict(share <= 0.20)}; its estimate {estimate:.3g} m^2 for a true {DEFAULT_FOOTPRINT_AREA_M2:.3g} m^2"]
+            f"{_verdict(share <= 0.20)}; its estimate {estimate:.3g} m^2 for a true "
+            f"{DEFAULT_FOOTPRINT_AREA_M2:.3g} m^2"]
 
 
 def main() -> None:
