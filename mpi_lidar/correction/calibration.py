@@ -181,6 +181,12 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         if last or not np.isfinite(found.area_m2) or found.area_m2 <= 0:
             break
         area = found.area_m2
+        if not reference:
+            # Strong multipath bends each surface near its partners, so the planes through its blocks meet
+            # at too sharp an angle and predict too much coupling; the planes of the fit rest on the anchors
+            # less the bias predicted at this estimate.
+            coupling = PixelCoupling(scan, blocks, components, labels, pixels, depth[:, -1], sensor,
+                                     problem.anchored_planes(area))
         gain = np.abs(1.0 + area * block_phasors(albedo)[:, -1] / np.maximum(area * unit_kappa, 1.0))
         albedo = surface_albedo(measured_albedo / gain, components, unit_kappa)
     return found
@@ -198,9 +204,9 @@ class PixelCoupling:
     """
 
     def __init__(self, scan: Scan, blocks: FacingBlocks, components: NDArray, labels: NDArray, pixels: NDArray,
-                 measured_range: NDArray, sensor: SensorConfig):
+                 measured_range: NDArray, sensor: SensorConfig, fitted: dict[int, NDArray] | None = None):
         self.blocks = blocks
-        self.partners = PlanePartners(scan, blocks, components, labels)
+        self.partners = PlanePartners(scan, blocks, components, labels, fitted)
         grid = labels.reshape(blocks.usable.shape)
         ys, xs = np.divmod(pixels, blocks.shape[1])
         b = blocks.block_pixels
@@ -440,7 +446,7 @@ class _Problem:
         self.log_amplitude = np.log(np.maximum(relative_amplitude, 1e-12))
         self.sigma_log = sigma / metres_per_rad
         self.metres_per_rad, self.rays, self.reference = metres_per_rad, rays, reference
-        _, self.surface = np.unique(surface, return_inverse=True)
+        self.labels, self.surface = np.unique(surface, return_inverse=True)
         self.surfaces = int(self.surface.max()) + 1 if surface.size else 0
         # Sums per surface as one matrix product: (surfaces, n) one-hot rows.
         self.members = (self.surface[None, :] == np.arange(self.surfaces)[:, None]).astype(np.float64)
@@ -639,7 +645,15 @@ class _Problem:
         kept = _Problem(self.depth[keep], self.sigma[keep], self.phasor[keep], self.kappa[keep], self.metres_per_rad,
                         np.exp(self.log_amplitude[keep]), self.rays[keep], self.surface[keep], None)
         kept.anchor = anchor[keep]
+        kept.labels = self.labels[np.unique(self.surface[keep])]
         return kept
+
+    def anchored_planes(self, area: float) -> dict[int, NDArray]:
+        """The planes u . x = 1 of the surfaces that have some, fitted to their anchors less the bias predicted
+        at footprint ``area``, by surface label."""
+        kept = self._anchored()
+        planes = kept._plane_range(kept.bias(area, amplitude=False)[0], kept.anchor)[1]
+        return {int(label): planes[k] for k, label in enumerate(kept.labels)}
 
     def _anchor_rows(self) -> NDArray[np.bool_]:
         """Pixels that fix the surfaces' planes: the share ``ANCHOR_SHARE`` of all with the least coupling."""

@@ -57,10 +57,14 @@ class PlanePartners:
     are :attr:`curved` (receivers on a plane, partners on none) and :attr:`off_plane` (receivers on none).
     """
 
-    def __init__(self, scan: Scan, blocks: FacingBlocks, components: NDArray, labels: NDArray):
+    def __init__(self, scan: Scan, blocks: FacingBlocks, components: NDArray, labels: NDArray,
+                 fitted: dict[int, NDArray] | None = None):
         narrow = _narrow_components(blocks, components)
         self.block_rays = _block_rays(scan, blocks)
         self.planes = _surface_planes(blocks, labels, narrow)
+        for surface, plane in (fitted or {}).items():
+            if surface in self.planes:
+                self.planes[surface] = _moved_plane(self.planes[surface], plane)
         self.patches = _surface_patches(blocks, components, self.planes, self.block_rays)
         self.partners = sorted(self.patches)
         # A block of each plane's surface, whose albedo stands for the plane's.
@@ -194,6 +198,14 @@ def _surface_planes(blocks: FacingBlocks, labels: NDArray, narrow: set[int]
         normal = -normal if normal @ centre > 0 else normal
         planes[int(surface)] = (normal, centre, float(np.linalg.norm(members - centre, axis=1).max()))
     return planes
+
+
+def _moved_plane(plane: tuple[NDArray, NDArray, float], fitted: NDArray) -> tuple[NDArray, NDArray, float]:
+    """A surface's plane (normal, visible centre, visible size) moved onto the plane u . x = 1 (``fitted``):
+    its normal, and the visible centre projected onto it."""
+    _, centre, visible_m = plane
+    normal = -fitted / np.linalg.norm(fitted)  # u . x = 1 > 0 on the plane: -u points to the scanner
+    return normal, centre - (centre @ fitted - 1.0) / (fitted @ fitted) * fitted, visible_m
 
 
 def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int, tuple[NDArray, NDArray, float]],
