@@ -20,12 +20,15 @@ Each surface's plane is fitted to the share of its pixels with the least predict
 after the predicted bias is taken off, and A is fitted to the other pixels' depth over their plane: a
 Gauss-Newton fit weighted by the moment model's noise at each pixel's amplitude, with Huber weights against
 outliers, whose derivative includes the planes' own motion with A and which starts from the best footprint
-of a coarse grid (the residuals are not convex in A where the multipath is strong). The uncertainty is the
-statistical one (scaled by the robust spread of the standardized residuals) combined with a systematic
-share of the estimate, the spread measured on rendered corners. Multipath adds light as well as range: the
-same model fitted to the amplitude (one albedo per surface eliminated) must tell the same footprint to a
-factor of three, or the estimate is not significant. With a reference depth (``reference=True``) the depth
-residual is measured against it directly and the planes are not needed.
+of a coarse grid (the residuals are not convex in A where the multipath is strong). A second round takes
+its partner planes from the first round's fit (strong multipath bends each surface near its partners, and
+the planes through its blocks meet at too sharp an angle). The uncertainty is the statistical one (the fit
+pixels' noise and the anchors' through their planes, scaled by the robust spread of the standardized
+residuals) combined with a systematic share of the estimate, the spread measured on rendered corners.
+Multipath adds light as well as range: the same model fitted to the amplitude (one albedo per surface
+eliminated) must tell the same footprint to a factor of three, or the estimate is not significant. With a
+reference depth (``reference=True``) the depth residual is measured against it directly and the planes are
+not needed.
 """
 
 from __future__ import annotations
@@ -649,8 +652,8 @@ class _Problem:
         return kept
 
     def anchored_planes(self, area: float) -> dict[int, NDArray]:
-        """The planes u . x = 1 of the surfaces that have some, fitted to their anchors less the bias predicted
-        at footprint ``area``, by surface label."""
+        """The planes u . x = 1 of the surfaces whose anchors fix one, fitted to the anchors less the bias
+        predicted at footprint ``area``, by surface label."""
         kept = self._anchored()
         planes = kept._plane_range(kept.bias(area, amplitude=False)[0], kept.anchor)[1]
         return {int(label): planes[k] for k, label in enumerate(kept.labels)}

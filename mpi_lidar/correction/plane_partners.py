@@ -53,8 +53,10 @@ class PlanePartners:
     """The flat surfaces of a scan as planes with their patches, and the curved partners' block pairs.
 
     :meth:`at_points` gives the white unit-footprint coupling of points from every modelled plane, each point
-    on its own surface's plane. The block pairs (A, B, kappa at 1 m^2, distance) the planes do not describe
-    are :attr:`curved` (receivers on a plane, partners on none) and :attr:`off_plane` (receivers on none).
+    on its own surface's plane. The planes run through the surfaces' block centres; ``fitted`` planes
+    (u . x = 1, by surface label) take the place of those it names. The block pairs (A, B, kappa at 1 m^2,
+    distance) the planes do not describe are :attr:`curved` (receivers on a plane, partners on none) and
+    :attr:`off_plane` (receivers on none).
     """
 
     def __init__(self, scan: Scan, blocks: FacingBlocks, components: NDArray, labels: NDArray,
