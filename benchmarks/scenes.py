@@ -59,7 +59,7 @@ def edge_line(distance: float, roll_deg: float = 0.0) -> EdgeLine:
 
 
 def scene_set() -> list[tuple[str, Callable[[], Scene], EdgeLine | None]]:
-    """(label, scene factory, (x, z) of the vertical corner edge or None) of the evaluation set."""
+    """(label, scene factory, the corner's edge line or None) of the evaluation set."""
     scenes: list[tuple[str, Callable[[], Scene], EdgeLine | None]] = [
         (f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt)), None) for tilt in (0, 30, 60)]
     scenes += [("cylinder", cylinder_scene, None), ("sphere", sphere_scene, None)]

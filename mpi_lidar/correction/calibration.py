@@ -486,7 +486,7 @@ class _Problem:
         footprint the depth fit starts from (an earlier estimate saves iterations; without one, the best of a
         coarse grid, :meth:`_best_start`); the amplitude's starts from the depth's estimate.
         """
-        problem = self if self.reference is not None else self._anchored()
+        problem = self if self.reference is not None else self.anchored
         start_m2 = start_m2 or problem._best_start()
         found = problem._solve(method, use_depth=True, use_amplitude=False, start_m2=start_m2)
         if not np.isfinite(found.area_m2) or abs(found.area_m2) > MAX_PLAUSIBLE_M2:
@@ -634,8 +634,10 @@ class _Problem:
             weight = np.where(trusted, weights / self.sigma_log**2, 0.0)
         return float((weight * slope * residual).sum()), float((weight * slope**2).sum()), weights, spread
 
-    def _anchored(self) -> _Problem:
-        """This problem without the surfaces whose anchors cannot fix a plane: too few, or along a line.
+    @functools.cached_property
+    def anchored(self) -> _Problem:
+        """This problem without the surfaces whose anchors cannot fix a plane: too few, or along a line (built
+        once: the fit and the second round's partner planes both rest on it).
 
         A strip along an edge that the multipath bent away from its surface has pixels close to their
         partners only: it has no plane to measure the bias against. A plane its anchors leave free to turn
@@ -654,7 +656,7 @@ class _Problem:
     def anchored_planes(self, area: float) -> dict[int, NDArray]:
         """The planes u . x = 1 of the surfaces whose anchors fix one, fitted to the anchors less the bias
         predicted at footprint ``area``, by surface label."""
-        kept = self._anchored()
+        kept = self.anchored
         planes = kept._plane_range(kept.bias(area, amplitude=False)[0], kept.anchor)[1]
         return {int(label): planes[k] for k, label in enumerate(kept.labels)}
 
