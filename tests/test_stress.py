@@ -288,3 +288,19 @@ def test_correct_scan__every_pixel_finite_or_flagged_invalid(tiny_model):
     assert np.all(flags[8:16] == Flag.OUT_OF_RANGE)  # beyond the training prior: left as measured
     np.testing.assert_array_equal(out[8:16], depth[8:16, 3].astype(np.float32))
     assert np.all(flags[:8] == Flag.CORRECTED)
+
+
+def test_correct_scan__nearer_than_the_prior_is_corrected_down_to_the_near_fraction(tiny_model):
+    # multipath only lengthens a path: a depth measured below the prior's 1.4 m is truly that near, and the
+    # default rule trusts the model down to 15 % nearer (1.19 m); nearer still, and past 2.4 m, raw depth stays
+    config = Config()
+    d_as = np.repeat([1.25, 1.30, 1.05, 1.10], 5)
+    theta = _single_path(d_as, 0.7)
+    theta[:, 1], theta[:, 4] = 0.05, 0.3  # multipath, so the measured depths lie above the true ones
+    depth, amplitude = make_sensor(config).measure(theta, np.random.default_rng(8))
+    scan = Scan(name="near", frequencies_hz=PAPER_FREQUENCIES_HZ, depth=depth.T.reshape(4, 4, 5).astype(np.float32),
+                amplitude=amplitude.T.reshape(4, 4, 5).astype(np.float32))
+    flags = correct_scan(scan, tiny_model, CorrectionOptions(gate="all")).flags.ravel()
+    assert np.all(flags[:10] == Flag.CORRECTED) and np.all(flags[10:] == Flag.OUT_OF_RANGE)
+    strict = correct_scan(scan, tiny_model, CorrectionOptions(gate="all", near_range_fraction=0.0)).flags
+    assert np.all(strict == Flag.OUT_OF_RANGE)

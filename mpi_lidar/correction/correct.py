@@ -78,9 +78,11 @@ def in_model_range(depth: NDArray, model: CorrectionModel, options: CorrectionOp
 
 
 def in_depth_range(depth: NDArray, d_as_m: tuple[float, float], options: CorrectionOptions) -> NDArray[np.bool_]:
-    """Whether measured depths [m] lie in the range ``d_as_m`` [m] widened by ``options.range_tolerance_m``."""
+    """Whether measured depths [m] lie in the range ``d_as_m`` [m], its near end moved in by
+    ``options.near_range_fraction`` of itself, both ends widened by ``options.range_tolerance_m``."""
     low, high = d_as_m
-    return (depth >= low - options.range_tolerance_m) & (depth <= high + options.range_tolerance_m)
+    nearest = low * (1.0 - options.near_range_fraction) - options.range_tolerance_m
+    return (depth >= nearest) & (depth <= high + options.range_tolerance_m)
 
 
 def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,

@@ -69,8 +69,12 @@ class CorrectionOptions(BaseModel):
     min_amplitude_sigmas: NonNegative = 5.0
     saturation_amplitude_v2: Positive = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
     max_depth_spread_m: Positive = 0.3
-    # Zero: near the edge of its prior the model pulls depths inwards, so beyond it raw depth is safer.
+    # Zero: near the far end of its prior the model pulls depths inwards, so beyond it raw depth is safer.
     range_tolerance_m: NonNegative = 0.0
+    # Multipath only lengthens a path, so a depth measured nearer than the prior's nearest d_AS is truly that
+    # near, and down to 15 % nearer the model's error is that of the prior's own near end
+    # (benchmarks/model_range.py): such depths are corrected, not left raw.
+    near_range_fraction: Annotated[float, Field(ge=0, lt=1)] = 0.15
     consistency_p_value: Annotated[float, Field(gt=0, lt=1)] = 0.01
     min_multipath_bias_m: NonNegative = 0.004
     geometry_block_m: Positive = geometry.DEFAULT_BLOCK_M

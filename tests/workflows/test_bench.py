@@ -9,7 +9,7 @@ from click.testing import CliRunner
 
 from mpi_lidar.cli import cli
 from mpi_lidar.config import Config
-from mpi_lidar.correction import ConsistencyGate
+from mpi_lidar.correction import ConsistencyGate, CorrectionOptions
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.workflows.bench import (
     TEST_STREAM,
@@ -110,7 +110,8 @@ def test_range_guarded_depth__raw_outside_the_prior_range_model_inside(small_mod
     raw_depth = top_depth(CONFIG.frequencies_hz)(far.raw)
     tol = 0.01
     guarded = range_guarded_depth(small_model, spec, far.raw, CONFIG.prior.d_as_m, tolerance_m=tol)
-    outside = (raw_depth < 1.4 - tol) | (raw_depth > 2.4 + tol)
+    nearest = 1.4 * (1 - CorrectionOptions().near_range_fraction)  # measured nearer is truly nearer
+    outside = (raw_depth < nearest - tol) | (raw_depth > 2.4 + tol)
     assert outside.sum() > 1_000 and (~outside).sum() > 1_000
     assert np.array_equal(guarded[outside], raw_depth[outside])
     model = np.asarray(spec.depth(far.raw, small_model.inplace_predict(spec.transform(far.raw)).astype(np.float64)))
