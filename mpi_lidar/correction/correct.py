@@ -2,9 +2,12 @@
 
 Each pixel gets one flag saying what was done (:class:`Flag`). Invalid pixels (no finite value, no return
 above the noise floor, saturated, frequencies that disagree by more than a phase wrap could explain) keep
-NaN. Valid pixels whose depth lies outside the range the model was trained on keep their raw depth (trees
-do not extrapolate). Valid pixels the gate lets through are corrected by the model; the others keep the
-raw depth of the highest frequency, exactly as measured. The default gate, ``geometry``, corrects only
+NaN. Valid pixels whose depth lies beyond the far end of the range the model was trained on keep their raw
+depth (trees do not extrapolate, and near that end the model pulls depths inwards), as do those more than
+15 % nearer than its near end (``CorrectionOptions.near_range_fraction``: multipath only lengthens a path,
+so a depth measured near is truly near, and just below its range the model corrects as well as inside
+it). Valid pixels the gate lets through are corrected by the model; the others keep the raw depth of the
+highest frequency, exactly as measured. The default gate, ``geometry``, corrects only
 where the scan's own geometry lets another surface send light back (:mod:`mpi_lidar.scans.geometry`); a scan
 without geometry falls back to pixel-wise correction of every valid pixel, and its report says so. A model
 trained with geometric inputs gets the geometry's coupling and d_AB for each pixel it corrects (computed

@@ -99,6 +99,8 @@ class CorrectionOptions(BaseModel):
         pixels = self.model_dump(exclude=STATUS_ONLY_OPTIONS)
         if pixels["sensor_profile_sha256"] is None:  # hashes from before profiles existed stay the same
             del pixels["sensor_profile_sha256"]
+        if pixels["near_range_fraction"] == 0:  # the rule before it existed: those outputs keep their hash
+            del pixels["near_range_fraction"]
         return hashlib.sha256(json.dumps(pixels, sort_keys=True).encode()).hexdigest()
 
     @property

@@ -243,12 +243,14 @@ def test_scan_status__degraded_then_unchanged_then_corrected():
 
 
 def test_correction_options__max_invalid_share_is_bounded_and_not_hashed():
-    # the hash of the defaults before max_invalid_share and the self-calibrating footprint existed: outputs
-    # written then are still recognised when the old footprint is given
+    # the hash of the defaults before max_invalid_share, the self-calibrating footprint and the near range
+    # existed: outputs written then are still recognised when the old footprint and range rule are given
     from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 
-    old_defaults = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
+    old_defaults = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2, near_range_fraction=0.0)
     assert old_defaults.sha256() == "60f34a4236aaaebe7317d65a6b26b44fb18bdd6d4b7e20a9cb91fc30bd1028ed"
+    # correcting depths below the prior changes pixels: not the same identity
+    assert CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2).sha256() != old_defaults.sha256()
     assert CorrectionOptions(max_invalid_share=0.9).sha256() == CorrectionOptions().sha256()
     assert CorrectionOptions().sha256() != old_defaults.sha256()  # auto changes pixels: not the same identity
     assert CorrectionOptions.from_cli(max_invalid_share=0.25).max_invalid_share == 0.25
