@@ -111,29 +111,39 @@ class PlanePartners:
     def nearest_surface(self, rays: NDArray, range_m: NDArray, block_rows: NDArray, block_columns: NDArray,
                         labels: NDArray) -> NDArray[np.intp]:
         """Each point's flat surface: of the surfaces (``labels``, (Hb, Wb)) of its block and the eight around
-        it, the one whose plane lies nearest the range it measured; its block's label where none is a plane.
+        it, and the surfaces facing those, the one whose plane lies nearest the range it measured; its block's
+        label where none is a plane.
 
         A surface whose plane the ray meets behind the plane of a surface facing it is no candidate: past
         their shared edge the other surface is the one seen. Next to an edge the two planes lie within the
         noise of each other, and a pixel given the wrong one there has no coupling, so it would join the
         anchors and tilt its plane (on a 120-degree corner without multipath by 0.7 mm at the edge, read as
-        a footprint of several 10^-3 m^2)."""
+        a footprint of several 10^-3 m^2). The facing surfaces are candidates because strong multipath bends
+        a surface's blocks next to its edge away from it (they are left out of every surface): the block a
+        pixel lies in may then belong to the other surface alone, whose plane it lies behind."""
         hb, wb = labels.shape
         surface = labels[block_rows, block_columns].copy()
-        gap = np.full(surface.shape, np.inf)
+        planes = sorted(self.planes)
+        candidate = np.zeros((surface.size, len(planes)), dtype=bool)
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
-                candidate = labels[np.clip(block_rows + dy, 0, hb - 1), np.clip(block_columns + dx, 0, wb - 1)]
-                for plane_surface in np.unique(candidate):
-                    if int(plane_surface) not in self.planes:
-                        continue
-                    rows = np.flatnonzero(candidate == plane_surface)
-                    points = _on_plane(rays[rows], self.planes[int(plane_surface)])
-                    with np.errstate(invalid="ignore"):
-                        distance = np.abs(np.linalg.norm(points, axis=1) - range_m[rows])
-                        distance[self._behind_a_partner(points, int(plane_surface))] = np.inf
-                        nearer = distance < gap[rows]
-                    surface[rows[nearer]], gap[rows[nearer]] = plane_surface, distance[nearer]
+                around = labels[np.clip(block_rows + dy, 0, hb - 1), np.clip(block_columns + dx, 0, wb - 1)]
+                for column, plane_surface in enumerate(planes):
+                    candidate[:, column] |= around == plane_surface
+        column_of = {plane_surface: column for column, plane_surface in enumerate(planes)}
+        with_partners = candidate.copy()
+        for column, plane_surface in enumerate(planes):
+            for partner in self.facing[plane_surface] & set(column_of):
+                with_partners[:, column_of[partner]] |= candidate[:, column]
+        gap = np.full(surface.shape, np.inf)
+        for column, plane_surface in enumerate(planes):
+            rows = np.flatnonzero(with_partners[:, column])
+            points = _on_plane(rays[rows], self.planes[plane_surface])
+            with np.errstate(invalid="ignore"):
+                distance = np.abs(np.linalg.norm(points, axis=1) - range_m[rows])
+                distance[self._behind_a_partner(points, plane_surface)] = np.inf
+                nearer = distance < gap[rows]
+            surface[rows[nearer]], gap[rows[nearer]] = plane_surface, distance[nearer]
         return surface
 
     def _behind_a_partner(self, points: NDArray, surface: int) -> NDArray[np.bool_]:
