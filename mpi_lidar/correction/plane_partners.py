@@ -124,13 +124,14 @@ class PlanePartners:
         hb, wb = labels.shape
         surface = labels[block_rows, block_columns].copy()
         planes = sorted(self.planes)
+        column_of = {plane_surface: column for column, plane_surface in enumerate(planes)}
         candidate = np.zeros((surface.size, len(planes)), dtype=bool)
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
                 around = labels[np.clip(block_rows + dy, 0, hb - 1), np.clip(block_columns + dx, 0, wb - 1)]
-                for column, plane_surface in enumerate(planes):
-                    candidate[:, column] |= around == plane_surface
-        column_of = {plane_surface: column for column, plane_surface in enumerate(planes)}
+                for label in np.unique(around):
+                    if int(label) in column_of:
+                        candidate[:, column_of[int(label)]] |= around == label
         with_partners = candidate.copy()
         for column, plane_surface in enumerate(planes):
             for partner in self.facing[plane_surface] & set(column_of):
