@@ -76,12 +76,14 @@ HUBER_K = 2.0
 CONVERGED_STEP = 1e-3
 # The amplitude's check only has to agree to a factor AMPLITUDE_AGREEMENT: a 1 % step ends it.
 CHECK_STEP = 1e-2
+# A round before the last sets only the next one's start, albedos and partner planes: a 1 % step ends it.
+EARLY_ROUND_STEP = 1e-2
 # Relative step of A for the planes' derivative.
 PLANE_STEP = 1e-3
 # Footprints [m^2] the depth fit may start from: 0 and 1 mm^2 ... 0.5 m^2 in factors of two.
 START_GRID_M2 = (0.0, *(1e-3 * 2.0**k for k in range(10)))
-# Estimates of A, each with the albedos less the light the multipath adds at the previous one.
-ALBEDO_ITERATIONS = 2
+# The first of the two rounds sets only the second's start, albedos and partner planes: every third pixel.
+FIRST_ROUND_STRIDE = 3
 # Systematic uncertainty of an estimate, as a share of it: the spread of estimate / truth on rendered corners.
 SYSTEMATIC_SHARE = 0.25
 # The amplitude must tell the same footprint as the depth to this factor.
@@ -165,34 +167,33 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     sigma = quadrature_noise_v2(sensor, scan.frequencies_hz, amplitude) / np.maximum(amplitude, 1e-12)
     sigma = np.maximum(sigma * metres_per_rad, 1e-5)
     usable = np.isfinite(depth).all(1) & np.isfinite(sigma).all(1)
-    coupling = PixelCoupling(scan, blocks, components, labels, pixels, depth[:, -1], sensor)
     reference_depth = scan.reference_depth.ravel()[pixels].astype(np.float64) if reference else None
+    method = "reference" if reference else "planes"
+
+    def problem(rows: NDArray, albedo: NDArray, planes: dict[int, NDArray] | None = None) -> _Problem:
+        coupling = PixelCoupling(scan, blocks, components, labels, pixels[rows], depth[rows, -1], sensor, planes)
+        phasor, kappa = coupling(albedo)
+        return _Problem(depth[rows], sigma[rows], phasor, kappa, metres_per_rad, amplitude[rows] / sensor.gamma_r_v2,
+                        coupling.rays, coupling.surface, None if reference_depth is None else reference_depth[rows])
+
     # Multipath adds light, so the amplitude overstates the albedo most where the partners that matter lie
-    # (the strip along an edge); each estimate of A takes that excess off the albedos for the next.
+    # (the strip along an edge); the first round's estimate takes that excess off the albedos for the second.
     measured_albedo = block_albedo(scan, blocks, sensor)
     albedo = surface_albedo(measured_albedo, components, unit_kappa)
-    found = NOTHING_MEASURED
-    area = 0.0
+    rows = np.flatnonzero(usable)
+    first_problem = problem(rows[::FIRST_ROUND_STRIDE], albedo)
+    first = first_problem.solve(method, check=False, tolerance=EARLY_ROUND_STEP)
+    if not (np.isfinite(first.area_m2) and first.area_m2 > 0):
+        return problem(rows, albedo).solve(method)  # no multipath to correct for: one round on every pixel
+    area = first.area_m2
+    # Strong multipath bends each surface near its partners, so the planes through its blocks meet at too
+    # sharp an angle and predict too much coupling; the planes of the fit rest on the anchors less the bias
+    # predicted at the first estimate.
+    planes = None if reference else first_problem.anchored_planes(area)
     block_phasors = BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
-    for iteration in range(ALBEDO_ITERATIONS):
-        phasor, kappa = coupling(albedo)
-        problem = _Problem(depth[usable], sigma[usable], phasor[usable], kappa[usable], metres_per_rad,
-                           amplitude[usable] / sensor.gamma_r_v2, coupling.rays[usable], coupling.surface[usable],
-                           None if reference_depth is None else reference_depth[usable])
-        last = iteration == ALBEDO_ITERATIONS - 1
-        found = problem.solve("reference" if reference else "planes", check=last, start_m2=area)
-        if last or not np.isfinite(found.area_m2) or found.area_m2 <= 0:
-            break
-        area = found.area_m2
-        if not reference:
-            # Strong multipath bends each surface near its partners, so the planes through its blocks meet
-            # at too sharp an angle and predict too much coupling; the planes of the fit rest on the anchors
-            # less the bias predicted at this estimate.
-            coupling = PixelCoupling(scan, blocks, components, labels, pixels, depth[:, -1], sensor,
-                                     problem.anchored_planes(area))
-        gain = np.abs(1.0 + area * block_phasors(albedo)[:, -1] / np.maximum(area * unit_kappa, 1.0))
-        albedo = surface_albedo(measured_albedo / gain, components, unit_kappa)
-    return found
+    gain = np.abs(1.0 + area * block_phasors(albedo)[:, -1] / np.maximum(area * unit_kappa, 1.0))
+    albedo = surface_albedo(measured_albedo / gain, components, unit_kappa)
+    return problem(rows, albedo, planes).solve(method, start_m2=area)
 
 
 class PixelCoupling:
@@ -476,7 +477,8 @@ class _Problem:
         gain = np.where(capped, 1.0, np.sqrt(norm2))
         return bias, slope, gain, (s_re * x + s_im * y) * inverse
 
-    def solve(self, method: str, check: bool = True, start_m2: float = 0.0) -> FootprintEstimate:
+    def solve(self, method: str, check: bool = True, start_m2: float = 0.0,
+              tolerance: float = CONVERGED_STEP) -> FootprintEstimate:
         """The footprint from the depth residuals, over the fitted planes or against the reference depth.
 
         The statistical uncertainty is combined with a systematic one, ``SYSTEMATIC_SHARE`` of the estimate:
@@ -484,11 +486,12 @@ class _Problem:
         beyond the field of view, 3 cm blocks). ``check``: compare with the amplitude (see
         :meth:`_amplitude_agrees`); an estimate that fails the check is not significant. ``start_m2``: the
         footprint the depth fit starts from (an earlier estimate saves iterations; without one, the best of a
-        coarse grid, :meth:`_best_start`); the amplitude's starts from the depth's estimate.
+        coarse grid, :meth:`_best_start`); the amplitude's starts from the depth's estimate. ``tolerance``: the
+        relative step of A that ends the fit.
         """
         problem = self if self.reference is not None else self.anchored
         start_m2 = start_m2 or problem._best_start()
-        found = problem._solve(method, use_depth=True, use_amplitude=False, start_m2=start_m2)
+        found = problem._solve(method, use_depth=True, use_amplitude=False, start_m2=start_m2, tolerance=tolerance)
         if not np.isfinite(found.area_m2) or abs(found.area_m2) > MAX_PLAUSIBLE_M2:
             # No receiver sees a square metre: such a number comes from a few spurious facing blocks.
             return FootprintEstimate(float("nan"), float("inf"), found.pixels, found.surfaces, method)
@@ -524,7 +527,7 @@ class _Problem:
         anchor, fit_rows = self._anchor_and_fit_rows()
         best, best_spread = 0.0, np.inf
         for area in START_GRID_M2:
-            bias = self.bias(area)[0]
+            bias = self.bias(area, amplitude=False)[0]
             surface_range = self._surface_range(bias, anchor)[0]
             rows = fit_rows & self._trusted(area, surface_range)
             if rows.sum() < MIN_INFORMATIVE_PIXELS:
