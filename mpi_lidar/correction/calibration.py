@@ -20,9 +20,10 @@ Each surface's plane is fitted to the share of its pixels with the least predict
 after the predicted bias is taken off, and A is fitted to the other pixels' depth over their plane: a
 Gauss-Newton fit weighted by the moment model's noise at each pixel's amplitude, with Huber weights against
 outliers, whose derivative includes the planes' own motion with A and which starts from the best footprint
-of a coarse grid (the residuals are not convex in A where the multipath is strong). A second round takes
-its partner planes from the first round's fit (strong multipath bends each surface near its partners, and
-the planes through its blocks meet at too sharp an angle). The uncertainty is the statistical one (the fit
+of a coarse grid (the residuals are not convex in A where the multipath is strong). A first round on every
+third pixel gives the second, on every pixel, its start, its albedos and its partner planes (strong
+multipath bends each surface near its partners, and the planes through its blocks meet at too sharp an
+angle). The uncertainty is the statistical one (the fit
 pixels' noise and the anchors' through their planes, scaled by the robust spread of the standardized
 residuals) combined with a systematic share of the estimate, the spread measured on rendered corners.
 Multipath adds light as well as range: the same model fitted to the amplitude (one albedo per surface

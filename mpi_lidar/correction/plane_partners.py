@@ -121,24 +121,12 @@ class PlanePartners:
         a footprint of several 10^-3 m^2). The facing surfaces are candidates because strong multipath bends
         a surface's blocks next to its edge away from it (they are left out of every surface): the block a
         pixel lies in may then belong to the other surface alone, whose plane it lies behind."""
-        hb, wb = labels.shape
         surface = labels[block_rows, block_columns].copy()
         planes = sorted(self.planes)
-        column_of = {plane_surface: column for column, plane_surface in enumerate(planes)}
-        candidate = np.zeros((surface.size, len(planes)), dtype=bool)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                around = labels[np.clip(block_rows + dy, 0, hb - 1), np.clip(block_columns + dx, 0, wb - 1)]
-                for label in np.unique(around):
-                    if int(label) in column_of:
-                        candidate[:, column_of[int(label)]] |= around == label
-        with_partners = candidate.copy()
-        for column, plane_surface in enumerate(planes):
-            for partner in self.facing[plane_surface] & set(column_of):
-                with_partners[:, column_of[partner]] |= candidate[:, column]
+        candidate = self._candidate_planes(planes, block_rows, block_columns, labels)
         gap = np.full(surface.shape, np.inf)
         for column, plane_surface in enumerate(planes):
-            rows = np.flatnonzero(with_partners[:, column])
+            rows = np.flatnonzero(candidate[:, column])
             points = _on_plane(rays[rows], self.planes[plane_surface])
             with np.errstate(invalid="ignore"):
                 distance = np.abs(np.linalg.norm(points, axis=1) - range_m[rows])
@@ -146,6 +134,25 @@ class PlanePartners:
                 nearer = distance < gap[rows]
             surface[rows[nearer]], gap[rows[nearer]] = plane_surface, distance[nearer]
         return surface
+
+    def _candidate_planes(self, planes: list[int], block_rows: NDArray, block_columns: NDArray, labels: NDArray
+                          ) -> NDArray[np.bool_]:
+        """Per point (n,) and plane of ``planes`` (P,): whether the plane's surface is that of the point's block
+        or one of the eight around it, or faces one of those."""
+        hb, wb = labels.shape
+        column_of = {plane_surface: column for column, plane_surface in enumerate(planes)}
+        around_point = np.zeros((block_rows.size, len(planes)), dtype=bool)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                around = labels[np.clip(block_rows + dy, 0, hb - 1), np.clip(block_columns + dx, 0, wb - 1)]
+                for label in np.unique(around):
+                    if int(label) in column_of:
+                        around_point[:, column_of[int(label)]] |= around == label
+        candidate = around_point.copy()
+        for column, plane_surface in enumerate(planes):
+            for partner in self.facing[plane_surface] & set(column_of):
+                candidate[:, column_of[partner]] |= around_point[:, column]
+        return candidate
 
     def _behind_a_partner(self, points: NDArray, surface: int) -> NDArray[np.bool_]:
         """Points (n,) on ``surface``'s plane that lie behind the plane of a surface facing it."""
