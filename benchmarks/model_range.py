@@ -26,8 +26,8 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, in_model_range
 from mpi_lidar.learning.features import synthetic_geometry
 from mpi_lidar.learning.model import CorrectionModel, load_model
-from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
 from mpi_lidar.simulation.sampling import THETA_NAMES
+from mpi_lidar.workflows.bench import simulate, top_depth
 
 # Bins of the true d_AS as fractions of the prior's nearest (below) and farthest (above) d_AS.
 BELOW = ((0.70, 0.80), (0.80, 0.85), (0.85, 0.90), (0.90, 0.95), (0.95, 1.00), (1.00, 1.07))
@@ -69,17 +69,16 @@ def measure_bin(model: CorrectionModel, d_as_m: tuple[float, float], rows: int, 
                 options: CorrectionOptions) -> RangeBin:
     """One bin: ``rows`` rows of the model's prior with the true d_AS drawn in ``d_as_m`` [m]."""
     card = model.card
-    config = Config().replace(prior={**card.dataset.prior.model_dump(), "d_as_m": d_as_m},
-                              simulator=card.dataset.simulator.model_dump())
-    raw, theta = simulate_rows(config, rows, seeded_rng(config.dataset.seed, stream))
+    config = Config().replace(prior=card.dataset.prior.model_dump(), simulator=card.dataset.simulator.model_dump())
+    sample = simulate(config, rows, stream, d_as_m=d_as_m)
     geometry = None
     if model.geometric:
         errors = card.geometry_error_model.model_dump() if card.geometry_error_model else None
-        geometry = synthetic_geometry(theta, THETA_NAMES, config.prior, config.dataset.seed + stream,
+        geometry = synthetic_geometry(sample.theta, THETA_NAMES, config.prior, config.dataset.seed + stream,
                                       np.arange(rows), errors)
-    truth = theta[:, 0]
-    measured = raw[:, len(config.frequencies_hz) - 1]
-    corrected = model.predict_depth(raw, geometry)
+    truth = sample.target
+    measured = top_depth(config.frequencies_hz)(sample.raw)
+    corrected = model.predict_depth(sample.raw, geometry)
     inside = in_model_range(measured, model, options)
     rule = np.where(inside, corrected, measured)
     weak = (measured - truth) < WEAK_BIAS_M

@@ -150,7 +150,7 @@ class PlanePartners:
                         around_point[:, column_of[int(label)]] |= around == label
         candidate = around_point.copy()
         for column, plane_surface in enumerate(planes):
-            for partner in self.facing[plane_surface] & set(column_of):
+            for partner in self.facing[plane_surface]:  # patched surfaces, all of them planes
                 candidate[:, column_of[partner]] |= around_point[:, column]
         return candidate
 
