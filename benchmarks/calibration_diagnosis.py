@@ -97,9 +97,9 @@ def exact_estimates(scan: Scan, blocks: geometry.FacingBlocks, valid: NDArray, s
     phasor, kappa = exact_unit_phasors(scan, angle_deg, albedo, pixels, sensor.speed_of_light_m_per_s)
     arguments = (depth, sigma, phasor, kappa, metres_per_rad, amplitude / sensor.gamma_r_v2, scan.pixel_rays(ys, xs),
                  surface)
-    planes = calibration._Problem(*arguments, None).solve("planes", check=False)
+    planes = calibration._Problem(*arguments, None).solve("planes", with_amplitude=False)
     reference = calibration._Problem(*arguments, scan.reference_depth.ravel()[pixels].astype(np.float64))
-    return planes, reference.solve("reference", check=False)
+    return planes, reference.solve("reference", with_amplitude=False)
 
 
 def diagnose(angle: float, distance: float, albedo: float, true_m2: float, seed: int, max_pixels: int

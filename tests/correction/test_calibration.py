@@ -85,11 +85,11 @@ def strip_corner_problem(depth: np.ndarray | None, true_m2: float, noise_m: floa
 def test_estimate__statistical_sigma_matches_the_scatter_over_noise_draws(monkeypatch):
     # Each strip's plane rests on its far pixels (the anchors) and reaches the edge by extrapolation, so the
     # anchors' noise moves the estimate more than the fit rows' own noise: sigma must hold both (Monte Carlo).
-    monkeypatch.setattr(calibration, "SYSTEMATIC_SHARE", 0.0)
+    monkeypatch.setattr(calibration, "DEPTH_SYSTEMATIC_SHARE", 0.0)
     rng = np.random.default_rng(0)
     clean = strip_corner_problem(None, 0.02, 0.002).depth
     found = [strip_corner_problem(clean + rng.normal(0.0, 0.002, clean.shape), 0.02, 0.002)
-             .solve("planes", check=False, start_m2=0.02) for _ in range(300)]
+             .solve("planes", with_amplitude=False, start_m2=0.02) for _ in range(300)]
     estimates = np.array([f.area_m2 for f in found])
     assert np.median([f.sigma_m2 for f in found]) == pytest.approx(estimates.std(), rel=0.2)
     assert estimates.mean() == pytest.approx(0.02, rel=0.1)
@@ -111,10 +111,58 @@ def test_estimate__a_surface_whose_anchors_lie_along_a_line_is_left_out():
         np.concatenate([alone.kappa, row_kappa]), alone.metres_per_rad, np.ones((alone.depth.shape[0] + 150, 4)),
         np.concatenate([alone.rays, row / np.linalg.norm(row, axis=1, keepdims=True)]),
         np.concatenate([alone.surface, np.full(150, 2)]), None)
-    expected, found = (p.solve("planes", check=False, start_m2=0.02) for p in (alone, both))
+    expected, found = (p.solve("planes", with_amplitude=False, start_m2=0.02) for p in (alone, both))
     assert found.surfaces == 2
     assert found.area_m2 == pytest.approx(expected.area_m2, rel=1e-6)
     assert found.sigma_m2 == pytest.approx(expected.sigma_m2, rel=1e-6)
+
+
+def lit_strip_corner(true_m2: float, light_m2: float, noise_m: float, seed: int) -> calibration._Problem:
+    """:func:`strip_corner_problem` with noisy depth at ``true_m2`` and a Lambertian amplitude (albedo 0.6)
+    that holds the multipath gain of ``light_m2``, with the noise the depth's implies (sigma_log =
+    sigma_depth / metres per radian)."""
+    rng = np.random.default_rng(seed)
+    clean = strip_corner_problem(None, true_m2, noise_m)
+    ranges = 1.0 / np.einsum("ni,ni->n", clean.rays, np.where(clean.surface[:, None] == 0, [-0.5, 0, 0.5],
+                                                                 [0.5, 0, 0.5]))
+    direct = 0.6 / (np.sqrt(0.5) * ranges**3)  # rho cos_i / t^2, cos_i = 1 / (t |u|) with |u| = sqrt(1/2)
+    gain = clean.bias(light_m2)[2]
+    amplitude = direct[:, None] * gain * np.exp(rng.normal(0.0, 1.0, gain.shape) * clean.sigma_log)
+    return calibration._Problem(clean.depth + rng.normal(0.0, noise_m, clean.depth.shape), clean.sigma,
+                                clean.phasor, clean.kappa, clean.metres_per_rad, amplitude, clean.rays,
+                                np.where(clean.surface == 0, -1.0, 1.0), None)
+
+
+def test_estimate__the_amplitude_joins_the_depth_by_their_relative_uncertainties():
+    # Depth and light both hold 0.02 m^2 and Gaussian noise: the joined estimate lies between the two and is
+    # surer than the depth's alone.
+    problem = lit_strip_corner(0.02, 0.02, 0.002, seed=3)
+    depth = problem.solve("planes", with_amplitude=False, start_m2=0.02)
+    joined = problem.solve("planes", start_m2=0.02)
+    light = problem.anchored._solve("planes", use_depth=False, use_amplitude=True, start_m2=0.02)
+    assert light.area_m2 == pytest.approx(0.02, rel=0.05) and joined.area_m2 == pytest.approx(0.02, rel=0.1)
+    low, high = sorted([depth.area_m2, light.area_m2])
+    assert low < joined.area_m2 < high
+    assert joined.sigma_m2 / joined.area_m2 < depth.sigma_m2 / depth.area_m2
+    assert joined.significant
+
+
+def test_estimate__an_amplitude_that_shows_no_multipath_makes_the_depths_estimate_not_significant():
+    # The depth says 0.02 m^2, the light says a tenth of it: the model does not describe this scan.
+    problem = lit_strip_corner(0.02, 0.002, 0.001, seed=3)
+    depth = problem.solve("planes", with_amplitude=False, start_m2=0.02)
+    found = problem.solve("planes", start_m2=0.02)
+    assert depth.significant and not found.significant
+    assert found.area_m2 == depth.area_m2 and found.sigma_m2 >= found.area_m2
+
+
+def test_estimate__strong_multipath_on_a_near_corner_is_read_within_1_5x():
+    # At 0.1 m^2 the multipath bends the boards far from the edge, and the planes the depth is measured
+    # against take up part of the bias: the depth alone reads about half the truth here. The amplitude's
+    # gain, measured against each board's own albedo, does not.
+    found = estimate(rendered(corner(90.0, 1.4, 0.9), 0.1, seed=0))
+    assert found.significant
+    assert 1 / 1.5 <= found.area_m2 / 0.1 <= 1.5
 
 
 @pytest.mark.parametrize(("shape", "share", "count"), [((50, 70), 0.3, 100), ((3, 5), 0.5, 2), ((400, 300), 0.01, 1000),
