@@ -5,14 +5,15 @@ Renders corners at several true footprints A_fp and prints, per corner, the rati
 
 1. ``shipped``: :func:`mpi_lidar.correction.calibration.estimate_footprint` as correction runs it (the flat
    surfaces as planes continued beyond the view);
-2. ``amplitude alone``: the footprint its amplitude check finds (the same model fitted to the amplitude,
-   one albedo per surface eliminated, started from the depth's estimate);
+2. ``amplitude alone``: the footprint the amplitude tells, which the shipped estimate joins with the depth's
+   (the same model fitted to the amplitude, one albedo per surface eliminated, started from the depth's
+   estimate);
 3. ``true albedo``: the shipped estimate with each surface's true albedo instead of its amplitude's;
 4. ``exact, planes``: the same planes fit, its multipath model worked out per pixel from the exact surfaces
    in the field of view only (true planes, true albedo, the renderer's 2 cm clamp);
 5. ``exact, reference``: that exact model against the reference depth, without planes.
 
-A ``*`` marks a significant estimate: rows 4 and 5 without the amplitude check, row 2 on its statistical
+A ``*`` marks a significant estimate: rows 4 and 5 on the depth alone, row 2 on its statistical
 uncertainty alone. ``--quick`` runs one corner at two footprints on fewer pixels (for a test).
 """
 
