@@ -572,7 +572,7 @@ class _Problem:
             # The scan is not what the model describes: not significant.
             return replace(depth, sigma_m2=max(depth.sigma_m2, abs(depth.area_m2)))
         systematic = np.hypot(AMPLITUDE_SYSTEMATIC_SHARE * light.area_m2,
-                              AMPLITUDE_SYSTEMATIC_LOG / self._light_lever(light.area_m2))
+                              AMPLITUDE_SYSTEMATIC_LOG / max(self._light_lever(light.area_m2), 1e-300))
         light = replace(light, sigma_m2=float(np.hypot(light.sigma_m2, systematic)))
         weights = np.array([(e.area_m2 / e.sigma_m2) ** 2 for e in (depth, light)])
         log_area = np.log([depth.area_m2, light.area_m2]) @ weights / weights.sum()
