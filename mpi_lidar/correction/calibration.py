@@ -585,10 +585,14 @@ class _Problem:
         bias, _, _, gain_slope = self.bias(area)
         trusted = self._trusted(area, self._plane_range(bias, self.anchor)[0])[:, None]
         weight = np.where(trusted, 1.0 / self.sigma_log**2, 0.0)
-        total = np.maximum(np.bincount(self.surface, weight.sum(1), minlength=self.surfaces), 1e-300)
-        mean = np.bincount(self.surface, (weight * gain_slope).sum(1), minlength=self.surfaces) / total
-        centred = gain_slope - mean[self.surface][:, None]
+        centred = self._less_surface_mean(gain_slope, weight)
         return float(np.sqrt((weight * centred**2).sum() / max(weight.sum(), 1e-300)))
+
+    def _less_surface_mean(self, values: NDArray, weight: NDArray) -> NDArray:
+        """``values`` (n, F) less their ``weight``-ed mean over each surface's rows (its albedo eliminated)."""
+        total = np.maximum(np.bincount(self.surface, weight.sum(1), minlength=self.surfaces), 1e-300)
+        mean = np.bincount(self.surface, (weight * values).sum(1), minlength=self.surfaces) / total
+        return values - mean[self.surface][:, None]
 
     def _solve(self, method: str, use_depth: bool, use_amplitude: bool, start_m2: float = 0.0,
                tolerance: float = CONVERGED_STEP) -> FootprintEstimate:
@@ -665,12 +669,8 @@ class _Problem:
         residual = np.where(trusted, self.log_amplitude - np.nan_to_num(log_direct)[:, None] - np.log(gain), 0.0)
         weight = np.where(trusted, weights / self.sigma_log**2, 0.0)
         # Eliminate log rho per surface: weighted means.
-        pixel_weight = weight.sum(1)
-        total = np.maximum(np.bincount(self.surface, pixel_weight, minlength=self.surfaces), 1e-300)
-        mean_residual = np.bincount(self.surface, (weight * residual).sum(1), minlength=self.surfaces) / total
-        mean_slope = np.bincount(self.surface, (weight * gain_slope).sum(1), minlength=self.surfaces) / total
-        residual = residual - mean_residual[self.surface][:, None]
-        slope = gain_slope - mean_slope[self.surface][:, None]
+        residual = self._less_surface_mean(residual, weight)
+        slope = self._less_surface_mean(gain_slope, weight)
         z = residual / self.sigma_log
         spread = 1.4826 * float(np.median(np.abs(z))) or 1.0
         if robust:  # the weights of this step's residuals, as the depth's are
