@@ -12,9 +12,9 @@ partners. The model of every pixel and frequency f is the renderer's two-path mo
 ratio = A S_f, S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c}, capped like it at kappa = 1, with the
 depth bias (c / 4 pi f) arg(1 + ratio). The flat partners B are planes continued beyond the field of view
 (:mod:`mpi_lidar.correction.plane_partners`), each pixel on its own surface's plane (:class:`PixelCoupling`).
-The albedos rho come from each surface's amplitude far from its partners (Gamma = Gamma_R rho cos_i / d^2),
-less the light the multipath adds at the current estimate, so dark partners predict less multipath than
-white ones.
+The albedos rho come from each surface's amplitude on the blocks the model couples least to its partners
+(Gamma = Gamma_R rho cos_i / d^2), less the light the multipath adds there at the current estimate (the
+partner planes beyond the view included), so dark partners predict less multipath than white ones.
 
 Each surface's plane is fitted to the share of its pixels with the least predicted coupling (the anchors),
 after the predicted bias is taken off, and A is fitted to the other pixels' depth over their plane: a
@@ -23,9 +23,10 @@ outliers, whose derivative includes the planes' own motion with A and which star
 of a coarse grid (the residuals are not convex in A where the multipath is strong). A first round on every
 third pixel gives the second, on every pixel, its start, its albedos and its partner planes (strong
 multipath bends each surface near its partners, and the planes through its blocks meet at too sharp an
-angle). The uncertainty is the statistical one (the fit
-pixels' noise and the anchors' through their planes, scaled by the robust spread of the standardized
-residuals) combined with a systematic share of the estimate, the spread measured on rendered corners.
+angle); a third follows where the second's estimate moves the albedos by more than 2 %. The
+uncertainty is the statistical one (the fit pixels' noise and the anchors' through their planes, scaled by
+the robust spread of the standardized residuals) combined with a systematic share of the estimate, the
+spread measured on rendered corners.
 
 Multipath adds light as well as range: the same model fitted to the amplitude of the second round (the gain
 |1 + ratio|, one albedo per surface eliminated) gives a second estimate. Where the two differ by more than a
@@ -84,6 +85,11 @@ CONVERGED_STEP = 1e-3
 AMPLITUDE_STEP = 1e-2
 # A round before the last sets only the next one's start, albedos and partner planes: a 1 % step ends it.
 EARLY_ROUND_STEP = 1e-2
+# The albedos less the multipath's gain: fixed-point iterations at one footprint (the gain grows with them) ...
+ALBEDO_ITERATIONS = 3
+# ... and rounds of the fit at most, another only where the last estimate moves the albedos by more than this.
+ALBEDO_ROUNDS = 2
+ALBEDO_STEP = 0.02
 # Relative step of A for the planes' derivative.
 PLANE_STEP = 1e-3
 # Footprints [m^2] the depth fit may start from: 0 and 1 mm^2 ... 0.5 m^2 in factors of two.
@@ -185,30 +191,47 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     reference_depth = scan.reference_depth.ravel()[pixels].astype(np.float64) if reference else None
     method = "reference" if reference else "planes"
 
-    def problem(rows: NDArray, albedo: NDArray, planes: dict[int, NDArray] | None = None) -> _Problem:
-        coupling = PixelCoupling(scan, blocks, components, labels, pixels[rows], depth[rows, -1], sensor, planes)
+    def coupling(rows: NDArray, planes: dict[int, NDArray] | None = None) -> PixelCoupling:
+        return PixelCoupling(scan, blocks, components, labels, pixels[rows], depth[rows, -1], sensor, planes)
+
+    def problem(rows: NDArray, coupling: PixelCoupling, albedo: NDArray) -> _Problem:
         phasor, kappa = coupling(albedo)
         return _Problem(depth[rows], sigma[rows], phasor, kappa, metres_per_rad, amplitude[rows] / sensor.gamma_r_v2,
                         coupling.rays, coupling.surface, None if reference_depth is None else reference_depth[rows])
 
-    # Multipath adds light, so the amplitude overstates the albedo most where the partners that matter lie
-    # (the strip along an edge); the first round's estimate takes that excess off the albedos for the second.
     measured_albedo = block_albedo(scan, blocks, sensor)
-    albedo = surface_albedo(measured_albedo, components, unit_kappa)
     rows = np.flatnonzero(usable)
-    first_problem = problem(rows[::FIRST_ROUND_STRIDE], albedo)
+    first_rows = rows[::FIRST_ROUND_STRIDE]
+    first_coupling = coupling(first_rows)
+    albedo = first_coupling.light_free_albedo(measured_albedo, components, 0.0)
+    first_problem = problem(first_rows, first_coupling, albedo)
     first = first_problem.solve(method, with_amplitude=False, tolerance=EARLY_ROUND_STEP)
-    if not (np.isfinite(first.area_m2) and first.area_m2 > 0):
-        return problem(rows, albedo).solve(method)  # no multipath to correct for: one round on every pixel
-    area = first.area_m2
+    if not (np.isfinite(first.area_m2) and first.area_m2 > 0):  # no multipath to correct for: one round on all
+        return problem(rows, coupling(rows), albedo).solve(method)
     # Strong multipath bends each surface near its partners, so the planes through its blocks meet at too
-    # sharp an angle and predict too much coupling; the planes of the fit rest on the anchors less the bias
-    # predicted at the first estimate.
-    planes = None if reference else first_problem.anchored_planes(area)
-    block_phasors = BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s)
-    gain = np.abs(1.0 + area * block_phasors(albedo)[:, -1] / np.maximum(area * unit_kappa, 1.0))
-    albedo = surface_albedo(measured_albedo / gain, components, unit_kappa)
-    return problem(rows, albedo, planes).solve(method, start_m2=area)
+    # sharp an angle and predict too much coupling; the planes of the later rounds rest on the anchors less the
+    # bias predicted at the first estimate.
+    last_coupling = coupling(rows, None if reference else first_problem.anchored_planes(first.area_m2))
+    # Multipath adds light, so the amplitude overstates the albedos (at strong multipath on the whole of a
+    # surface near its partners): each round's albedos are the measured ones less the gain the multipath gives
+    # at the estimate before it, and a round that moves them by more than ALBEDO_STEP is followed by another.
+    area, albedo = first.area_m2, None
+    for _ in range(ALBEDO_ROUNDS):
+        light_free = last_coupling.light_free_albedo(measured_albedo, components, area)
+        if albedo is not None and _largest_change(albedo, light_free) <= ALBEDO_STEP:
+            break
+        albedo = light_free
+        estimate = problem(rows, last_coupling, albedo).solve(method, start_m2=area)
+        if not (np.isfinite(estimate.area_m2) and estimate.area_m2 > 0):
+            break
+        area = estimate.area_m2
+    return estimate
+
+
+def _largest_change(before: NDArray, after: NDArray) -> float:
+    """The largest relative change from ``before`` to ``after`` where ``before`` is positive."""
+    positive = before > 0
+    return float(np.max(np.abs(after[positive] / before[positive] - 1.0), initial=0.0))
 
 
 class PixelCoupling:
@@ -249,6 +272,34 @@ class PixelCoupling:
                             np.bincount(pairs[0], pairs[2], minlength=blocks.usable.size), rows)
                            for pairs, rows in ((self.partners.curved, self.on_plane),
                                                (self.partners.off_plane, ~self.on_plane)) if pairs[0].size]
+
+    def light_free_albedo(self, measured: NDArray, components: NDArray, area: float) -> NDArray[np.float64]:
+        """The albedo per surface (:func:`surface_albedo`, far blocks by :attr:`block_kappa`) of the blocks'
+        ``measured`` albedos (Hb*Wb,) divided by the gain the multipath gives them at footprint ``area`` (a
+        gain that itself grows with the albedos)."""
+        kappa = self.block_kappa
+        albedo = surface_albedo(measured, components, kappa)
+        for _ in range(ALBEDO_ITERATIONS if area > 0 else 0):
+            albedo = surface_albedo(measured / self.block_gain(area, albedo), components, kappa)
+        return albedo
+
+    @functools.cached_property
+    def block_kappa(self) -> NDArray[np.float64]:
+        """White coupling at unit footprint per block centre (Hb*Wb,): from the partner planes (beyond the view
+        too) and the curved partners. It picks each surface's far blocks for its albedo: the blocks next to an
+        edge have no facing block pairs (too close to their partners for a pair) but much coupling."""
+        return self.block_plane_kappa + sum((block_kappa for _, block_kappa, _ in self.pair_sums),
+                                            np.zeros_like(self.block_plane_kappa))
+
+    def block_gain(self, area: float, albedo: NDArray) -> NDArray[np.float64]:
+        """The amplitude gain |1 + ratio| per block (Hb*Wb,), mean over the frequencies, at footprint ``area``
+        and albedos ``albedo`` (Hb*Wb,): the light the partner planes and curved partners send back to the
+        block's centre, capped like :meth:`_Problem.bias`."""
+        partner_albedo = albedo[self.partners.partner_block]
+        phasor = albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_plane_phasor)
+        for phasors, _, _ in self.pair_sums:
+            phasor += phasors(albedo)
+        return np.abs(1.0 + area * phasor / np.maximum(area * self.block_kappa, 1.0)[:, None]).mean(1)
 
     def __call__(self, albedo: NDArray) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
         """S_f (n, F) and kappa (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""

@@ -35,8 +35,8 @@ from mpi_lidar.scans.scan import Scan
 
 # A continued surface reaches this many times as far from its visible centre as its farthest visible block.
 REACH = 2.0
-# Surfaces (connected blocks) narrower than this many blocks in either direction of the scan are neither
-# modelled as planes nor partners: a strip along an edge is the bend of the multipath.
+# Surfaces (connected blocks) narrower than this many blocks across are neither modelled as planes nor
+# partners: a strip along an edge is the bend of the multipath.
 MIN_SPAN_BLOCKS = 3
 # Patch side next to a receiving surface [m], growing by one such side every GRADING_M further from it: the
 # coupling falls as 1 / r^4, so far patches may be coarse.
@@ -187,12 +187,19 @@ def _block_rays(scan: Scan, blocks: FacingBlocks) -> NDArray[np.float64]:
 
 
 def _narrow_components(blocks: FacingBlocks, components: NDArray) -> set[int]:
-    """Components fewer than :data:`MIN_SPAN_BLOCKS` blocks across in either direction."""
+    """Components fewer than :data:`MIN_SPAN_BLOCKS` blocks across their narrowest direction.
+
+    The width is measured across the blocks' principal axis, not along the scan's rows or columns: the strip
+    along an edge that is neither vertical nor horizontal runs diagonally through the block grid, where its
+    extent in rows and in columns both exceed its width. A band w blocks wide has a variance (w^2 - 1) / 12
+    across it.
+    """
     wb = blocks.usable.shape[1]
     narrow = set()
     for component in np.unique(components[components >= 0]):
         rows, columns = np.divmod(np.flatnonzero(components == component), wb)
-        if np.ptp(rows) + 1 < MIN_SPAN_BLOCKS or np.ptp(columns) + 1 < MIN_SPAN_BLOCKS:
+        spread = np.cov(np.stack([rows, columns]).astype(np.float64)) if rows.size > 1 else np.zeros((2, 2))
+        if np.sqrt(12.0 * max(np.linalg.eigvalsh(spread)[0], 0.0) + 1.0) < MIN_SPAN_BLOCKS:
             narrow.add(int(component))
     return narrow
 

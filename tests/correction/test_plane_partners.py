@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction.calibration import surface_labels
-from mpi_lidar.correction.plane_partners import PlanePartners, _coupling_at, _on_plane, _phasor_sums
+from mpi_lidar.correction.plane_partners import (
+    PlanePartners,
+    _coupling_at,
+    _narrow_components,
+    _on_plane,
+    _phasor_sums,
+)
 from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
 from mpi_lidar.scans.geometry import DEFAULT_MIN_COS, facing_blocks
 from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, render
@@ -121,6 +129,37 @@ def test_surface_planes__a_noisy_corner_keeps_its_angle_and_edge(corner_partners
         closest = true_normals[np.argmax(true_normals @ normal)]
         assert np.degrees(np.arccos(min(closest @ normal, 1.0))) < 0.5
         assert abs((edge - centre) @ normal) < 5e-4
+
+
+def component_grid(*cells: tuple[int, int], shape: tuple[int, int] = (12, 12)) -> tuple[SimpleNamespace, np.ndarray]:
+    """Blocks of shape ``shape`` (only their shape matters) and one component, 0, on the given cells."""
+    components = np.full(shape[0] * shape[1], -1)
+    for row, column in cells:
+        components[row * shape[1] + column] = 0
+    return SimpleNamespace(usable=np.zeros(shape, dtype=bool)), components
+
+
+@pytest.mark.parametrize(("cells", "narrow"), [
+    ([(k, k) for k in range(10)] + [(k + 1, k) for k in range(9)], True),  # a diagonal staircase 2 blocks thick
+    ([(k, c) for k in range(10) for c in (4, 5)], True),  # a vertical strip 2 blocks wide
+    ([(k, c) for k in range(10) for c in (4, 5, 6)], False),  # 3 blocks wide
+    ([(k, k + d) for k in range(9) for d in range(-2, 3) if 0 <= k + d < 12], False),  # a diagonal band 5 wide
+    ([(r, c) for r in range(6) for c in range(8)], False),  # a board
+])
+def test_narrow_components__the_width_is_measured_across_the_strip_not_along_rows(cells, narrow):
+    # Along an edge rolled away from the vertical, the bend of the multipath is a diagonal strip: its extent in
+    # rows and in columns both exceed three blocks, while across it it is one or two blocks wide.
+    blocks, components = component_grid(*cells)
+    assert (_narrow_components(blocks, components) == {0}) is narrow
+
+
+@pytest.mark.parametrize("roll_deg", [30.0, -45.0, 60.0])
+def test_surface_planes__the_bend_along_a_rolled_edge_is_no_partner(roll_deg):
+    # At 0.1 m^2 the multipath bends a strip of blocks along the edge away from both boards; found as planes of
+    # their own, such strips sent the boards light no board sends (three or four partners, not two).
+    scan = rendered(corner(100.0, 1.5, 0.85, board_m=0.35, roll_deg=roll_deg), 0.1, seed=0)
+    _, _, partners = partners_of(scan)
+    assert len(partners.planes) == 2 and len(partners.partners) == 2
 
 
 def test_patches__a_board_continues_beyond_the_view_and_nothing_lies_in_front(corner_scan, corner_partners):
