@@ -191,7 +191,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     reference_depth = scan.reference_depth.ravel()[pixels].astype(np.float64) if reference else None
     method = "reference" if reference else "planes"
 
-    def coupling(rows: NDArray, planes: dict[int, NDArray] | None = None) -> PixelCoupling:
+    def pixel_coupling(rows: NDArray, planes: dict[int, NDArray] | None = None) -> PixelCoupling:
         return PixelCoupling(scan, blocks, components, labels, pixels[rows], depth[rows, -1], sensor, planes)
 
     def problem(rows: NDArray, coupling: PixelCoupling, albedo: NDArray) -> _Problem:
@@ -202,16 +202,16 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     measured_albedo = block_albedo(scan, blocks, sensor)
     rows = np.flatnonzero(usable)
     first_rows = rows[::FIRST_ROUND_STRIDE]
-    first_coupling = coupling(first_rows)
+    first_coupling = pixel_coupling(first_rows)
     albedo = first_coupling.light_free_albedo(measured_albedo, components, 0.0)
     first_problem = problem(first_rows, first_coupling, albedo)
     first = first_problem.solve(method, with_amplitude=False, tolerance=EARLY_ROUND_STEP)
     if not (np.isfinite(first.area_m2) and first.area_m2 > 0):  # no multipath to correct for: one round on all
-        return problem(rows, coupling(rows), albedo).solve(method)
+        return problem(rows, pixel_coupling(rows), albedo).solve(method)
     # Strong multipath bends each surface near its partners, so the planes through its blocks meet at too
     # sharp an angle and predict too much coupling; the planes of the later rounds rest on the anchors less the
     # bias predicted at the first estimate.
-    last_coupling = coupling(rows, None if reference else first_problem.anchored_planes(first.area_m2))
+    last_coupling = pixel_coupling(rows, None if reference else first_problem.anchored_planes(first.area_m2))
     # Multipath adds light, so the amplitude overstates the albedos (at strong multipath on the whole of a
     # surface near its partners): each round's albedos are the measured ones less the gain the multipath gives
     # at the estimate before it, and a round that moves them by more than ALBEDO_STEP is followed by another.
