@@ -203,11 +203,11 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     rows = np.flatnonzero(usable)
     first_rows = rows[::FIRST_ROUND_STRIDE]
     first_coupling = pixel_coupling(first_rows)
-    albedo = first_coupling.light_free_albedo(measured_albedo, components, 0.0)
-    first_problem = problem(first_rows, first_coupling, albedo)
+    first_albedo = first_coupling.light_free_albedo(measured_albedo, components, 0.0)
+    first_problem = problem(first_rows, first_coupling, first_albedo)
     first = first_problem.solve(method, with_amplitude=False, tolerance=EARLY_ROUND_STEP)
     if not (np.isfinite(first.area_m2) and first.area_m2 > 0):  # no multipath to correct for: one round on all
-        return problem(rows, pixel_coupling(rows), albedo).solve(method)
+        return problem(rows, pixel_coupling(rows), first_albedo).solve(method)
     # Strong multipath bends each surface near its partners, so the planes through its blocks meet at too
     # sharp an angle and predict too much coupling; the planes of the later rounds rest on the anchors less the
     # bias predicted at the first estimate.
@@ -352,8 +352,9 @@ def _tile_albedo(scan: Scan, blocks: FacingBlocks, rays: NDArray, rows: slice, c
     return nanmedian_last(np.where(blocks.keep[block_rows, block_columns], ratio, np.nan))  # NaN: no inliers
 
 
-def surface_albedo(albedo: NDArray, components: NDArray, unit_kappa: NDArray) -> NDArray[np.float64]:
-    """One albedo per connected surface (Hb*Wb,): the median over its blocks with the least coupling.
+def surface_albedo(albedo: NDArray, components: NDArray, coupling: NDArray) -> NDArray[np.float64]:
+    """One albedo per connected surface (Hb*Wb,): the median over its blocks with the least ``coupling``
+    (Hb*Wb,).
 
     Multipath adds light (Gamma = Gamma_D |1 + ratio|), most near an edge, so a block's own amplitude
     overstates its albedo just where the partners that matter lie; the surface's far blocks do not.
@@ -362,13 +363,14 @@ def surface_albedo(albedo: NDArray, components: NDArray, unit_kappa: NDArray) ->
     out = albedo.copy()
     for label in np.unique(components[components >= 0]):
         members = np.flatnonzero(components == label)
-        far = members[unit_kappa[members] <= np.quantile(unit_kappa[members], ANCHOR_SHARE)]
+        far = members[coupling[members] <= np.quantile(coupling[members], ANCHOR_SHARE)]
         out[members] = np.median(albedo[far])
     return out
 
 
 class BlockPhasors:
-    """The multipath phasor per block at unit footprint, for any albedos: the pairs' phases are worked out once.
+    """The multipath phasor per block at unit footprint of the block ``pairs`` (A, B indices, kappa at
+    1 m^2, distance [m]), for any albedos: the pairs' phases are worked out once.
 
     S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c} with kappa_B at A_fp = 1 m^2: the ratio
     Gamma_M / Gamma_D of the two-path model is A_fp S_f, and the white kappa sum K caps it like the
@@ -376,11 +378,8 @@ class BlockPhasors:
     """
 
     def __init__(self, blocks: FacingBlocks, frequencies_hz: tuple[float, ...], speed_of_light_m_per_s: float,
-                 pairs: tuple[NDArray, NDArray, NDArray, NDArray] | None = None):
+                 pairs: tuple[NDArray, NDArray, NDArray, NDArray]):
         self.block_count = blocks.usable.size
-        if pairs is None:
-            pairs = (blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b], blocks.pairs.kappa(1.0),
-                     blocks.pairs.distance_m)
         self.block_a, self.block_b, self.kappa, distance_m = pairs
         freqs = np.asarray(frequencies_hz, dtype=np.float64)
         phase = 4 * np.pi * distance_m[:, None] * freqs[None, :] / speed_of_light_m_per_s
