@@ -11,7 +11,8 @@ than raw by more than 0.05 mm, at the edge within 10 % of the true-A_fp correcti
 than raw where the raw edge error is above 3 mm, and the estimate within a factor 1.5 on corners whose edge
 multipath (the mean signed raw error there) is above 2 mm. ``--quick`` runs two scenes at two footprints (for a
 test); ``--held-out`` runs, instead of the main set, five corners kept out of the method's development
-(:data:`HELD_OUT`).
+(:data:`HELD_OUT`), and ``--several-surfaces`` scenes where more than two surfaces face each other or a
+floor is seen obliquely (:data:`SEVERAL_SURFACES`); their "edge" is within 20 cm of any of their edges.
 """
 
 from __future__ import annotations
@@ -35,14 +36,19 @@ from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import (
     DEFAULT_FOOTPRINT_RADIUS_M,
     Scene,
+    alcove,
+    box_on_floor,
     corner,
     cylinder_scene,
     flat_wall,
+    floor_meets_wall,
     multi_object,
+    pitch_rotation,
     render,
+    room_corner,
 )
 
-Case = tuple[str, Callable[[], Scene], EdgeLine | None]  # label, factory, the corner's edge
+Case = tuple[str, Callable[[], Scene], tuple[EdgeLine, ...]]  # label, factory, the edges of its corners
 
 # (angle [deg], edge distance [m], albedo): a spread over the three axes rather than their full product.
 CORNERS = ((60, 1.4, 0.5), (60, 2.4, 0.9), (90, 1.4, 0.9), (90, 2.0, 0.1), (90, 2.4, 0.5), (120, 1.4, 0.9),
@@ -90,6 +96,31 @@ HELD_OUT: tuple[ShapedCorner, ...] = (
      {"board_m": 0.45, "half_height_m": 0.5, "roll_deg": 90}),
 )
 
+
+
+def _pitched_edge(point: tuple[float, float, float], direction: tuple[float, float, float], pitch_deg: float
+                  ) -> EdgeLine:
+    turn = pitch_rotation(pitch_deg)
+    return turn @ np.asarray(point, dtype=np.float64), turn @ np.asarray(direction, dtype=np.float64)
+
+
+_X, _Y, _Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+# Scenes of several surfaces (``--several-surfaces``), fixed and first run with the method as it stood, none of
+# them looked at during its development: three surfaces meeting in a room's corner, an alcove whose parallel
+# sides face each other, a box on a floor seen from a tripod (its hidden sides light the floor too) and a floor
+# meeting a wall seen from a tripod, the floor at 20-27 degrees from the view.
+SEVERAL_SURFACES: tuple[Case, ...] = (
+    ("room corner: two walls and the floor, albedo 0.7", room_corner,
+     ((np.array([-0.3, 0.0, 2.2]), np.array(_Y)), (np.array([0.0, -0.2, 2.2]), np.array(_X)),
+      (np.array([-0.3, -0.2, 0.0]), np.array(_Z)))),
+    ("alcove 0.6 m wide and deep, albedo 0.5", alcove,
+     ((np.array([-0.3, 0.0, 2.3]), np.array(_Y)), (np.array([0.3, 0.0, 2.3]), np.array(_Y)))),
+    ("box on a floor, tripod 27 deg down, albedo 0.8 / floor 0.4", box_on_floor,
+     (_pitched_edge((0.0, -1.0, 2.0), _X, 27.0),)),
+    ("floor meets wall, tripod 20 deg down, albedo 0.6 / 0.7", floor_meets_wall,
+     (_pitched_edge((0.0, -1.0, 2.6), _X, 20.0),)),
+)
+
 # Targets of the summary.
 MAX_AUTO_HARM_MM = 0.05
 MAX_EDGE_RATIO = 1.10
@@ -106,25 +137,36 @@ HEADER = ("| scene | true A_fp [m^2] | raw MAE [mm] | corrected, true A_fp [mm] 
 
 def corner_case(angle: float, distance: float, albedo: float) -> Case:
     return (f"corner {angle:g} deg, {distance:g} m, albedo {albedo:g}",
-            lambda: corner(float(angle), distance, albedo), edge_line(distance))
+            lambda: corner(float(angle), distance, albedo), (edge_line(distance),))
 
 
 def shaped_cases(corners: tuple[ShapedCorner, ...]) -> list[Case]:
     return [(label, lambda a=angle, d=distance, r=albedo, k=shape: corner(float(a), d, r, **k),
-             edge_line(distance, shape.get("roll_deg", 0.0)))
+             (edge_line(distance, shape.get("roll_deg", 0.0)),))
             for label, angle, distance, albedo, shape in corners]
 
 
-def scene_cases(quick: bool, held_out: bool = False) -> list[Case]:
+def scene_cases(quick: bool, held_out: bool = False, several_surfaces: bool = False) -> list[Case]:
     """The scenes of the run: corners (with an edge region) and scenes without facing surfaces or with several;
-    with ``held_out`` the corners kept out of the method's development instead."""
+    with ``held_out`` the corners kept out of the method's development instead, with ``several_surfaces``
+    the scenes of :data:`SEVERAL_SURFACES`."""
     if quick:
-        return [corner_case(90, 2.0, 0.5), ("flat wall 0 deg", lambda: flat_wall(0.0), None)]
+        return [corner_case(90, 2.0, 0.5), ("flat wall 0 deg", lambda: flat_wall(0.0), ())]
     if held_out:
         return shaped_cases(HELD_OUT)
+    if several_surfaces:
+        return list(SEVERAL_SURFACES)
     cases = [corner_case(*spec) for spec in CORNERS] + shaped_cases(SHAPED_CORNERS)
-    cases += [(f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt)), None) for tilt in (0, 45)]
-    return [*cases, ("cylinder", cylinder_scene, None), ("multi-object (Fig. 8)", multi_object, None)]
+    cases += [(f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt)), ()) for tilt in (0, 45)]
+    return [*cases, ("cylinder", cylinder_scene, ()), ("multi-object (Fig. 8)", multi_object, ())]
+
+
+def near_edges(scan: Scan, edges: tuple[EdgeLine, ...]) -> np.ndarray:
+    """Pixels whose true surface point lies within EDGE_RADIUS_M of any of ``edges``."""
+    near = np.zeros(scan.shape, dtype=bool)
+    for edge in edges:
+        near |= edge_line_region(scan, edge)
+    return near
 
 
 def coupling_gain(footprint_m2: float) -> float:
@@ -141,19 +183,19 @@ def usable_pixels(scan: Scan, *flag_maps: np.ndarray) -> np.ndarray:
     return usable
 
 
-def measure_row(label: str, scan: Scan, edge: EdgeLine | None, model: CorrectionModel,
+def measure_row(label: str, scan: Scan, edges: tuple[EdgeLine, ...], model: CorrectionModel,
                 true_m2: float) -> dict[str, Any]:
     """Raw, true-A_fp and auto MAEs of one rendered scan, and the footprint it measured."""
     known = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=true_m2))
     auto = correct_scan(scan, model, CorrectionOptions(footprint_area_m2="auto"))
     usable = usable_pixels(scan, known.flags, auto.flags)
-    near = usable & edge_line_region(scan, edge) if edge is not None else np.zeros_like(usable)
+    near = usable & near_edges(scan, edges)
     raw, reference = scan.depth[-1], scan.reference_depth
     estimate = auto.calibration
-    row: dict[str, Any] = {"scene": label, "corner": edge is not None, "true_m2": true_m2}
+    row: dict[str, Any] = {"scene": label, "corner": bool(edges), "true_m2": true_m2}
     for name, depth in (("raw", raw), ("true", known.depth), ("auto", auto.depth)):
         row[f"{name}_mm"] = mae_mm(depth, reference, usable)
-        row[f"edge_{name}_mm"] = mae_mm(depth, reference, near) if edge is not None else float("nan")
+        row[f"edge_{name}_mm"] = mae_mm(depth, reference, near) if edges else float("nan")
     # The multipath near the edge: the mean signed raw error there (the noise averages out, the bias does not).
     row["edge_multipath_mm"] = float(1e3 * np.mean((raw - reference)[near])) if near.any() else float("nan")
     row["estimate_m2"] = estimate.area_m2 if estimate is not None else float("nan")
@@ -164,17 +206,18 @@ def measure_row(label: str, scan: Scan, edge: EdgeLine | None, model: Correction
 
 
 def run(model_path: str, quick: bool = False, seed: int = 0, held_out: bool = False,
-        on_row: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+        on_row: Callable[[dict[str, Any]], None] | None = None, several_surfaces: bool = False
+        ) -> list[dict[str, Any]]:
     """One row per scene and true footprint (see :func:`measure_row`); ``on_row`` sees each as it is done."""
     model = load_model(model_path)
     config = Config()
     rows = []
-    for scene_index, (label, factory, edge) in enumerate(scene_cases(quick, held_out)):
+    for scene_index, (label, factory, edges) in enumerate(scene_cases(quick, held_out, several_surfaces)):
         scene = factory()  # the geometry does not depend on the footprint: build it once
         for footprint_index, true_m2 in enumerate(QUICK_FOOTPRINTS_M2 if quick else FOOTPRINTS_M2):
             rng = np.random.default_rng([seed, scene_index, footprint_index])
             scan = render(scene, config, rng, coupling_gain=coupling_gain(true_m2))
-            rows.append(measure_row(label, scan, edge, model, true_m2))
+            rows.append(measure_row(label, scan, edges, model, true_m2))
             if on_row is not None:
                 on_row(rows[-1])
     return rows
@@ -285,6 +328,8 @@ def main() -> None:
     scenes.add_argument("--quick", action="store_true", help="Two scenes at two footprints only (for a test).")
     scenes.add_argument("--held-out", action="store_true",
                         help="The corners kept out of the method's development instead of the main set.")
+    scenes.add_argument("--several-surfaces", action="store_true",
+                        help="Scenes where more than two surfaces face each other, or a floor seen from a tripod.")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cost", action="store_true",
                         help="Only the CPU time the calibration adds to correcting a 1000 x 1000 scan.")
@@ -293,10 +338,12 @@ def main() -> None:
         print("\n".join(calibration_cost(args.model)))
         return
     print(f"Machine: {platform.node()} ({platform.machine()}), {date.today()}; model {args.model}, "
-          f"seed {args.seed}{', quick' if args.quick else ''}{', held-out corners' if args.held_out else ''}\n")
+          f"seed {args.seed}{', quick' if args.quick else ''}{', held-out corners' if args.held_out else ''}"
+          f"{', several surfaces' if args.several_surfaces else ''}\n")
     print(HEADER, flush=True)
     start = time.perf_counter()
-    rows = run(args.model, args.quick, args.seed, args.held_out, on_row=lambda row: print(format_row(row), flush=True))
+    rows = run(args.model, args.quick, args.seed, args.held_out, on_row=lambda row: print(format_row(row), flush=True),
+               several_surfaces=args.several_surfaces)
     print("\nSummary:\n")
     print("\n".join(summary(rows)))
     print(f"\nWall time: {time.perf_counter() - start:.0f} s for {len(rows)} rows")

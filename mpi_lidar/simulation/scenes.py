@@ -417,9 +417,62 @@ def sphere_scene(height: int = 96, width: int = 128) -> Scene:
     return Scene("sphere", (Sphere((0.0, 0.0, 2.0), 0.25, 0.7),), *_grid(height, width, 0.15, 0.12))
 
 
+def room_corner(albedo: float = 0.7, height: int = 96, width: int = 128) -> Scene:
+    """Where two walls meet the floor: a back wall 2.2 m away, a side wall 0.3 m to the left of the view's axis
+    and a floor 0.2 m below it, so three surfaces face each other along three edges."""
+    back = Rectangle((0.2, 0.3, 2.2), (0.5, 0.0, 0.0), (0.0, 0.5, 0.0), albedo)
+    side = Rectangle((-0.3, 0.3, 1.7), (0.0, 0.0, 0.5), (0.0, 0.5, 0.0), albedo)
+    floor = Rectangle((0.2, -0.2, 1.7), (0.5, 0.0, 0.0), (0.0, 0.0, 0.5), albedo)
+    return Scene("room_corner", (back, side, floor), *_grid(height, width, 0.2, 0.15))
+
+
+def alcove(albedo: float = 0.5, height: int = 96, width: int = 128) -> Scene:
+    """A recess 0.6 m wide and 0.6 m deep, its back 2.3 m away: two parallel side walls face each other and
+    both face the back."""
+    back = Rectangle((0.0, 0.0, 2.3), (0.3, 0.0, 0.0), (0.0, 0.4, 0.0), albedo)
+    left = Rectangle((-0.3, 0.0, 2.0), (0.0, 0.0, 0.3), (0.0, 0.4, 0.0), albedo)
+    right = Rectangle((0.3, 0.0, 2.0), (0.0, 0.0, 0.3), (0.0, 0.4, 0.0), albedo)
+    return Scene("alcove", (back, left, right), *_grid(height, width, 0.2, 0.15))
+
+
+def box_on_floor(floor_albedo: float = 0.4, box_albedo: float = 0.8, pitch_deg: float = 27.0, height: int = 96,
+                 width: int = 128) -> Scene:
+    """A box 0.5 m wide and deep and 0.4 m high on the floor, 2 m ahead of a sensor 1 m above the floor that
+    looks down by ``pitch_deg``: the sensor sees its front and top, and the floor the front and both sides
+    (hidden from the sensor) stand on."""
+    floor = Rectangle((0.0, -1.0, 2.2), (1.2, 0.0, 0.0), (0.0, 0.0, 1.2), floor_albedo)
+    front = Rectangle((0.0, -0.8, 2.0), (0.25, 0.0, 0.0), (0.0, 0.2, 0.0), box_albedo)
+    top = Rectangle((0.0, -0.6, 2.25), (0.25, 0.0, 0.0), (0.0, 0.0, 0.25), box_albedo)
+    sides = tuple(Rectangle((x, -0.8, 2.25), (0.0, 0.0, 0.25), (0.0, 0.2, 0.0), box_albedo) for x in (-0.25, 0.25))
+    return Scene("box_on_floor", _pitched((floor, front, top, *sides), pitch_deg), *_grid(height, width, 0.25, 0.19))
+
+
+def floor_meets_wall(floor_albedo: float = 0.6, wall_albedo: float = 0.7, pitch_deg: float = 20.0, height: int = 96,
+                     width: int = 128) -> Scene:
+    """A wall 2.6 m ahead of a sensor 1 m above the floor that looks down by ``pitch_deg``: the floor meets the
+    wall along a horizontal edge."""
+    floor = Rectangle((0.0, -1.0, 2.0), (1.2, 0.0, 0.0), (0.0, 0.0, 0.6), floor_albedo)
+    wall = Rectangle((0.0, -0.2, 2.6), (1.2, 0.0, 0.0), (0.0, 0.8, 0.0), wall_albedo)
+    return Scene("floor_meets_wall", _pitched((floor, wall), pitch_deg), *_grid(height, width, 0.2, 0.15))
+
+
+def pitch_rotation(pitch_deg: float) -> NDArray[np.float64]:
+    """The rotation that brings the world into the frame of a sensor looking down by ``pitch_deg``."""
+    a = np.deg2rad(pitch_deg)
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), np.sin(a)], [0.0, -np.sin(a), np.cos(a)]])
+
+
+def _pitched(rectangles: tuple[Rectangle, ...], pitch_deg: float) -> tuple[Rectangle, ...]:
+    """Rectangles as a sensor looking down by ``pitch_deg`` sees them (the view's axis stays z)."""
+    turn = pitch_rotation(pitch_deg)
+    return tuple(Rectangle(tuple(turn @ np.asarray(r.centre)), tuple(turn @ np.asarray(r.half_u)),
+                           tuple(turn @ np.asarray(r.half_v)), r.albedo) for r in rectangles)
+
+
 SCENES: dict[str, Callable[..., Scene]] = {
     "cornered_board": cornered_board, "multi_object": multi_object, "wooden_corner": wooden_corner,
     "flat_wall": flat_wall, "corner": corner, "cylinder": cylinder_scene, "sphere": sphere_scene,
+    "room_corner": room_corner, "alcove": alcove, "box_on_floor": box_on_floor, "floor_meets_wall": floor_meets_wall,
 }
 DEMO_SCENES = ("cornered_board", "multi_object", "flat_wall")
 

@@ -13,7 +13,7 @@ from mpi_lidar.correction.profile import SensorProfile, read_profile, write_prof
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.scans.geometry import facing_blocks
-from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render
+from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render, room_corner
 from mpi_lidar.workflows.calibrate import calibrate_scans, scan_footprint
 from tests.cli_runner import assert_one_error_line, call_main
 from tests.model_factory import tiny_model
@@ -55,6 +55,13 @@ def test_estimate__from_the_scans_own_surfaces_at_a_small_footprint():
     found = estimate(rendered(corner(90.0, 2.0, 0.8), 0.002))
     assert found.significant and found.surfaces >= 2 and found.pixels > 5000
     assert 1 / 1.5 <= found.area_m2 / 0.002 <= 1.5
+
+
+def test_estimate__three_surfaces_of_a_room_corner_measure_the_footprint():
+    # Two walls and the floor face each other along three edges: every one is a partner of the other two.
+    found = estimate(rendered(room_corner(), 0.041))
+    assert found.significant and found.surfaces >= 3
+    assert 1 / 1.5 <= found.area_m2 / 0.041 <= 1.5
 
 
 def test_estimate__a_flat_wall_measures_nothing_usable():
@@ -348,6 +355,19 @@ def test_calibration_benchmark__the_edge_region_follows_a_rolled_edge():
     points = rolled.reference_depth[..., None] * rolled.rays()
     np.testing.assert_array_equal(near, np.hypot(points[..., 1], points[..., 2] - 2.0) <= 0.2)
     assert near.any() and not near.all()
+
+
+def test_calibration_benchmark__several_surfaces_edges_lie_where_two_surfaces_meet():
+    from benchmarks.calibration import SEVERAL_SURFACES
+
+    for label, factory, edges in SEVERAL_SURFACES:
+        planes = [(np.asarray(r.centre), np.cross(r.half_u, r.half_v) / np.linalg.norm(np.cross(r.half_u, r.half_v)))
+                  for r in factory().surfaces]
+        for point, direction in edges:
+            for along in (0.0, 0.3):
+                x = point + along * direction
+                on = [abs(normal @ (x - centre)) < 1e-9 for centre, normal in planes]
+                assert sum(on) >= 2, f"{label}: an edge point on {sum(on)} surface planes"
 
 
 def test_calibration_diagnosis__the_surfaces_beyond_the_view_carry_the_strong_multipath():
