@@ -97,7 +97,6 @@ HELD_OUT: tuple[ShapedCorner, ...] = (
 )
 
 
-
 def _pitched_edge(point: tuple[float, float, float], direction: tuple[float, float, float], pitch_deg: float
                   ) -> EdgeLine:
     turn = pitch_rotation(pitch_deg)

@@ -438,8 +438,8 @@ def alcove(albedo: float = 0.5, height: int = 96, width: int = 128) -> Scene:
 def box_on_floor(floor_albedo: float = 0.4, box_albedo: float = 0.8, pitch_deg: float = 27.0, height: int = 96,
                  width: int = 128) -> Scene:
     """A box 0.5 m wide and deep and 0.4 m high on the floor, 2 m ahead of a sensor 1 m above the floor that
-    looks down by ``pitch_deg``: the sensor sees its front and top, and the floor the front and both sides
-    (hidden from the sensor) stand on."""
+    looks down by ``pitch_deg``: the sensor sees the box's front and top, and its sides, hidden from the
+    sensor, light the floor beside it."""
     floor = Rectangle((0.0, -1.0, 2.2), (1.2, 0.0, 0.0), (0.0, 0.0, 1.2), floor_albedo)
     front = Rectangle((0.0, -0.8, 2.0), (0.25, 0.0, 0.0), (0.0, 0.2, 0.0), box_albedo)
     top = Rectangle((0.0, -0.6, 2.25), (0.25, 0.0, 0.0), (0.0, 0.0, 0.25), box_albedo)

@@ -7,6 +7,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.physics.transport import two_path_phase_bias
 from mpi_lidar.scans.scan import grid_rays, read_scan, write_scan
 from mpi_lidar.simulation.scenes import (
+    DEFAULT_FOOTPRINT_RADIUS_M,
     Cylinder,
     Rectangle,
     Scene,
@@ -112,8 +113,7 @@ def test_room_corner_and_alcove__every_surface_is_seen():
 
 @pytest.mark.parametrize("pitch_deg", [20.0, 27.0])
 def test_pitched_scenes__the_floor_lies_one_metre_below_the_sensor(pitch_deg):
-    # Back in the world's frame (the rotation undone) every point on the floor has y = -1 m, and the sensor,
-    # looking down, sees the floor's near part below the view's axis.
+    # Back in the world's frame (the rotation undone) every point the sensor sees on the floor has y = -1 m.
     for scene in (box_on_floor(pitch_deg=pitch_deg, height=24, width=32),
                   floor_meets_wall(pitch_deg=pitch_deg, height=24, width=32)):
         t, which = first_hits(scene)
@@ -128,12 +128,12 @@ def test_box_on_floor__its_sides_are_hidden_but_light_the_floor():
     _, which = first_hits(scene)
     assert not np.isin(which, [3, 4]).any(), "the sensor sees neither side"
     # At the calibrated footprint (A_fp 0.041 m^2) the hidden sides add over 1 % to some floor pixel's light.
-    gain = 0.041 / (np.pi * 0.012**2)
+    gain = 0.041 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
     floor = which == 0
     sides_only = Scene("sides", (scene.surfaces[0], *scene.surfaces[3:]), scene.azimuth_rad, scene.elevation_rad)
-    lit, _ = light_transport(sides_only, Config(), 0.012, 0.04, gain)
+    lit, _ = light_transport(sides_only, Config(), DEFAULT_FOOTPRINT_RADIUS_M, 0.04, gain)
     alone, _ = light_transport(Scene("floor", scene.surfaces[:1], scene.azimuth_rad, scene.elevation_rad),
-                               Config(), 0.012, 0.04, gain)
+                               Config(), DEFAULT_FOOTPRINT_RADIUS_M, 0.04, gain)
     added = np.abs(lit[floor, -1] - alone[floor, -1]) / np.abs(alone[floor, -1])
     assert added.max() > 0.01
 
