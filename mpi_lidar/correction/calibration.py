@@ -295,17 +295,21 @@ class PixelCoupling:
         """The amplitude gain |1 + ratio| per block (Hb*Wb,), mean over the frequencies, at footprint ``area``
         and albedos ``albedo`` (Hb*Wb,): the light the partner planes and curved partners send back to the
         block's centre, capped like :meth:`_Problem.bias`."""
-        partner_albedo = albedo[self.partners.partner_block]
-        phasor = albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_plane_phasor)
+        phasor = self._block_plane_phasor(albedo)
         for phasors, _, _ in self.pair_sums:
             phasor += phasors(albedo)
         return np.abs(1.0 + area * phasor / np.maximum(area * self.block_kappa, 1.0)[:, None]).mean(1)
 
+    def _block_plane_phasor(self, albedo: NDArray) -> NDArray[np.complex128]:
+        """S_f (Hb*Wb, F) the partner planes give each block's centre for the albedos per block ``albedo``."""
+        partner_albedo = albedo[self.partners.partner_block]
+        return albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_plane_phasor)
+
     def __call__(self, albedo: NDArray) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
         """S_f (n, F) and kappa (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""
+        phasor, kappa = _pixel_phasors(self.blocks, self._block_plane_phasor(albedo), self.block_plane_kappa,
+                                       self.coordinates)
         partner_albedo = albedo[self.partners.partner_block]
-        block_phasor = albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_plane_phasor)
-        phasor, kappa = _pixel_phasors(self.blocks, block_phasor, self.block_plane_kappa, self.coordinates)
         own = albedo[self.own_block[self.exact]]
         phasor[self.exact] = own[:, None] * np.einsum("p,npf->nf", partner_albedo, self.exact_plane_phasor)
         kappa[self.exact] = self.exact_plane_kappa
