@@ -1,6 +1,7 @@
 """Per-scan self-calibration of the receiver footprint A_fp: does "auto" correct as well as the true footprint?
 
-Run: .venv/bin/python -m benchmarks.calibration --model DIR [--quick | --held-out] [--seed 0]
+Run: .venv/bin/python -m benchmarks.calibration --model DIR [--quick | --held-out | --several-surfaces] [--seed 0]
+                                                [--scene TEXT]...
  or: .venv/bin/python -m benchmarks.calibration --model DIR --cost  (CPU the calibration adds to 1000 x 1000)
 Renders every scene of the set with each true footprint A_fp (coupling gain A_fp / pi r^2, r the default
 footprint radius), corrects it with the true A_fp and with ``footprint_area_m2="auto"`` (the scan measures
@@ -13,6 +14,7 @@ multipath (the mean signed raw error there) is above 2 mm. ``--quick`` runs two 
 test); ``--held-out`` runs, instead of the main set, five corners kept out of the method's development
 (:data:`HELD_OUT`), and ``--several-surfaces`` scenes where more than two surfaces face each other or a
 floor is seen obliquely (:data:`SEVERAL_SURFACES`); their "edge" is within 20 cm of any of their edges.
+``--scene`` keeps the scenes whose name contains the text, rendered as in the whole set (same seeds).
 """
 
 from __future__ import annotations
@@ -160,6 +162,20 @@ def scene_cases(quick: bool, held_out: bool = False, several_surfaces: bool = Fa
     return [*cases, ("cylinder", cylinder_scene, ()), ("multi-object (Fig. 8)", multi_object, ())]
 
 
+def chosen_cases(quick: bool, held_out: bool, several_surfaces: bool, scenes: tuple[str, ...]
+                 ) -> list[tuple[int, Case]]:
+    """The run's cases with their index in the whole set (their seed), only those whose label contains one of
+    ``scenes`` where any are given; ValueError where none does."""
+    cases = list(enumerate(scene_cases(quick, held_out, several_surfaces)))
+    if not scenes:
+        return cases
+    chosen = [(index, case) for index, case in cases if any(text in case[0] for text in scenes)]
+    if not chosen:
+        raise ValueError(f"no scene of the set is named like {', '.join(map(repr, scenes))}: "
+                         "run without --scene to see the names")
+    return chosen
+
+
 def near_edges(scan: Scan, edges: tuple[EdgeLine, ...]) -> np.ndarray:
     """Pixels whose true surface point lies within EDGE_RADIUS_M of any of ``edges``."""
     near = np.zeros(scan.shape, dtype=bool)
@@ -205,13 +221,18 @@ def measure_row(label: str, scan: Scan, edges: tuple[EdgeLine, ...], model: Corr
 
 
 def run(model_path: str, quick: bool = False, seed: int = 0, held_out: bool = False,
-        on_row: Callable[[dict[str, Any]], None] | None = None, several_surfaces: bool = False
-        ) -> list[dict[str, Any]]:
-    """One row per scene and true footprint (see :func:`measure_row`); ``on_row`` sees each as it is done."""
+        on_row: Callable[[dict[str, Any]], None] | None = None, several_surfaces: bool = False,
+        scenes: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """One row per scene and true footprint (see :func:`measure_row`); ``on_row`` sees each as it is done.
+
+    ``scenes``: only the scenes whose label contains one of these texts (each keeps the seed it has in the
+    whole set, so its rows are the whole run's).
+    """
+    cases = chosen_cases(quick, held_out, several_surfaces, scenes)
     model = load_model(model_path)
     config = Config()
     rows = []
-    for scene_index, (label, factory, edges) in enumerate(scene_cases(quick, held_out, several_surfaces)):
+    for scene_index, (label, factory, edges) in cases:
         scene = factory()  # the geometry does not depend on the footprint: build it once
         for footprint_index, true_m2 in enumerate(QUICK_FOOTPRINTS_M2 if quick else FOOTPRINTS_M2):
             rng = np.random.default_rng([seed, scene_index, footprint_index])
@@ -330,6 +351,8 @@ def main() -> None:
     scenes.add_argument("--several-surfaces", action="store_true",
                         help="Scenes where more than two surfaces face each other, or a floor seen from a tripod.")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--scene", action="append", default=[], metavar="TEXT",
+                        help="Only the scenes whose name contains TEXT (repeatable); same renders as the whole set.")
     parser.add_argument("--cost", action="store_true",
                         help="Only the CPU time the calibration adds to correcting a 1000 x 1000 scan.")
     args = parser.parse_args()
@@ -338,11 +361,16 @@ def main() -> None:
         return
     print(f"Machine: {platform.node()} ({platform.machine()}), {date.today()}; model {args.model}, "
           f"seed {args.seed}{', quick' if args.quick else ''}{', held-out corners' if args.held_out else ''}"
-          f"{', several surfaces' if args.several_surfaces else ''}\n")
+          f"{', several surfaces' if args.several_surfaces else ''}"
+          f"{''.join(f', scenes named like {text!r}' for text in args.scene)}\n")
+    try:
+        chosen_cases(args.quick, args.held_out, args.several_surfaces, tuple(args.scene))
+    except ValueError as error:
+        parser.exit(2, f"benchmarks.calibration: {error}\n")
     print(HEADER, flush=True)
     start = time.perf_counter()
-    rows = run(args.model, args.quick, args.seed, args.held_out, on_row=lambda row: print(format_row(row), flush=True),
-               several_surfaces=args.several_surfaces)
+    rows = run(args.model, args.quick, args.seed, args.held_out, several_surfaces=args.several_surfaces,
+               scenes=tuple(args.scene), on_row=lambda row: print(format_row(row), flush=True))
     print("\nSummary:\n")
     print("\n".join(summary(rows)))
     print(f"\nWall time: {time.perf_counter() - start:.0f} s for {len(rows)} rows")

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,11 +51,13 @@ class Surface(ABC):
     of each ray, inf for a miss; ``normal_at(points)`` returns unit normals (N, 3) (outward for solids; for
     a planar surface either side, the caller orients it); ``patches(spacing)`` tessellates the surface into
     (centres (M, 3), normals (M, 3), areas (M,)); ``albedo`` is its Lambertian reflectance; ``planar`` says
-    whether it is a flat surface, shown in the reference mask.
+    whether it is a flat surface, shown in the reference mask; ``two_sided`` whether light leaves both its
+    faces (a thin board) or only the one its normal points to (the outside of a solid).
     """
 
     albedo: float
     planar: bool
+    two_sided: bool
 
     @abstractmethod
     def intersect(self, origins: NDArray, directions: NDArray) -> NDArray[np.float64]: ...
@@ -69,13 +71,19 @@ class Surface(ABC):
 
 @dataclass(frozen=True)
 class Rectangle(Surface):
-    """A planar rectangle: centre [m] and two orthogonal half-extent vectors [m]."""
+    """A planar rectangle: centre [m] and two orthogonal half-extent vectors [m].
+
+    A board by default, seen and lit from either side. A face of a solid is ``two_sided=False``: its normal,
+    half_u x half_v, points out of the solid, and no light leaves its inner side (the renderer does not trace
+    occlusion, so an inner side would light what lies beyond the solid through it).
+    """
 
     centre: tuple[float, float, float]
     half_u: tuple[float, float, float]
     half_v: tuple[float, float, float]
     albedo: float = 0.8
     planar: bool = True
+    two_sided: bool = True
 
     def _frame(self) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         c, u, v = (np.asarray(x, dtype=np.float64) for x in (self.centre, self.half_u, self.half_v))
@@ -114,6 +122,7 @@ class Sphere(Surface):
     radius: float
     albedo: float = 0.6
     planar: bool = False
+    two_sided: bool = False
 
     def intersect(self, origins: NDArray, directions: NDArray) -> NDArray[np.float64]:
         oc = origins - np.asarray(self.centre)
@@ -146,6 +155,7 @@ class Cylinder(Surface):
     height: float
     albedo: float = 0.6
     planar: bool = False
+    two_sided: bool = False
 
     def intersect(self, origins: NDArray, directions: NDArray) -> NDArray[np.float64]:
         base = np.asarray(self.base)
@@ -178,7 +188,7 @@ class Cylinder(Surface):
 
 def prism(base: tuple[float, float, float], radius: float, height: float, sides: int = 6,
           albedo: float = 0.45, rotation_rad: float = 0.0) -> list[Rectangle]:
-    """A vertical regular prism (a hexagonal pillar by default) as rectangles facing outwards."""
+    """A vertical regular prism (a hexagonal pillar by default) as one-sided rectangles facing outwards."""
     faces = []
     for k in range(sides):
         a0, a1 = rotation_rad + 2 * np.pi * k / sides, rotation_rad + 2 * np.pi * (k + 1) / sides
@@ -186,7 +196,7 @@ def prism(base: tuple[float, float, float], radius: float, height: float, sides:
         p1 = np.array([np.sin(a1), 0.0, np.cos(a1)]) * radius
         centre = np.asarray(base) + (p0 + p1) / 2 + [0.0, height / 2, 0.0]
         half_u = (p1 - p0) / 2
-        faces.append(Rectangle(tuple(centre), tuple(half_u), (0.0, height / 2, 0.0), albedo))
+        faces.append(Rectangle(tuple(centre), tuple(half_u), (0.0, height / 2, 0.0), albedo, two_sided=False))
     return faces
 
 
@@ -319,7 +329,7 @@ def _patch_coupling(points, normals, cos_i, albedo_a, other: Surface, centres, p
     """
     r, cos_a, cos_b = pair_geometry(points[:, None, :], normals[:, None, :], centres[None, :, :],
                                     patch_normals[None, :, :])
-    if other.planar:
+    if other.two_sided:
         cos_b = np.abs(cos_b)  # either side of a board faces A if A is in front of it
     facing = (cos_a > 0) & (cos_b > 0)
     ratio = footprint_coupling(cos_a, cos_b, areas[None, :], np.maximum(r, min_r), np.maximum(cos_i, 1e-3)[:, None],
@@ -438,13 +448,17 @@ def alcove(albedo: float = 0.5, height: int = 96, width: int = 128) -> Scene:
 def box_on_floor(floor_albedo: float = 0.4, box_albedo: float = 0.8, pitch_deg: float = 27.0, height: int = 96,
                  width: int = 128) -> Scene:
     """A box 0.5 m wide and deep and 0.4 m high on the floor, 2 m ahead of a sensor 1 m above the floor that
-    looks down by ``pitch_deg``: the sensor sees the box's front and top, and its sides, hidden from the
-    sensor, light the floor beside it."""
+    looks down by ``pitch_deg``: the sensor sees the box's front and top, and its sides and back, hidden from
+    the sensor, light the floor beside and behind it. The box's faces send light from their outsides only."""
     floor = Rectangle((0.0, -1.0, 2.2), (1.2, 0.0, 0.0), (0.0, 0.0, 1.2), floor_albedo)
-    front = Rectangle((0.0, -0.8, 2.0), (0.25, 0.0, 0.0), (0.0, 0.2, 0.0), box_albedo)
-    top = Rectangle((0.0, -0.6, 2.25), (0.25, 0.0, 0.0), (0.0, 0.0, 0.25), box_albedo)
-    sides = tuple(Rectangle((x, -0.8, 2.25), (0.0, 0.0, 0.25), (0.0, 0.2, 0.0), box_albedo) for x in (-0.25, 0.25))
-    return Scene("box_on_floor", _pitched((floor, front, top, *sides), pitch_deg), *_grid(height, width, 0.25, 0.19))
+    up, half_width = (0.0, 0.2, 0.0), 0.25  # half the box's height, half its width and depth [m]
+    front = Rectangle((0.0, -0.8, 2.0), (-half_width, 0.0, 0.0), up, box_albedo, two_sided=False)
+    back = Rectangle((0.0, -0.8, 2.5), (half_width, 0.0, 0.0), up, box_albedo, two_sided=False)
+    top = Rectangle((0.0, -0.6, 2.25), (half_width, 0.0, 0.0), (0.0, 0.0, -half_width), box_albedo, two_sided=False)
+    sides = tuple(Rectangle((x, -0.8, 2.25), (0.0, 0.0, -np.sign(x) * half_width), up, box_albedo, two_sided=False)
+                  for x in (-half_width, half_width))
+    return Scene("box_on_floor", _pitched((floor, front, back, top, *sides), pitch_deg),
+                 *_grid(height, width, 0.25, 0.19))
 
 
 def floor_meets_wall(floor_albedo: float = 0.6, wall_albedo: float = 0.7, pitch_deg: float = 20.0, height: int = 96,
@@ -465,8 +479,8 @@ def pitch_rotation(pitch_deg: float) -> NDArray[np.float64]:
 def _pitched(rectangles: tuple[Rectangle, ...], pitch_deg: float) -> tuple[Rectangle, ...]:
     """Rectangles as a sensor looking down by ``pitch_deg`` sees them (the view's axis stays z)."""
     turn = pitch_rotation(pitch_deg)
-    return tuple(Rectangle(tuple(turn @ np.asarray(r.centre)), tuple(turn @ np.asarray(r.half_u)),
-                           tuple(turn @ np.asarray(r.half_v)), r.albedo) for r in rectangles)
+    return tuple(replace(r, centre=tuple(turn @ np.asarray(r.centre)), half_u=tuple(turn @ np.asarray(r.half_u)),
+                         half_v=tuple(turn @ np.asarray(r.half_v))) for r in rectangles)
 
 
 SCENES: dict[str, Callable[..., Scene]] = {

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import zarr
@@ -340,6 +343,21 @@ def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(
         assert row["auto_mm"] <= row["raw_mm"] + 0.05  # auto never does harm on these
     wall = [row for row in rows if not row["corner"]]
     assert all(row["auto_mm"] == row["raw_mm"] for row in wall)
+
+
+def test_calibration_benchmark__a_chosen_scene_keeps_its_seed_and_an_unknown_one_is_refused(tmp_path):
+    from benchmarks.calibration import chosen_cases, scene_cases
+
+    whole = scene_cases(quick=False)
+    chosen = chosen_cases(False, False, False, ("multi-object", "cylinder"))
+    assert [label for _, (label, _, _) in chosen] == ["cylinder", "multi-object (Fig. 8)"]
+    assert [index for index, _ in chosen] == [len(whole) - 2, len(whole) - 1]  # their seeds in the whole run
+    with pytest.raises(ValueError, match="no scene of the set is named like 'tower'"):
+        chosen_cases(False, False, False, ("tower",))
+    result = subprocess.run([sys.executable, "-m", "benchmarks.calibration", "--model", str(tmp_path),
+                             "--scene", "tower"], capture_output=True, text=True, check=False)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1].startswith("benchmarks.calibration: no scene of the set")
 
 
 def test_calibration_benchmark__the_edge_region_follows_a_rolled_edge():

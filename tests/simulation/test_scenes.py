@@ -123,19 +123,50 @@ def test_pitched_scenes__the_floor_lies_one_metre_below_the_sensor(pitch_deg):
         assert (which == 0).sum() > 50 and (which == 1).sum() > 50, scene.name
 
 
-def test_box_on_floor__its_sides_are_hidden_but_light_the_floor():
+def test_box_on_floor__its_sides_and_back_are_hidden_but_light_the_floor():
     scene = box_on_floor(height=24, width=32)
     _, which = first_hits(scene)
-    assert not np.isin(which, [3, 4]).any(), "the sensor sees neither side"
-    # At the calibrated footprint (A_fp 0.041 m^2) the hidden sides add over 1 % to some floor pixel's light.
+    hidden = [2, 4, 5]  # back, left and right side
+    assert not np.isin(which, hidden).any(), "the sensor sees neither the sides nor the back"
+    # At the calibrated footprint (A_fp 0.041 m^2) the hidden faces add over 1 % to some floor pixel's light.
     gain = 0.041 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
     floor = which == 0
-    sides_only = Scene("sides", (scene.surfaces[0], *scene.surfaces[3:]), scene.azimuth_rad, scene.elevation_rad)
-    lit, _ = light_transport(sides_only, Config(), DEFAULT_FOOTPRINT_RADIUS_M, 0.04, gain)
+    hidden_only = Scene("hidden", (scene.surfaces[0], *(scene.surfaces[k] for k in hidden)), scene.azimuth_rad,
+                        scene.elevation_rad)
+    lit, _ = light_transport(hidden_only, Config(), DEFAULT_FOOTPRINT_RADIUS_M, 0.04, gain)
     alone, _ = light_transport(Scene("floor", scene.surfaces[:1], scene.azimuth_rad, scene.elevation_rad),
                                Config(), DEFAULT_FOOTPRINT_RADIUS_M, 0.04, gain)
     added = np.abs(lit[floor, -1] - alone[floor, -1]) / np.abs(alone[floor, -1])
     assert added.max() > 0.01
+
+
+def test_box_on_floor__its_top_sends_the_floor_no_light():
+    # The top faces up like the floor: no light leaves the box's inside through it.
+    scene = box_on_floor(height=24, width=32)
+    truth: dict[str, np.ndarray] = {}
+    light_transport(Scene("top", (scene.surfaces[0], scene.surfaces[3]), scene.azimuth_rad, scene.elevation_rad),
+                    Config(), DEFAULT_FOOTPRINT_RADIUS_M, 0.04, 10.0, coupling_out=truth)
+    _, which = first_hits(scene)
+    assert (which == 0).sum() > 50
+    assert not truth["coupling"][which == 0].any()
+
+
+def test_light_transport__a_solid_face_lights_only_what_lies_in_front_of_it():
+    """A one-sided patch facing away from a board sends it nothing; turned round, or two-sided, the same patch
+    lights it."""
+    board = Rectangle((0.0, 0.0, 2.0), (0.5, 0.0, 0.0), (0.0, 0.5, 0.0), albedo=0.8)
+    coupling = {}
+    for name, half_v, two_sided in (("away", (0.0, 0.0, -0.01), False), ("towards", (0.0, 0.0, 0.01), False),
+                                    ("board", (0.0, 0.0, -0.01), True)):
+        patch = Rectangle((0.0, 0.3, 1.9), (0.01, 0.0, 0.0), half_v, albedo=0.9, two_sided=two_sided)
+        truth: dict[str, np.ndarray] = {}
+        light_transport(Scene(name, (board, patch), np.array([0.0]), np.array([0.0])), NOISELESS,
+                        footprint_radius_m=0.012, patch_spacing_m=0.05, coupling_gain=90.0, coupling_out=truth)
+        coupling[name] = truth["coupling"][0]
+    # (0.01, 0, 0) x (0, 0, -0.01) points up, away from the board below the patch.
+    assert coupling["away"] == 0.0
+    assert coupling["towards"] > 0.0
+    assert coupling["board"] == pytest.approx(coupling["towards"], rel=1e-12)
 
 
 def test_light_transport__one_patch_matches_the_two_path_closed_form():
