@@ -230,13 +230,16 @@ def first_hits(scene: Scene) -> tuple[NDArray, NDArray]:
 
 def render(scene: Scene, config: Config, rng: np.random.Generator, *,
            footprint_radius_m: float = DEFAULT_FOOTPRINT_RADIUS_M,
-           patch_spacing_m: float | None = None, coupling_gain: float = DEFAULT_COUPLING_GAIN) -> Scan:
+           patch_spacing_m: float | None = None, coupling_gain: float = DEFAULT_COUPLING_GAIN,
+           truth_out: dict[str, NDArray] | None = None) -> Scan:
     """Render a scan: exact reference depth, two-path-per-patch light transport, then the sensor model.
 
-    ``patch_spacing_m`` defaults to the scene's own (large scenes use coarser patches) or 2 cm.
+    ``patch_spacing_m`` defaults to the scene's own (large scenes use coarser patches) or 2 cm. A dict passed
+    as ``truth_out`` receives the render's true multipath per pixel (:func:`light_transport`'s
+    ``coupling_out``).
     """
     patch_spacing_m = patch_spacing_m or float(scene.notes.get("patch_spacing_m", DEFAULT_PATCH_SPACING_M))
-    phasor, dc = light_transport(scene, config, footprint_radius_m, patch_spacing_m, coupling_gain)
+    phasor, dc = light_transport(scene, config, footprint_radius_m, patch_spacing_m, coupling_gain, truth_out)
     depth, amplitude = sense(phasor, dc, config, rng)
     h, w = scene.elevation_rad.size, scene.azimuth_rad.size
     d_as, which = first_hits(scene)
@@ -270,8 +273,9 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     Returns (phasor, dc) where dc is sum |Gamma_k| over paths [V^2]. A dict passed as ``coupling_out``
     receives the true per-pixel multipath of the render: ``coupling`` (H*W,), the summed kappa of the
     prior (ratio Gamma_M / Gamma_D over a b, after the cap at 1; the quantity
-    :func:`mpi_lidar.scans.geometry.multipath_potential` estimates) [1], and ``d_ab_m`` (H*W,), the
-    ratio-weighted mean A-B distance [m] (NaN without multipath).
+    :func:`mpi_lidar.scans.geometry.multipath_potential` estimates) [1], ``d_ab_m`` (H*W,), the
+    ratio-weighted mean A-B distance [m] (NaN without multipath), and ``bias_m`` (H*W, F), the depth bias
+    the multipath alone gives each frequency, without noise [m] (NaN where no surface is hit).
     """
     s = config.sensor
     c = s.speed_of_light_m_per_s
@@ -283,6 +287,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     patches = [s_.patches(patch_spacing_m) for s_ in scene.surfaces]
     true_kappa = np.zeros(rays.shape[0])
     true_d_ab = np.full(rays.shape[0], np.nan)
+    true_bias = np.full((rays.shape[0], freqs.size), np.nan)
     effective_footprint = footprint_area(footprint_radius_m, coupling_gain)
     for index, surface in enumerate(scene.surfaces):
         pixels = np.flatnonzero(which == index)
@@ -313,10 +318,11 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
             with np.errstate(invalid="ignore", divide="ignore"):
                 true_d_ab[block] = np.where(multipath_dc > 0, ratio_r / multipath_dc, np.nan)
             direct = path_phasor(gamma_d[:, None], d_as[block, None], freqs[None, :], c)  # eq 12, 14
+            true_bias[block] = np.angle(1 + scale[:, None] * multipath) * c / (4 * np.pi * freqs)
             phasor[block] = direct * (1 + scale[:, None] * multipath)
             dc[block] = gamma_d[:, None] * (1 + scale * multipath_dc)[:, None]
     if coupling_out is not None:
-        coupling_out.update(coupling=true_kappa, d_ab_m=true_d_ab)
+        coupling_out.update(coupling=true_kappa, d_ab_m=true_d_ab, bias_m=true_bias)
     return phasor, dc
 
 

@@ -189,6 +189,8 @@ def test_light_transport__one_patch_matches_the_two_path_closed_form():
     np.testing.assert_allclose(dc[0], gamma_d * (1 + ratio), rtol=1e-12)
     # the reported coupling is the white-surface kappa of the kernel, its distance the patch's
     np.testing.assert_allclose(truth["coupling"], ratio / (0.8 * 0.9), rtol=1e-12)
+    # ... and its noise-free depth bias the phase's over 4 pi f / c
+    np.testing.assert_allclose(truth["bias_m"][0], expected * C / (4 * np.pi * FREQS), rtol=1e-9)
     np.testing.assert_allclose(truth["d_ab_m"], r, rtol=1e-12)
 
 
