@@ -134,9 +134,8 @@ MAX_ESTIMATE_FACTOR = 1.5
 
 HEADER = ("| scene | true A_fp [m^2] | raw MAE [mm] | corrected, true A_fp [mm] | corrected, auto [mm] | edge raw [mm] "
           "| edge true A_fp [mm] | edge auto [mm] | edge multipath [mm] | edge, multipath removed [mm] "
-          "| estimated A_fp [m^2] (+-sigma) "
-          "| estimate / true | significant |\n"
-          "|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| estimated A_fp [m^2] (+-sigma) | estimate / true | significant |\n"
+          + "|---" * 13 + "|")
 
 
 def corner_case(angle: float, distance: float, albedo: float) -> Case:
