@@ -302,9 +302,8 @@ def summary(rows: list[dict[str, Any]]) -> list[str]:
     harm = worst([(r["auto_mm"] - r["raw_mm"], name(r)) for r in rows])
     edged = [r for r in rows if r["corner"] and not math.isnan(r["edge_raw_mm"])]
     ratio = worst([(r["edge_auto_mm"] / r["edge_true_mm"], name(r)) for r in edged])
-    reduction = worst([(1 - r["edge_auto_mm"] / r["edge_raw_mm"], name(r)) for r in edged
-                       if r["edge_raw_mm"] > STRONG_EDGE_MM], highest=False)
     strong = [r for r in edged if r["edge_raw_mm"] > STRONG_EDGE_MM]
+    reduction = worst([(1 - r["edge_auto_mm"] / r["edge_raw_mm"], name(r)) for r in strong], highest=False)
     reachable = [r for r in strong if 1 - r["edge_removed_mm"] / r["edge_raw_mm"] >= MIN_EDGE_REDUCTION]
     reached = [r for r in reachable if 1 - r["edge_auto_mm"] / r["edge_raw_mm"] >= MIN_EDGE_REDUCTION]
     factor = worst([(estimate_factor(r), name(r)) for r in edged if r["edge_multipath_mm"] > ESTIMATE_EDGE_MM])

@@ -318,8 +318,9 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
             with np.errstate(invalid="ignore", divide="ignore"):
                 true_d_ab[block] = np.where(multipath_dc > 0, ratio_r / multipath_dc, np.nan)
             direct = path_phasor(gamma_d[:, None], d_as[block, None], freqs[None, :], c)  # eq 12, 14
-            true_bias[block] = np.angle(1 + scale[:, None] * multipath) * c / (4 * np.pi * freqs)
-            phasor[block] = direct * (1 + scale[:, None] * multipath)
+            both_paths = 1 + scale[:, None] * multipath  # per unit of the direct path
+            true_bias[block] = np.angle(both_paths) * c / (4 * np.pi * freqs)
+            phasor[block] = direct * both_paths
             dc[block] = gamma_d[:, None] * (1 + scale * multipath_dc)[:, None]
     if coupling_out is not None:
         coupling_out.update(coupling=true_kappa, d_ab_m=true_d_ab, bias_m=true_bias)

@@ -343,11 +343,11 @@ def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(
         assert row["auto_mm"] <= row["raw_mm"] + 0.05  # auto never does harm on these
     wall = [row for row in rows if not row["corner"]]
     assert all(row["auto_mm"] == row["raw_mm"] for row in wall)
-    # The rendered multipath removed exactly leaves the noise: at the strong footprint the edge comes down to
-    # about the weak footprint's raw edge (the same corner with almost no multipath).
     from benchmarks.calibration import HEADER, format_row
 
     assert {len(line.strip("|").split("|")) for line in [*HEADER.splitlines(), format_row(rows[0])]} == {13}
+    # The rendered multipath removed exactly leaves the noise: at the strong footprint the edge comes down to
+    # about the weak footprint's raw edge (the same corner with almost no multipath).
     weak, strong = (row for row in rows if row["corner"])
     assert strong["edge_removed_mm"] < 0.7 * strong["edge_raw_mm"]
     assert strong["edge_removed_mm"] == pytest.approx(weak["edge_raw_mm"], rel=0.25)
