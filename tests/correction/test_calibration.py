@@ -407,3 +407,18 @@ def test_calibration_diagnosis__the_surfaces_beyond_the_view_carry_the_strong_mu
     # Planes fitted to a narrow view, with partners only where the view sees them, take up the multipath.
     assert strong["exact, planes"].area_m2 < strong["exact, reference"].area_m2 / 2
     assert strong["shipped"].area_m2 > 0.1 / 1.5, "the partners continued beyond the view give it back"
+
+
+def test_correction_diagnosis__bins_the_edge_by_true_bias_on_the_true_surface(tiny_geometric_model):
+    from benchmarks.correction_diagnosis import HEADER, diagnose, diagnosis_cases, format_row
+
+    (label, scene, edges), = diagnosis_cases(quick=True)
+    rows = diagnose(label, scene, edges, tiny_geometric_model, seed=0)
+    assert len(rows) == 5 and sum(row["pixels"] for row in rows) > 500
+    means = [row["bias_mm"] for row in rows]
+    assert means == sorted(means) and means[-1] > 5.0
+    for row in rows:
+        # Each board of a 60-degree corner seen along its bisector meets the beam at 60 degrees.
+        assert row["cos_i"] == pytest.approx(np.cos(np.deg2rad(60.0)), abs=0.08)
+        assert all(np.isfinite(row[key]).all() for key in ("kappa", "d_ab_m", "taken_off_mm", "facing_mm"))
+        assert format_row(row).count("|") == HEADER.splitlines()[0].count("|")

@@ -1,0 +1,133 @@
+"""Where the correction model falls short of the multipath, pixel by pixel, with the true footprint given.
+
+Run: .venv/bin/python -m benchmarks.correction_diagnosis --model DIR [--quick] [--seed 0]
+Renders scenes at one true footprint A_fp, corrects each with that footprint (so the calibration plays no
+part) and sorts the pixels near the scene's edges by the render's own noise-free multipath bias of the
+31.25 MHz depth into five bins (quartiles and the top tenth). Per bin it prints the incidence cosine of the
+beam on the true surface, the render's true coupling kappa and A-B distance against the scan's estimates
+(the model's geometric inputs), the true bias, what the correction took off, and what the same model takes
+off when fed the amplitude the surface would return facing the sensor (measured amplitude / cos_i, the
+true cos_i; a question asked of the model, not something correction does). The training rows are surfaces
+that face the sensor, whose amplitude tells their albedo and with it the multipath ratio a kappa b; a
+surface seen at incidence i returns cos_i of that light with the same ratio. ``--quick`` runs one small
+corner (for a test).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from datetime import date
+from typing import Any
+
+import numpy as np
+
+from benchmarks.calibration import (
+    SEVERAL_SURFACES,
+    SHAPED_CORNERS,
+    corner_case,
+    coupling_gain,
+    near_edges,
+    shaped_cases,
+    usable_pixels,
+)
+from benchmarks.scenes import EdgeLine, edge_line
+from mpi_lidar.config import Config
+from mpi_lidar.correction import CorrectionOptions, Flag, GeometryGate, correct_scan
+from mpi_lidar.learning.features import geometry_inputs
+from mpi_lidar.learning.model import CorrectionModel, load_model
+from mpi_lidar.scans.geometry import surface_normals
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.simulation.scenes import Scene, corner, render
+
+TRUE_FOOTPRINT_M2 = 0.041
+# Bin edges as quantiles of the true bias over the pixels near the edges: four quartiles and the top tenth.
+BIN_QUANTILES = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0)
+
+HEADER = ("| scene | true bias [mm] | pixels | cos_i | kappa true / est. | d_AB true / est. [m] "
+          "| mean true bias [mm] | taken off [mm] | taken off, amplitude / cos_i [mm] |\n" + "|---" * 9 + "|")
+
+
+def diagnosis_cases(quick: bool) -> list[tuple[str, Scene, tuple[EdgeLine, ...]]]:
+    """The scenes: corners of the calibration's main set (narrow and bright, near and bright, far and grey, and
+    the two of two albedos) and the room's corner and the alcove."""
+    if quick:
+        return [("corner 60 deg, 2 m, albedo 0.8", corner(60.0, 2.0, 0.8, height=48, width=64), (edge_line(2.0),))]
+    corners = [corner_case(60, 2.4, 0.9), corner_case(90, 1.4, 0.9), corner_case(90, 2.4, 0.5)]
+    two_albedos = [case for case in shaped_cases(SHAPED_CORNERS) if "/" in case[0]]
+    chosen = [*corners, *two_albedos, *SEVERAL_SURFACES[:2]]
+    return [(label, factory(), edges) for label, factory, edges in chosen]
+
+
+def incidence_cosine(scan: Scan) -> np.ndarray:
+    """|cos| of the beam on the true surface per pixel (H, W), from the reference depth's points (NaN where a
+    neighbour has no reference point)."""
+    rays = scan.rays()
+    normals = surface_normals(rays * scan.reference_depth[..., None])
+    return np.abs((normals * rays).sum(-1))
+
+
+def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: CorrectionModel, seed: int,
+             true_m2: float = TRUE_FOOTPRINT_M2) -> list[dict[str, Any]]:
+    """One row per bin of true bias over the corrected pixels near ``edges`` (see the module's docstring)."""
+    truth: dict[str, np.ndarray] = {}
+    scan = render(scene, Config(), np.random.default_rng(seed), coupling_gain=coupling_gain(true_m2),
+                  truth_out=truth)
+    options = CorrectionOptions(footprint_area_m2=true_m2)
+    correction = correct_scan(scan, model, options)
+    raw = scan.raw_pixels()
+    f = len(scan.frequencies_hz)
+    gate = GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m, true_m2)
+    usable = usable_pixels(scan, correction.flags)
+    potential = gate.potential(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan)).rows()
+    chosen = np.flatnonzero((usable & near_edges(scan, edges)).ravel()
+                            & (correction.flags.ravel() == Flag.CORRECTED))
+    cos_i = incidence_cosine(scan).ravel()[chosen]
+    inputs = geometry_inputs(potential.coupling, potential.d_ab_m)[chosen]
+    facing = raw[chosen].astype(np.float64)
+    facing[:, f:] /= np.maximum(np.nan_to_num(cos_i, nan=1.0), 0.05)[:, None]
+    as_facing = raw[chosen, f - 1] - model.predict_depth(facing, inputs)
+    taken_off = raw[chosen, f - 1] - correction.depth.ravel()[chosen]
+    bias = truth["bias_m"][chosen, -1]
+    kappa = np.column_stack([truth["coupling"][chosen], inputs[:, 0]])
+    d_ab = np.column_stack([truth["d_ab_m"][chosen], inputs[:, 1]])
+    bins = np.searchsorted(np.quantile(bias, BIN_QUANTILES)[1:-1], bias, side="right")
+    rows = []
+    for index in range(len(BIN_QUANTILES) - 1):
+        inside = bins == index
+        rows.append({"scene": label, "bin_mm": (1e3 * bias[inside].min(), 1e3 * bias[inside].max()),
+                     "pixels": int(inside.sum()), "cos_i": float(np.nanmedian(cos_i[inside])),
+                     "kappa": tuple(np.nanmedian(kappa[inside], axis=0)),
+                     "d_ab_m": tuple(np.nanmedian(d_ab[inside], axis=0)),
+                     "bias_mm": float(1e3 * bias[inside].mean()), "taken_off_mm": float(1e3 * taken_off[inside].mean()),
+                     "facing_mm": float(1e3 * as_facing[inside].mean())})
+    return rows
+
+
+def format_row(row: dict[str, Any]) -> str:
+    low, high = row["bin_mm"]
+    return (f"| {row['scene']} | {low:.1f}-{high:.1f} | {row['pixels']} | {row['cos_i']:.2f} "
+            f"| {row['kappa'][0]:.3f} / {row['kappa'][1]:.3f} | {row['d_ab_m'][0]:.3f} / {row['d_ab_m'][1]:.3f} "
+            f"| {row['bias_mm']:.2f} | {row['taken_off_mm']:.2f} | {row['facing_mm']:.2f} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", required=True, help="model directory (a geometric model)")
+    parser.add_argument("--quick", action="store_true", help="one small corner")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    model = load_model(args.model)
+    print(f"Correction diagnosis, true A_fp {TRUE_FOOTPRINT_M2} m^2, seed {args.seed}: {platform.machine()}, "
+          f"Python {platform.python_version()}, {date.today()}\n")
+    print(HEADER)
+    start = time.perf_counter()
+    for index, (label, scene, edges) in enumerate(diagnosis_cases(args.quick)):
+        for row in diagnose(label, scene, edges, model, seed=args.seed * 1000 + index):
+            print(format_row(row), flush=True)
+    print(f"\nWall time: {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
