@@ -70,7 +70,8 @@ def incidence_cosine(scan: Scan) -> np.ndarray:
 
 def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: CorrectionModel, seed: int,
              true_m2: float = TRUE_FOOTPRINT_M2) -> list[dict[str, Any]]:
-    """One row per bin of true bias over the corrected pixels near ``edges`` (see the module's docstring)."""
+    """One row per bin of true bias over the corrected pixels near ``edges`` (see the module's docstring);
+    none where the correction left too few of them."""
     truth: dict[str, np.ndarray] = {}
     scan = render(scene, Config(), np.random.default_rng(seed), coupling_gain=coupling_gain(true_m2),
                   truth_out=truth)
@@ -83,6 +84,8 @@ def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: Corre
     potential = gate.potential(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan)).rows()
     chosen = np.flatnonzero((usable & near_edges(scan, edges)).ravel()
                             & (correction.flags.ravel() == Flag.CORRECTED))
+    if chosen.size < len(BIN_QUANTILES):
+        return []  # the gate left the edges as measured: nothing to take apart
     cos_i = incidence_cosine(scan).ravel()[chosen]
     inputs = geometry_inputs(potential.coupling, potential.d_ab_m)[chosen]
     facing = raw[chosen].astype(np.float64)
@@ -124,8 +127,11 @@ def main() -> None:
     print(HEADER)
     start = time.perf_counter()
     for index, (label, scene, edges) in enumerate(diagnosis_cases(args.quick)):
-        for row in diagnose(label, scene, edges, model, seed=args.seed * 1000 + index):
+        rows = diagnose(label, scene, edges, model, seed=args.seed * 1000 + index)
+        for row in rows:
             print(format_row(row), flush=True)
+        if not rows:
+            print(f"| {label} | the correction left the edges as measured |" + " |" * 7, flush=True)
     print(f"\nWall time: {time.perf_counter() - start:.0f} s")
 
 

@@ -422,3 +422,13 @@ def test_correction_diagnosis__bins_the_edge_by_true_bias_on_the_true_surface(ti
         assert row["cos_i"] == pytest.approx(np.cos(np.deg2rad(60.0)), abs=0.08)
         assert all(np.isfinite(row[key]).all() for key in ("kappa", "d_ab_m", "taken_off_mm", "facing_mm"))
         assert format_row(row).count("|") == HEADER.splitlines()[0].count("|")
+
+
+def test_correction_diagnosis__a_scene_left_as_measured_gives_no_bins(tiny_geometric_model):
+    from benchmarks.correction_diagnosis import diagnose
+    from benchmarks.scenes import edge_line
+
+    # A corner far weaker than the gate's threshold: no pixel near its edge is corrected.
+    rows = diagnose("weak corner", corner(120.0, 2.0, 0.2, height=24, width=32), (edge_line(2.0),),
+                    tiny_geometric_model, seed=0, true_m2=1e-5)
+    assert rows == []
