@@ -34,7 +34,8 @@ from benchmarks.calibration import (
 )
 from benchmarks.scenes import EdgeLine, edge_line
 from mpi_lidar.config import Config
-from mpi_lidar.correction import CorrectionOptions, Flag, GeometryGate, correct_scan
+from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction.gates import geometry_gate
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.scans.geometry import surface_normals
@@ -79,9 +80,8 @@ def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: Corre
     correction = correct_scan(scan, model, options)
     raw = scan.raw_pixels()
     f = len(scan.frequencies_hz)
-    gate = GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m, true_m2)
     usable = usable_pixels(scan, correction.flags)
-    potential = gate.potential(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan)).rows()
+    potential = geometry_gate(options).potential(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan)).rows()
     chosen = np.flatnonzero((usable & near_edges(scan, edges)).ravel()
                             & (correction.flags.ravel() == Flag.CORRECTED))
     if chosen.size < len(BIN_QUANTILES):
@@ -90,21 +90,30 @@ def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: Corre
     inputs = geometry_inputs(potential.coupling, potential.d_ab_m)[chosen]
     facing = raw[chosen].astype(np.float64)
     facing[:, f:] /= np.maximum(np.nan_to_num(cos_i, nan=1.0), 0.05)[:, None]
-    as_facing = raw[chosen, f - 1] - model.predict_depth(facing, inputs)
-    taken_off = raw[chosen, f - 1] - correction.depth.ravel()[chosen]
-    bias = truth["bias_m"][chosen, -1]
-    kappa = np.column_stack([truth["coupling"][chosen], inputs[:, 0]])
-    d_ab = np.column_stack([truth["d_ab_m"][chosen], inputs[:, 1]])
+    measured = raw[chosen, f - 1]
+    per_pixel = {"cos_i": cos_i, "bias_m": truth["bias_m"][chosen, -1],
+                 "kappa": np.column_stack([truth["coupling"][chosen], inputs[:, 0]]),
+                 "d_ab_m": np.column_stack([truth["d_ab_m"][chosen], inputs[:, 1]]),
+                 "taken_off_m": measured - correction.depth.ravel()[chosen],
+                 "facing_m": measured - model.predict_depth(facing, inputs)}
+    return bin_rows(label, per_pixel)
+
+
+def bin_rows(label: str, per_pixel: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+    """The rows of :func:`diagnose`: per-pixel values (n,) or true / estimated pairs (n, 2), summarised per bin
+    of the true bias ``bias_m``."""
+    bias = per_pixel["bias_m"]
     bins = np.searchsorted(np.quantile(bias, BIN_QUANTILES)[1:-1], bias, side="right")
     rows = []
     for index in range(len(BIN_QUANTILES) - 1):
         inside = bins == index
         rows.append({"scene": label, "bin_mm": (1e3 * bias[inside].min(), 1e3 * bias[inside].max()),
-                     "pixels": int(inside.sum()), "cos_i": float(np.nanmedian(cos_i[inside])),
-                     "kappa": tuple(np.nanmedian(kappa[inside], axis=0)),
-                     "d_ab_m": tuple(np.nanmedian(d_ab[inside], axis=0)),
-                     "bias_mm": float(1e3 * bias[inside].mean()), "taken_off_mm": float(1e3 * taken_off[inside].mean()),
-                     "facing_mm": float(1e3 * as_facing[inside].mean())})
+                     "pixels": int(inside.sum()), "cos_i": float(np.nanmedian(per_pixel["cos_i"][inside])),
+                     "kappa": tuple(np.nanmedian(per_pixel["kappa"][inside], axis=0)),
+                     "d_ab_m": tuple(np.nanmedian(per_pixel["d_ab_m"][inside], axis=0)),
+                     "bias_mm": float(1e3 * bias[inside].mean()),
+                     "taken_off_mm": float(1e3 * per_pixel["taken_off_m"][inside].mean()),
+                     "facing_mm": float(1e3 * per_pixel["facing_m"][inside].mean())})
     return rows
 
 
