@@ -121,7 +121,7 @@ def trained_model(out: Path, rows: int, rounds: int) -> Path:
     config = Config()
     spec = FeatureSpec(config.frequencies_hz, DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, geometric=True)
     raw, theta = simulate_rows(config, rows, seeded_rng(config.dataset.seed, 0))
-    geometry = synthetic_geometry(theta, THETA_NAMES, config.prior, config.dataset.seed, np.arange(rows))
+    geometry = synthetic_geometry(theta, THETA_NAMES, config.dataset.seed, np.arange(rows))
     early = DEFAULT_EARLY_STOPPING if rounds > DEFAULT_EARLY_STOPPING else None
     fitted = train_arrays(spec.transform(raw, geometry), spec.target(raw, theta[:, 0]), None, rounds, early,
                           nthread=os.cpu_count() or 1)

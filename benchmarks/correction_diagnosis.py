@@ -4,13 +4,11 @@ Run: .venv/bin/python -m benchmarks.correction_diagnosis --model DIR [--quick] [
 Renders scenes at one true footprint A_fp, corrects each with that footprint (so the calibration plays no
 part) and sorts the pixels near the scene's edges by the render's own noise-free multipath bias of the
 31.25 MHz depth into five bins (quartiles and the top tenth). Per bin it prints the incidence cosine of the
-beam on the true surface, the render's true coupling kappa and A-B distance against the scan's estimates
+beam on the true surface, the render's true equivalent rho_ABA and A-B distance against the scan's estimates
 (the model's geometric inputs), the true bias, what the correction took off, and what the same model takes
-off when fed the amplitude the surface would return facing the sensor (measured amplitude / cos_i, the
-true cos_i; a question asked of the model, not something correction does). The training rows are surfaces
-that face the sensor, whose amplitude tells their albedo and with it the multipath ratio a kappa b; a
-surface seen at incidence i returns cos_i of that light with the same ratio. ``--quick`` runs one small
-corner (for a test).
+off when fed the render's true rho_ABA and d_AB instead of the estimates (a question asked of the model, not
+something correction does): the gap between the last two is the estimates' error, the gap between the last
+and the true bias the model's own. ``--quick`` runs one small corner (for a test).
 """
 
 from __future__ import annotations
@@ -46,8 +44,8 @@ TRUE_FOOTPRINT_M2 = 0.041
 # Bin edges as quantiles of the true bias over the pixels near the edges: four quartiles and the top tenth.
 BIN_QUANTILES = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0)
 
-HEADER = ("| scene | true bias [mm] | pixels | cos_i | kappa true / est. | d_AB true / est. [m] "
-          "| mean true bias [mm] | taken off [mm] | taken off, amplitude / cos_i [mm] |\n" + "|---" * 9 + "|")
+HEADER = ("| scene | true bias [mm] | pixels | cos_i | rho_ABA true / est. | d_AB true / est. [m] "
+          "| mean true bias [mm] | taken off [mm] | taken off, true rho_ABA and d_AB [mm] |\n" + "|---" * 9 + "|")
 
 
 def diagnosis_cases(quick: bool) -> list[tuple[str, Scene, tuple[EdgeLine, ...]]]:
@@ -81,21 +79,21 @@ def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: Corre
     raw = scan.raw_pixels()
     f = len(scan.frequencies_hz)
     usable = usable_pixels(scan, correction.flags)
-    potential = geometry_gate(options).potential(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan)).rows()
+    gate = geometry_gate(options)
+    gate.scan_candidates(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan))
     chosen = np.flatnonzero((usable & near_edges(scan, edges)).ravel()
                             & (correction.flags.ravel() == Flag.CORRECTED))
     if chosen.size < len(BIN_QUANTILES):
         return []  # the gate left the edges as measured: nothing to take apart
     cos_i = incidence_cosine(scan).ravel()[chosen]
-    inputs = geometry_inputs(potential.coupling, potential.d_ab_m)[chosen]
-    facing = raw[chosen].astype(np.float64)
-    facing[:, f:] /= np.maximum(np.nan_to_num(cos_i, nan=1.0), 0.05)[:, None]
+    inputs = geometry_inputs(*gate.model_inputs(scan).pixels(chosen))
+    exact = geometry_inputs(truth["rho_aba"][chosen], truth["d_ab_m"][chosen])
     measured = raw[chosen, f - 1]
     per_pixel = {"cos_i": cos_i, "bias_m": truth["bias_m"][chosen, -1],
-                 "kappa": np.column_stack([truth["coupling"][chosen], inputs[:, 0]]),
-                 "d_ab_m": np.column_stack([truth["d_ab_m"][chosen], inputs[:, 1]]),
+                 "rho_aba": np.column_stack([exact[:, 0], inputs[:, 0]]),
+                 "d_ab_m": np.column_stack([exact[:, 1], inputs[:, 1]]),
                  "taken_off_m": measured - correction.depth.ravel()[chosen],
-                 "facing_m": measured - model.predict_depth(facing, inputs)}
+                 "exact_inputs_m": measured - model.predict_depth(raw[chosen], exact)}
     return bin_rows(label, per_pixel)
 
 
@@ -109,19 +107,19 @@ def bin_rows(label: str, per_pixel: dict[str, np.ndarray]) -> list[dict[str, Any
         inside = bins == index
         rows.append({"scene": label, "bin_mm": (1e3 * bias[inside].min(), 1e3 * bias[inside].max()),
                      "pixels": int(inside.sum()), "cos_i": float(np.nanmedian(per_pixel["cos_i"][inside])),
-                     "kappa": tuple(np.nanmedian(per_pixel["kappa"][inside], axis=0)),
+                     "rho_aba": tuple(np.nanmedian(per_pixel["rho_aba"][inside], axis=0)),
                      "d_ab_m": tuple(np.nanmedian(per_pixel["d_ab_m"][inside], axis=0)),
                      "bias_mm": float(1e3 * bias[inside].mean()),
                      "taken_off_mm": float(1e3 * per_pixel["taken_off_m"][inside].mean()),
-                     "facing_mm": float(1e3 * per_pixel["facing_m"][inside].mean())})
+                     "exact_inputs_mm": float(1e3 * per_pixel["exact_inputs_m"][inside].mean())})
     return rows
 
 
 def format_row(row: dict[str, Any]) -> str:
     low, high = row["bin_mm"]
     return (f"| {row['scene']} | {low:.1f}-{high:.1f} | {row['pixels']} | {row['cos_i']:.2f} "
-            f"| {row['kappa'][0]:.3f} / {row['kappa'][1]:.3f} | {row['d_ab_m'][0]:.3f} / {row['d_ab_m'][1]:.3f} "
-            f"| {row['bias_mm']:.2f} | {row['taken_off_mm']:.2f} | {row['facing_mm']:.2f} |")
+            f"| {row['rho_aba'][0]:.3f} / {row['rho_aba'][1]:.3f} | {row['d_ab_m'][0]:.3f} / {row['d_ab_m'][1]:.3f} "
+            f"| {row['bias_mm']:.2f} | {row['taken_off_mm']:.2f} | {row['exact_inputs_mm']:.2f} |")
 
 
 def main() -> None:

@@ -74,7 +74,7 @@ def measure_bin(model: CorrectionModel, d_as_m: tuple[float, float], rows: int, 
     geometry = None
     if model.geometric:
         errors = card.geometry_error_model.model_dump() if card.geometry_error_model else None
-        geometry = synthetic_geometry(sample.theta, THETA_NAMES, config.prior, config.dataset.seed + stream,
+        geometry = synthetic_geometry(sample.theta, THETA_NAMES, config.dataset.seed + stream,
                                       np.arange(rows), errors)
     truth = sample.target
     measured = top_depth(config.frequencies_hz)(sample.raw)

@@ -2,7 +2,7 @@
 
 Run: .venv/bin/python -m benchmarks.scenes --model DIR [--model DIR ...] [--gate geometry --gate all]
      [--min-bias-mm 1.0 ...] [--seed 0] [--matched-footprint]
- or: .venv/bin/python -m benchmarks.scenes --estimation-error  (geometric coupling against the renderer's)
+ or: .venv/bin/python -m benchmarks.scenes --estimation-error  (geometric estimates against the renderer's)
 Renders every scene of :func:`scene_set` once (Table I noise, seeded by the scene's position), corrects it
 with each model, gate and geometry-gate threshold, and prints one markdown row per combination: MAE of
 the 31.25 MHz depth before/after on the whole map, on the reference mask and, for corners, within 20 cm
@@ -10,7 +10,7 @@ of the corner edge, plus the share of valid pixels inside the model's d_AS range
 measured ("gated out"; pixels outside that range always keep their raw depth). With ``--matched-footprint``
 the external imports are corrected with ``footprint_area_m2`` = 90 pi r^2 for their own footprint radius r
 (the calibrated gain of the default) instead of the default footprint. Models trained with geometric inputs
-get the gate's coupling and d_AB for the pixels they correct.
+get the gate's rho_ABA and d_AB estimates for the pixels they correct.
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ import numpy as np
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction.gates import geometry_gate
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_area
-from mpi_lidar.scans.geometry import multipath_potential
-from mpi_lidar.scans.scan import Scan, grid_rays
+from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import (
     DEFAULT_COUPLING_GAIN,
     DEFAULT_FOOTPRINT_RADIUS_M,
@@ -35,13 +35,11 @@ from mpi_lidar.simulation.scenes import (
     corner,
     cornered_board,
     cylinder_scene,
-    first_hits,
     flat_wall,
     light_transport,
     multi_object,
     render,
     scan_from_phasors,
-    sense,
     sphere_scene,
     wooden_corner,
 )
@@ -103,30 +101,38 @@ def mae_mm(values: np.ndarray, reference: np.ndarray, where: np.ndarray) -> floa
 
 
 def estimation_error(config: Config, seed: int) -> None:
-    """How well the scan's geometry estimates the renderer's true coupling and d_AB, from the noisy raw depth."""
-    print("| scene | estimate / true coupling, median (IQR) | d_AB error [cm], median (sd) | pixels |")
-    print("|---|---|---|---|")
+    """How well the scan's geometry estimates the renderer's true coupling, equivalent rho_ABA (a correction
+    model's input) and d_AB, from the noisy raw depth and amplitude."""
+    print("| scene | estimate / true coupling, median (IQR) | estimate / true equivalent rho_ABA, median (IQR) "
+          "| d_AB error [cm], median (sd) | pixels |")
+    print("|---|---|---|---|---|")
+    options = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
     for index, (label, factory, _) in enumerate(scene_set()):
-        scene = factory()
         truth: dict[str, np.ndarray] = {}
-        spacing = float(scene.notes.get("patch_spacing_m", 0.02))
-        phasor, dc = light_transport(scene, config, DEFAULT_FOOTPRINT_RADIUS_M, spacing, DEFAULT_COUPLING_GAIN,
-                                     coupling_out=truth)
-        depth, _ = sense(phasor, dc, config, np.random.default_rng([seed, index]))
-        h, w = scene.elevation_rad.size, scene.azimuth_rad.size
-        d_as, _ = first_hits(scene)
-        depth_top = np.where(np.isfinite(d_as), depth[-1], np.nan).reshape(h, w)  # sky: no return
-        potential = multipath_potential(depth_top, grid_rays(scene.azimuth_rad, scene.elevation_rad))
-        true = truth["coupling"].reshape(h, w)
+        scan = render(factory(), config, np.random.default_rng([seed, index]), truth_out=truth)
+        depth_top = np.where(np.isfinite(scan.reference_depth), scan.depth[-1], np.nan)  # sky: no return
+        gate = geometry_gate(options, config.sensor)
+        gate.scan_candidates(scan, depth_top.ravel())
+        potential = gate.potential_.rows()
+        rho_aba, d_ab = gate.model_inputs(scan).pixels(np.arange(depth_top.size))
+        true = truth["coupling"].reshape(scan.shape)
         where = (true > 0.005) & (true < 0.9)
         if not where.any():
-            print(f"| {label} | no true coupling above 0.005; estimate max {potential.coupling.max():.3g} | | 0 |")
+            print(f"| {label} | no true coupling above 0.005; estimate max {potential.coupling.max():.3g} | "
+                  f"estimate max {rho_aba.max():.3g} | | 0 |")
             continue
-        ratio = potential.coupling[where] / true[where]
-        error = 100 * (potential.d_ab_m[where] - truth["d_ab_m"].reshape(h, w)[where])
-        q1, q2, q3 = np.quantile(ratio, [0.25, 0.5, 0.75])
-        print(f"| {label} | {q2:.2f} ({q1:.2f}-{q3:.2f}) | {np.nanmedian(error):.1f} ({np.nanstd(error):.1f}) | "
-              f"{int(where.sum())} |", flush=True)
+        flat = where.ravel()
+        coupling_ratio = potential.coupling[where] / true[where]
+        rho_ratio = rho_aba[flat] / truth["rho_aba"][flat]
+        error = 100 * (d_ab[flat] - truth["d_ab_m"][flat])
+        print(f"| {label} | {quartiles(coupling_ratio)} | {quartiles(rho_ratio)} | {np.nanmedian(error):.1f} "
+              f"({np.nanstd(error):.1f}) | {int(where.sum())} |", flush=True)
+
+
+def quartiles(values: np.ndarray) -> str:
+    """'median (first-third quartile)' of ``values``, two decimals."""
+    q1, q2, q3 = np.quantile(values, [0.25, 0.5, 0.75])
+    return f"{q2:.2f} ({q1:.2f}-{q3:.2f})"
 
 
 def main() -> None:

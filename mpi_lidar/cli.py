@@ -88,7 +88,7 @@ def cluster_options(command):
 
 def model_options(command):
     command = click.option("--geometric/--no-geometric", default=None,
-                           help="Add the scan geometry's coupling and d_AB estimates as inputs (default: "
+                           help="Add the scan geometry's rho_ABA and d_AB estimates as inputs (default: "
                                 f"{'yes' if DEFAULT_GEOMETRIC else 'no'}, or the study's); such a model corrects "
                                 "only scans with geometry.")(command)
     command = click.option("--target", "target_mode", type=click.Choice(TARGET_MODES),

@@ -20,7 +20,7 @@ def tiny_model(out: Path, geometric: bool = True, feature_set: str = "engineered
     config = Config()
     spec = FeatureSpec(config.frequencies_hz, feature_set, "residual", geometric)
     raw, theta = simulate_rows(config, rows, seeded_rng(config.dataset.seed, 0))
-    geometry = synthetic_geometry(theta, THETA_NAMES, config.prior, config.dataset.seed, np.arange(rows))
+    geometry = synthetic_geometry(theta, THETA_NAMES, config.dataset.seed, np.arange(rows))
     params = {"max_depth": 4}
     fitted = train_arrays(spec.transform(raw, geometry), spec.target(raw, theta[:, 0]), params, rounds, None)
     card = model_card(spec, DatasetCard.from_config(config, path="in memory"), params, fitted, workers=0)

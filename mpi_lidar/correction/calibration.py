@@ -72,8 +72,6 @@ MAX_FIT_PIXELS = 12_000
 # Rows whose predicted multipath ratio A K exceeds this are left out (there the cap at kappa = 1 leaves the
 # depth nothing to say about A).
 MAX_FIT_COUPLING = 2.0
-# 1 / sqrt(kappa) [m / m] standing in for a block without coupling when coupling is interpolated.
-NO_COUPLING_ROOT = 1e3
 # Gauss-Newton: iterations in all, the first of them plain least squares (before A is near, the multipath
 # itself looks like an outlier), then Huber weights at this many robust sigmas (nothing beyond six).
 MAX_ITERATIONS = 20
@@ -164,12 +162,14 @@ NOTHING_MEASURED = FootprintEstimate(float("nan"), float("inf"), 0, 0)
 
 
 def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor: SensorConfig, *,
-                       reference: bool = False, max_pixels: int = MAX_FIT_PIXELS) -> FootprintEstimate:
+                       reference: bool = False, max_pixels: int = MAX_FIT_PIXELS,
+                       measured_albedo: NDArray | None = None) -> FootprintEstimate:
     """The receiver footprint A_fp [m^2] that best explains the scan's depth near facing surfaces.
 
     ``blocks`` is the scan's :func:`mpi_lidar.scans.geometry.facing_blocks` (from its highest-frequency
     depth), ``valid`` a bool (H*W,) of the pixels whose measurements can be trusted. With ``reference``
-    the scan's reference depth replaces the fitted planes (it must have one).
+    the scan's reference depth replaces the fitted planes (it must have one). ``measured_albedo`` is the
+    scan's :func:`block_albedo`, where the caller has it already.
     """
     if blocks.pairs.a.size == 0:
         return NOTHING_MEASURED
@@ -199,7 +199,8 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         return _Problem(depth[rows], sigma[rows], phasor, kappa, metres_per_rad, amplitude[rows] / sensor.gamma_r_v2,
                         coupling.rays, coupling.surface, None if reference_depth is None else reference_depth[rows])
 
-    measured_albedo = block_albedo(scan, blocks, sensor)
+    if measured_albedo is None:
+        measured_albedo = block_albedo(scan, blocks, sensor)
     rows = np.flatnonzero(usable)
     first_rows = rows[::FIRST_ROUND_STRIDE]
     first_coupling = pixel_coupling(first_rows)
@@ -356,6 +357,15 @@ def _tile_albedo(scan: Scan, blocks: FacingBlocks, rays: NDArray, rows: slice, c
     return nanmedian_last(np.where(blocks.keep[block_rows, block_columns], ratio, np.nan))  # NaN: no inliers
 
 
+def partner_albedo(blocks: FacingBlocks, measured: NDArray) -> NDArray[np.float64]:
+    """The albedo per block (Hb*Wb,) that weighs each partner's multipath in a correction model's inputs: its
+    connected surface's :func:`surface_albedo` of the ``measured`` albedos (:func:`block_albedo`), picked by
+    the blocks' white coupling."""
+    components, _ = surface_labels(blocks)
+    white = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
+    return surface_albedo(measured, components, white)
+
+
 def surface_albedo(albedo: NDArray, components: NDArray, coupling: NDArray) -> NDArray[np.float64]:
     """One albedo per connected surface (Hb*Wb,): the median over its blocks with the least ``coupling``
     (Hb*Wb,).
@@ -403,14 +413,11 @@ def _pixel_phasors(blocks: FacingBlocks, unit_phasor: NDArray, unit_kappa: NDArr
                    coordinates: tuple[NDArray, NDArray]) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
     """Unit-footprint phasors (n, F) and white kappa (n,) at pixel coordinates, from the block values.
 
-    Near an edge the coupling falls as 1 / a^2 with the distance a from it, so a linear interpolation between
-    block centres would overstate it between them; 1 / sqrt(kappa) is linear in a and is interpolated instead,
-    and the phasor as kappa times its (smooth) ratio to kappa.
+    kappa is interpolated as a coupling (:meth:`FacingBlocks.coupling_to_pixels`: 1 / sqrt(kappa) is linear in
+    the distance from an edge), the phasor as kappa times its (smooth) ratio to kappa.
     """
     has = unit_kappa > 0
-    inverse_root = blocks.to_pixels(np.where(has, np.where(has, unit_kappa, 1.0) ** -0.5, NO_COUPLING_ROOT),
-                                    coordinates)
-    kappa = np.where(inverse_root < NO_COUPLING_ROOT, inverse_root ** -2.0, 0.0)
+    kappa = blocks.coupling_to_pixels(unit_kappa, coordinates)
     ratio = np.where(has[:, None], unit_phasor / np.where(has, unit_kappa, 1.0)[:, None], 0.0)
     phasor = np.stack([blocks.to_pixels(ratio[:, k].real, coordinates) + 1j * blocks.to_pixels(ratio[:, k].imag,
                                                                                                coordinates)

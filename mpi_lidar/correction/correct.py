@@ -10,7 +10,7 @@ it). Valid pixels the gate lets through are corrected by the model; the others k
 highest frequency, exactly as measured. The default gate, ``geometry``, corrects only
 where the scan's own geometry lets another surface send light back (:mod:`mpi_lidar.scans.geometry`); a scan
 without geometry falls back to pixel-wise correction of every valid pixel, and its report says so. A model
-trained with geometric inputs gets the geometry's coupling and d_AB for each pixel it corrects (computed
+trained with geometric inputs gets the geometry's rho_ABA and d_AB estimates for each pixel it corrects (computed
 even under another gate); on a scan without geometry it corrects nothing, and the report says so.
 
 Per scan the outputs go into ``<out>/<scan name>/`` (``corrected.zarr``, report files, point clouds),
@@ -40,7 +40,7 @@ from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.correction.validity import validity_flags
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
-from mpi_lidar.scans.geometry import BlockPotential
+from mpi_lidar.scans.geometry import EquivalentRhoAba
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores_by_rows
 
@@ -147,6 +147,7 @@ def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOpt
             geometry = geometry_gate(options, sensor)
             geometry.scan_candidates(scan, usable_depth)  # for the inputs only: this gate decides nothing
         potential = None if geometry is None else geometry.potential_
+        inputs = geometry.model_inputs(scan) if model.geometric and geometry is not None else None
         calibration = None if geometry is None else geometry.calibration_
         uncalibrated = None if geometry is None else geometry.uncalibrated_
         if uncalibrated is not None:
@@ -172,7 +173,7 @@ def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOpt
         gate_cpu, gate_wall = time.process_time() - tile_cpu, time.perf_counter() - tile_started
         if needs.size:
             depth[pixels.start + needs], inputs_cpu, inputs_wall = _predict_pixels(
-                model, raw[needs], pixels.start + needs, potential)
+                model, raw[needs], pixels.start + needs, inputs)
             gate_cpu, gate_wall = gate_cpu + inputs_cpu, gate_wall + inputs_wall
         flags[pixels.start + needs] = Flag.CORRECTED
         # The pixel-wise gate and the geometric inputs are the gate's share of the tile; the model's inputs and
@@ -200,11 +201,11 @@ def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
 
 
 def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
-                    potential: BlockPotential | None) -> tuple[NDArray[np.float64], float, float]:
+                    inputs: EquivalentRhoAba | None) -> tuple[NDArray[np.float64], float, float]:
     """Corrected depth of raw rows (n, 2F) of flat pixel indices ``pixels`` (n,), and the CPU seconds and the
     longest wall seconds the geometric inputs took (the gate's share).
 
-    The model's inputs, with the geometric ones of ``potential`` where the model takes them, are built in
+    The model's inputs, with the geometric ones of ``inputs`` where the model takes them, are built in
     row ranges on the cores into one array; the model then predicts them all at once.
     """
     features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)
@@ -212,9 +213,8 @@ def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
     def build(rows: slice) -> tuple[float, float]:
         cpu, wall = time.thread_time(), time.perf_counter()
         geometric = None
-        if potential is not None and model.geometric:
-            at = potential.pixels(pixels[rows])
-            geometric = geometry_inputs(at.coupling, at.d_ab_m)
+        if inputs is not None and model.geometric:
+            geometric = geometry_inputs(*inputs.pixels(pixels[rows]))
         gate_share = (time.thread_time() - cpu, time.perf_counter() - wall)
         model.spec.transform_into(raw[rows], geometric, features[rows])
         return gate_share

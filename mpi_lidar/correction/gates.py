@@ -109,25 +109,59 @@ class GeometryGate(Gate):
         self.bias_m_: NDArray[np.float32] | None = None
         self.calibration_: FootprintEstimate | None = None
         self.uncalibrated_: NDArray | None = None
+        self.blocks_: geometry.FacingBlocks | None = None
+        self.footprint_m2_ = 0.0
+        self._measured_albedo: NDArray | None = None
 
     def potential(self, scan: Scan, valid_depth: NDArray) -> geometry.BlockPotential | None:
-        """The scan's potential per block (pixels interpolate it), or None for a scan without geometry."""
+        """The scan's potential per block (pixels interpolate it), or None for a scan without geometry.
+
+        Keeps the blocks (``blocks_``) and the footprint the potential is for (``footprint_m2_``, 0 where the
+        scan's own estimate is not significant) for :meth:`model_inputs`.
+        """
         rays = scan.ray_rows()
         if rays is None:
             return None
         blocks = geometry.facing_blocks(valid_depth.reshape(scan.shape), rays, block_m=self.block_m,
                                         max_range_m=self.partner_range_m, band_pixels=self.band_pixels)
+        self.blocks_, self._measured_albedo = blocks, None
         if self.footprint_area_m2 != AUTO:
-            return blocks.block_potential(self.footprint_area_m2)
+            self.footprint_m2_ = float(self.footprint_area_m2)
+            return blocks.block_potential(self.footprint_m2_)
         from mpi_lidar.correction.calibration import estimate_footprint
 
-        estimate = estimate_footprint(scan, blocks, np.isfinite(valid_depth), self.sensor)
+        estimate = estimate_footprint(scan, blocks, np.isfinite(valid_depth), self.sensor,
+                                      measured_albedo=self.measured_albedo(scan))
         self.calibration_ = estimate
         if estimate.significant:
+            self.footprint_m2_ = estimate.area_m2
             return blocks.block_potential(estimate.area_m2)
         upper = blocks.block_potential(min(estimate.upper_m2(), 1.0))
         self.uncalibrated_ = self._reaches_min_bias(upper)
+        self.footprint_m2_ = 0.0
         return blocks.block_potential(0.0)
+
+    def measured_albedo(self, scan: Scan) -> NDArray[np.float64]:
+        """The albedo of every block of :meth:`potential`'s blocks from its amplitude (Hb*Wb,), worked out once."""
+        from mpi_lidar.correction.calibration import block_albedo
+
+        if self._measured_albedo is None:
+            self._measured_albedo = block_albedo(scan, self.blocks_, self.sensor)
+        return self._measured_albedo
+
+    def model_inputs(self, scan: Scan) -> geometry.EquivalentRhoAba | None:
+        """A correction model's geometric inputs per block after :meth:`scan_candidates` (None for a scan without
+        geometry): each facing partner weighted by its surface's albedo (from the amplitude), over the incidence
+        cosine (:meth:`mpi_lidar.scans.geometry.FacingBlocks.equivalent_rho_aba`), at the footprint the
+        potential is for."""
+        from mpi_lidar.correction.calibration import partner_albedo
+
+        if self.potential_ is None or self.blocks_ is None:
+            return None
+        blocks = self.blocks_
+        albedo = (partner_albedo(blocks, self.measured_albedo(scan)) if blocks.pairs.a.size
+                  else np.zeros(blocks.usable.size))
+        return blocks.equivalent_rho_aba(self.footprint_m2_, albedo)
 
     def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
         """Also keeps the potential (``potential_``) and the expected bias map (``bias_m_``, float32 (H, W))."""
@@ -157,7 +191,7 @@ class GeometryGate(Gate):
 
 
 NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
-NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (coupling, d_AB), so every valid "
+NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (rho_ABA, d_AB), so every valid "
                            "pixel keeps its raw depth")
 
 

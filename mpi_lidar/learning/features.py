@@ -14,11 +14,12 @@ Target modes:
 - ``absolute``: the true depth d_AS (the paper's target).
 - ``residual``: the true depth minus the measured highest-frequency depth; the prediction is a correction.
 
-Geometric inputs (``FeatureSpec.geometric``): two more columns after the feature set's, the coupling kappa and
-the A-B distance d_AB that the scan's geometry estimates for the pixel
-(:func:`mpi_lidar.scans.geometry.multipath_potential`).
-Training rows have no scan, so :func:`synthetic_geometry` builds the estimate the geometry would give from the
-row's scene parameters and the estimation error measured on rendered scenes (docs/scenes.md).
+Geometric inputs (``FeatureSpec.geometric``): two more columns after the feature set's, the rho_ABA and the A-B
+distance d_AB that the scan's geometry estimates for the pixel: those of the surface facing the sensor that
+would show the pixel's multipath at its amplitude (:meth:`mpi_lidar.scans.geometry.FacingBlocks.equivalent_rho_aba`:
+the partners' albedos and the incidence angle are in it). Training rows face the sensor and have no scan, so
+:func:`synthetic_geometry` builds the estimate from the row's rho_ABA and d_AB and an estimation error
+(docs/scenes.md, section 3b).
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.config import PriorConfig
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.feature_choices import (  # light for the command line; the defaults are re-exported
     DEFAULT_FEATURE_SET,  # noqa: F401
@@ -48,14 +48,15 @@ if TYPE_CHECKING:
 
 # Amplitudes below this are treated as no return when forming ratios and logs. [V^2]
 AMPLITUDE_FLOOR_V2 = 1e-12
-GEOMETRIC_NAMES = ("geometric_coupling", "geometric_d_ab_m")
-# Error of the geometric estimates against the renderer's truth on the corners of docs/scenes.md, section 1
-# (eight scenes): estimate / true coupling has a median of 0.92 over the scenes and a log-spread of 0.35 within
-# a scene (IQR 0.47 / 1.349) plus 0.13 between scenes; the d_AB estimate is 2.2 cm short with an sd of 1.3 cm
-# within a scene and 0.4 cm between scenes.
+GEOMETRIC_NAMES = ("geometric_rho_aba", "geometric_d_ab_m")
+# Error of the geometric estimates the training rows get: the estimated rho_ABA is the true one times a
+# log-normal factor of median 1 and log-spread 0.2, the d_AB estimate 1.7 cm short (the median over the
+# rendered corners of docs/scenes.md, section 1) with an sd of 1.4 cm (1.3 cm within a scene, 0.5 cm between
+# them). The rho_ABA estimates of those corners spread wider (0.33 in log within a scene, medians 0.79-1.05),
+# but a model trained with that spread takes off too much where the multipath is weak (section 3b).
 GEOMETRY_ERROR_MODEL: dict[str, float] = {
-    "coupling_log_median": float(np.log(0.92)), "coupling_log_sd": 0.37,
-    "d_ab_offset_m": -0.022, "d_ab_sd_m": 0.0135,
+    "coupling_log_median": 0.0, "coupling_log_sd": 0.2,
+    "d_ab_offset_m": -0.017, "d_ab_sd_m": 0.014,
 }
 # Stream of the dataset's seed tree reserved for the synthetic geometry (chunks use (i,), summaries (2**31,)).
 GEOMETRY_STREAM = 2**31 + 1
@@ -80,17 +81,14 @@ def row_uniforms(seed: int, rows: NDArray) -> NDArray[np.float64]:
     return ((raw >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0**-53
 
 
-def synthetic_geometry(theta: NDArray, theta_names: tuple[str, ...] | list[str], prior: PriorConfig, seed: int,
-                       rows: NDArray, error_model: dict[str, float] | None = None) -> NDArray[np.float64]:
-    """The geometric estimates (coupling [1], d_AB [m]) a scan would give for training rows (n, 2).
+def synthetic_geometry(theta: NDArray, theta_names: tuple[str, ...] | list[str], seed: int, rows: NDArray,
+                       error_model: dict[str, float] | None = None) -> NDArray[np.float64]:
+    """The geometric estimates (rho_ABA [1], d_AB [m]) a scan would give for training rows (n, 2).
 
-    The truth comes from theta. Under the reciprocal prior rho_ABA = kappa b, and the geometry sees kappa
-    only (a white partner), so kappa is drawn from its conditional law given rho_ABA: with kappa and b
-    uniform, b | rho_ABA has density proportional to 1/b on [max(b_lo, rho/kappa_hi), min(b_hi, rho/kappa_lo)].
-    Other schemes take kappa = rho_ABA. Then, as measured on rendered corners (docs/scenes.md):
-    coupling estimate = min(kappa exp(mu + s z1), 1), d_AB estimate = max(d_AB + offset + sd z2, 0), with
-    z1, z2 standard normal. Rows with rho_ABA = 0 (no partner) get (0, 0), as the geometry gives no
-    partner there. Randomness from :func:`row_uniforms` (seed, row).
+    A training row faces the sensor, so the equivalent rho_ABA the geometry estimates is the row's own. As
+    set in :data:`GEOMETRY_ERROR_MODEL`: rho_ABA estimate = rho_ABA exp(mu + s z1), d_AB estimate =
+    max(d_AB + offset + sd z2, 0), with z1, z2 standard normal. Rows with rho_ABA = 0 (no partner) get
+    (0, 0), as the geometry gives no partner there. Randomness from :func:`row_uniforms` (seed, row).
     """
     model = {**GEOMETRY_ERROR_MODEL, **(error_model or {})}
     theta = np.asarray(theta, dtype=np.float64)
@@ -99,30 +97,19 @@ def synthetic_geometry(theta: NDArray, theta_names: tuple[str, ...] | list[str],
     u = row_uniforms(seed, rows)
     if u.shape[0] != theta.shape[0]:
         raise MpiLidarError(f"{theta.shape[0]} theta rows but {u.shape[0]} row indices")
-    if prior.scheme == "reciprocal":
-        (b_lo, b_hi), (k_lo, k_hi) = prior.albedo, prior.coupling
-        with np.errstate(divide="ignore", invalid="ignore"):
-            low = np.maximum(b_lo, rho / k_hi) if k_hi > 0 else np.full_like(rho, b_lo)
-            high = np.minimum(b_hi, rho / k_lo) if k_lo > 0 else np.full_like(rho, b_hi)
-        low = np.clip(low, 1e-12, None)
-        high = np.maximum(high, low)
-        albedo_b = low * (high / low) ** u[:, 2]
-        kappa = np.where(rho > 0, rho / albedo_b, 0.0)
-    else:
-        kappa = rho
     radius = np.sqrt(-2.0 * np.log(u[:, 0]))
     z1, z2 = radius * np.cos(2 * np.pi * u[:, 1]), radius * np.sin(2 * np.pi * u[:, 1])
-    coupling = np.minimum(kappa * np.exp(model["coupling_log_median"] + model["coupling_log_sd"] * z1), 1.0)
+    estimate = rho * np.exp(model["coupling_log_median"] + model["coupling_log_sd"] * z1)
     distance = np.maximum(d_ab + model["d_ab_offset_m"] + model["d_ab_sd_m"] * z2, 0.0)
     partner = rho > 0
-    return np.column_stack([np.where(partner, coupling, 0.0), np.where(partner, distance, 0.0)])
+    return np.column_stack([np.where(partner, estimate, 0.0), np.where(partner, distance, 0.0)])
 
 
-def geometry_inputs(coupling: NDArray, d_ab_m: NDArray) -> NDArray[np.float64]:
-    """Geometric model inputs (n, 2) from a scan's potential: coupling [1] and d_AB [m], 0 where no partner."""
-    coupling = np.nan_to_num(np.asarray(coupling, dtype=np.float64).ravel(), nan=0.0)
+def geometry_inputs(rho_aba: NDArray, d_ab_m: NDArray) -> NDArray[np.float64]:
+    """Geometric model inputs (n, 2) from a scan's estimates: rho_ABA [1] and d_AB [m], 0 where no partner."""
+    rho_aba = np.nan_to_num(np.asarray(rho_aba, dtype=np.float64).ravel(), nan=0.0)
     d_ab = np.nan_to_num(np.asarray(d_ab_m, dtype=np.float64).ravel(), nan=0.0)
-    return np.column_stack([coupling, np.where(coupling > 0, d_ab, 0.0)])
+    return np.column_stack([rho_aba, np.where(rho_aba > 0, d_ab, 0.0)])
 
 
 def weighted_depth(raw: NDArray, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
@@ -185,7 +172,7 @@ class FeatureSpec:
                   ) -> NDArray[np.float32] | da.Array:
         """Model inputs from raw measurements (n, 2F), numpy or dask (block by block).
 
-        ``geometry`` (n, 2): the geometric coupling [1] and d_AB [m] per row; required when ``geometric``,
+        ``geometry`` (n, 2): the geometric rho_ABA [1] and d_AB [m] per row; required when ``geometric``,
         ignored otherwise.
         """
         self._require_geometry(geometry)
@@ -222,7 +209,7 @@ class FeatureSpec:
 
     def _require_geometry(self, geometry: object) -> None:
         if self.geometric and geometry is None:
-            raise MpiLidarError("this model was trained with geometric features (coupling, d_AB) and needs them "
+            raise MpiLidarError("this model was trained with geometric features (rho_ABA, d_AB) and needs them "
                                 "for every pixel: give a scan with geometry (azimuth/elevation or ray directions)")
 
     def _checked(self, raw: NDArray) -> NDArray:
@@ -273,8 +260,7 @@ def is_dask_array(values: object) -> bool:
     return module is not None and isinstance(values, module.Array)
 
 
-def synthetic_geometry_dask(theta: da.Array, theta_names: tuple[str, ...] | list[str], prior: PriorConfig,
-                            seed: int) -> da.Array:
+def synthetic_geometry_dask(theta: da.Array, theta_names: tuple[str, ...] | list[str], seed: int) -> da.Array:
     """:func:`synthetic_geometry` for all rows of a lazy theta (n, k), block by block, rows numbered from 0."""
     import dask.array as da  # only where a dask array is built: the rest of the module stays light
 
@@ -282,6 +268,6 @@ def synthetic_geometry_dask(theta: da.Array, theta_names: tuple[str, ...] | list
     rows = da.arange(theta.shape[0], chunks=theta.chunks[0], dtype=np.int64)[:, None]
 
     def block(t: NDArray, r: NDArray) -> NDArray[np.float64]:
-        return synthetic_geometry(t, theta_names, prior, seed, r[:, 0])
+        return synthetic_geometry(t, theta_names, seed, r[:, 0])
 
     return da.map_blocks(block, theta, rows, dtype=np.float64, chunks=(theta.chunks[0], (len(GEOMETRIC_NAMES),)))

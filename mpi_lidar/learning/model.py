@@ -264,7 +264,7 @@ class CorrectionModel:
 
     @property
     def geometric(self) -> bool:
-        """Whether the model needs the geometric inputs (coupling, d_AB) of every pixel."""
+        """Whether the model needs the geometric inputs (rho_ABA, d_AB) of every pixel."""
         return self.card.geometric
 
     def predict_depth(self, raw: NDArray, geometry: NDArray | None = None) -> NDArray[np.float64]:
@@ -314,6 +314,10 @@ def save_model(out_dir: str | Path, booster: xgb.Booster, card: ModelCard) -> Pa
     return out_dir
 
 
+# The first geometric input of models trained before the equivalent rho_ABA replaced it.
+EARLIER_GEOMETRIC_NAME = "geometric_coupling"
+
+
 def load_model(model_dir: str | Path) -> CorrectionModel:
     """Load a model directory after checking its card: keys and types, schema, file hash and features."""
     model_dir = Path(model_dir)
@@ -333,6 +337,10 @@ def load_model(model_dir: str | Path) -> CorrectionModel:
         raise MpiLidarError(f"{model_path} is not a readable XGBoost model (not UBJSON; a pickle is never "
                             "loaded)") from None
     names = list(card.feature_names)
+    if EARLIER_GEOMETRIC_NAME in names:
+        raise MpiLidarError(f"{model_dir} takes the earlier geometric input {EARLIER_GEOMETRIC_NAME!r} (the coupling "
+                            "to a white partner), which correction no longer gives; retrain it with 'mpi-lidar "
+                            "train' (its inputs are now the equivalent rho_ABA and d_AB)")
     booster_names = booster.feature_names  # None for models saved before names were stored
     spec = card.spec
     if (booster.num_features() != len(names) or names != spec.names or list(card.raw_feature_names) != spec.raw_names

@@ -174,7 +174,7 @@ def training_geometry_lazy(spec: FeatureSpec, lazy: dataset.LazyDataset) -> da.A
     if not spec.geometric:
         return None
     info = lazy.info
-    return synthetic_geometry_dask(lazy.theta, info.theta_names, info.config.prior, info.config.dataset.seed)
+    return synthetic_geometry_dask(lazy.theta, info.theta_names, info.config.dataset.seed)
 
 
 def training_geometry(spec: FeatureSpec, sub: dataset.Subsample) -> NDArray | None:
@@ -182,7 +182,7 @@ def training_geometry(spec: FeatureSpec, sub: dataset.Subsample) -> NDArray | No
     if not spec.geometric:
         return None
     info = sub.info
-    return synthetic_geometry(sub.theta, info.theta_names, info.config.prior, info.config.dataset.seed, sub.rows)
+    return synthetic_geometry(sub.theta, info.theta_names, info.config.dataset.seed, sub.rows)
 
 
 def _rows(array: da.Array, mask: da.Array) -> da.Array:

@@ -221,9 +221,9 @@ def _geometric_note(model_card: ModelCard) -> list[str]:
     """Says that a geometric model's split figures rest on synthetic geometry estimates, not on scans."""
     if not model_card.geometric:
         return []
-    return ["The model takes geometric inputs (coupling, d_AB). Dataset rows have no scan, so their inputs are "
-            "synthetic estimates drawn from each row's true parameters with the error measured on rendered "
-            "scenes (docs/scenes.md): the corrected figures hold where real scans match that error."]
+    return ["The model takes geometric inputs (rho_ABA, d_AB). Dataset rows have no scan, so their inputs are "
+            "synthetic estimates drawn from each row's true parameters with the error model of docs/scenes.md "
+            "(section 3b): the corrected figures hold where real scans match that error."]
 
 
 def evaluation_report(evaluation: Evaluation, model_card: ModelCard) -> tuple[Report, dict[str, plt.Figure]]:

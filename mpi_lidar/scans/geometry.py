@@ -46,6 +46,8 @@ EDGE_JUMP_M = 0.1
 # is interpolated on): their float64 temporaries take about 300 bytes a pixel, so a tile bounds the memory
 # whatever the scan's size.
 BAND_PIXELS = 262_144
+# 1 / sqrt(coupling) [1] standing in for a block without coupling when coupling is interpolated.
+NO_COUPLING_ROOT = 1e3
 # Largest block side [px]. Blocks keep their metric size up to it, so a finer grid has bigger blocks, not
 # more of them: the facing pairs grow with the square of the block count.
 MAX_BLOCK_PIXELS = 512
@@ -275,6 +277,18 @@ class FacingBlocks:
         where = self.block_grid() if coordinates is None else coordinates
         return map_coordinates(block_values.reshape(hb, wb), where, order=1, mode="nearest")
 
+    def coupling_to_pixels(self, block_values: NDArray, coordinates: tuple[NDArray, NDArray]) -> NDArray:
+        """A coupling per block (Hb*Wb,) at pixel coordinates, 0 where it reaches no block with coupling.
+
+        Near an edge the coupling falls as 1 / a^2 with the distance a from it, so a linear interpolation
+        between block centres would overstate it between them (by up to 2x a few centimetres from the edge);
+        1 / sqrt(coupling) is linear in a and is interpolated instead.
+        """
+        has = block_values > 0
+        root = self.to_pixels(np.where(has, np.where(has, block_values, 1.0) ** -0.5, NO_COUPLING_ROOT), coordinates)
+        # Rounding leaves a pixel among blocks without coupling a hair below the stand-in: no coupling either.
+        return np.where(root < NO_COUPLING_ROOT * (1 - 1e-9), root**-2.0, 0.0)
+
     def potential(self, footprint_area_m2: float) -> MultipathPotential:
         """The multipath potential of every pixel for the footprint A_fp [m^2] (:func:`multipath_potential`)."""
         return self.block_potential(footprint_area_m2).rows()
@@ -293,6 +307,31 @@ class FacingBlocks:
             d_ab_blocks = np.where(coupling_blocks > 0, weighted_r / coupling_blocks, 0.0)
         coupling_blocks = np.minimum(coupling_blocks, 1.0)
         return BlockPotential(self, coupling_blocks, coupling_blocks * d_ab_blocks)
+
+    def equivalent_rho_aba(self, footprint_area_m2: float, albedo: NDArray) -> EquivalentRhoAba:
+        """What a correction model needs per block for the footprint A_fp [m^2] and the albedo of every block
+        (Hb*Wb,): the rho_ABA and d_AB [m] of the surface facing the sensor that shows the same multipath.
+
+        A pixel at incidence cos_i on a surface of albedo a returns a cos_i of the light a facing surface of
+        albedo a returns, so its amplitude reads as the albedo a cos_i; its multipath ratio is
+        a sum_B b_B kappa_B. The facing surface of albedo a cos_i shows that ratio with
+        rho_ABA = sum_B b_B kappa_B / cos_i: each pair's kappa weighted by its partner's albedo, over A's
+        incidence cosine, the white kappa's sum capped at 1 as in :meth:`block_potential`. d_AB is weighted
+        by the same terms.
+        """
+        blocks = self.usable.size
+        rho_aba = np.zeros(blocks)
+        d_ab = np.zeros(blocks)
+        if self.pairs.a.size:
+            kappa = self.pairs.kappa(footprint_area_m2)
+            white = np.bincount(self.pairs.a, kappa, minlength=self.index.size)
+            term = kappa * albedo[self.index[self.pairs.b]] / self.pairs.cos_i
+            weighted = np.bincount(self.pairs.a, term, minlength=self.index.size)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d_ab[self.index] = np.where(weighted > 0, np.bincount(self.pairs.a, term * self.pairs.distance_m,
+                                                                      minlength=self.index.size) / weighted, 0.0)
+            rho_aba[self.index] = weighted / np.maximum(white, 1.0)
+        return EquivalentRhoAba(self, rho_aba, d_ab)
 
 
 @dataclass(frozen=True)
@@ -328,6 +367,31 @@ class BlockPotential:
         missing = ~finite
         coupling[missing], bias[missing], d_ab[missing] = 0.0, 0.0, np.nan
         return MultipathPotential(coupling, d_ab, bias, self.blocks.block_pixels)
+
+
+@dataclass(frozen=True)
+class EquivalentRhoAba:
+    """The equivalent rho_ABA [1] and its d_AB [m] per block (Hb*Wb,) (:meth:`FacingBlocks.equivalent_rho_aba`),
+    a correction model's geometric inputs; pixels interpolate them (:meth:`pixels`)."""
+
+    blocks: FacingBlocks
+    rho_aba: NDArray[np.float64]
+    d_ab_m: NDArray[np.float64]
+
+    def pixels(self, pixels: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """rho_ABA (n,) and d_AB (n,) [m] of flat pixel indices (n,): 0 and NaN where no partner or no point.
+
+        rho_ABA is interpolated as a coupling (:meth:`FacingBlocks.coupling_to_pixels`), d_AB linearly among
+        the blocks with a partner.
+        """
+        coordinates = self.blocks.pixel_coordinates(pixels)
+        rho_aba = self.blocks.coupling_to_pixels(self.rho_aba, coordinates)
+        has = self.rho_aba > 0
+        weight = self.blocks.to_pixels(has.astype(np.float64), coordinates)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d_ab = self.blocks.to_pixels(np.where(has, self.d_ab_m, 0.0), coordinates) / weight
+        rho_aba[~self.blocks.finite.ravel()[pixels]] = 0.0
+        return rho_aba, np.where(rho_aba > 0, d_ab, np.nan)
 
 
 def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLOCK_M,

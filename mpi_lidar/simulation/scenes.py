@@ -273,9 +273,12 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     Returns (phasor, dc) where dc is sum |Gamma_k| over paths [V^2]. A dict passed as ``coupling_out``
     receives the true per-pixel multipath of the render: ``coupling`` (H*W,), the summed kappa of the
     prior (ratio Gamma_M / Gamma_D over a b, after the cap at 1; the quantity
-    :func:`mpi_lidar.scans.geometry.multipath_potential` estimates) [1], ``d_ab_m`` (H*W,), the
-    ratio-weighted mean A-B distance [m] (NaN without multipath), and ``bias_m`` (H*W, F), the depth bias
-    the multipath alone gives each frequency, without noise [m] (NaN where no surface is hit).
+    :func:`mpi_lidar.scans.geometry.multipath_potential` estimates) [1], ``rho_aba`` (H*W,), the ratio over
+    the albedo a cos_i the pixel's amplitude shows (the rho_ABA of the surface facing the sensor with the same
+    multipath, which :meth:`mpi_lidar.scans.geometry.FacingBlocks.equivalent_rho_aba` estimates) [1],
+    ``d_ab_m`` (H*W,), the ratio-weighted mean A-B distance [m] (NaN without multipath), and ``bias_m``
+    (H*W, F), the depth bias the multipath alone gives each frequency, without noise [m] (NaN where no surface
+    is hit).
     """
     s = config.sensor
     c = s.speed_of_light_m_per_s
@@ -286,6 +289,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     dc = np.zeros((rays.shape[0], freqs.size))
     patches = [s_.patches(patch_spacing_m) for s_ in scene.surfaces]
     true_kappa = np.zeros(rays.shape[0])
+    true_rho_aba = np.zeros(rays.shape[0])
     true_d_ab = np.full(rays.shape[0], np.nan)
     true_bias = np.full((rays.shape[0], freqs.size), np.nan)
     effective_footprint = footprint_area(footprint_radius_m, coupling_gain)
@@ -315,6 +319,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
             # Energy: A cannot get back more than all its light through B (kappa <= 1, as in the prior).
             scale = 1.0 / np.maximum(kappa, 1.0)
             true_kappa[block] = kappa * scale
+            true_rho_aba[block] = scale * multipath_dc / (surface.albedo * cos_i)
             with np.errstate(invalid="ignore", divide="ignore"):
                 true_d_ab[block] = np.where(multipath_dc > 0, ratio_r / multipath_dc, np.nan)
             direct = path_phasor(gamma_d[:, None], d_as[block, None], freqs[None, :], c)  # eq 12, 14
@@ -323,7 +328,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
             phasor[block] = direct * both_paths
             dc[block] = gamma_d[:, None] * (1 + scale * multipath_dc)[:, None]
     if coupling_out is not None:
-        coupling_out.update(coupling=true_kappa, d_ab_m=true_d_ab, bias_m=true_bias)
+        coupling_out.update(coupling=true_kappa, rho_aba=true_rho_aba, d_ab_m=true_d_ab, bias_m=true_bias)
     return phasor, dc
 
 

@@ -420,7 +420,7 @@ def test_correction_diagnosis__bins_the_edge_by_true_bias_on_the_true_surface(ti
     for row in rows:
         # Each board of a 60-degree corner seen along its bisector meets the beam at 60 degrees.
         assert row["cos_i"] == pytest.approx(np.cos(np.deg2rad(60.0)), abs=0.08)
-        assert all(np.isfinite(row[key]).all() for key in ("kappa", "d_ab_m", "taken_off_mm", "facing_mm"))
+        assert all(np.isfinite(row[key]).all() for key in ("rho_aba", "d_ab_m", "taken_off_mm", "exact_inputs_mm"))
         assert format_row(row).count("|") == HEADER.splitlines()[0].count("|")
 
 

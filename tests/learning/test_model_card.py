@@ -186,3 +186,11 @@ def test_load_model__feature_names_in_the_booster_must_match_the_card(model_dir)
     _rewrite(model_dir, _set("model_sha256", file_sha256(model_dir / MODEL_FILE)))
     with pytest.raises(MpiLidarError, match="do not match its model"):
         load_model(model_dir)
+
+
+def test_load_model__a_model_with_the_earlier_geometric_input_is_refused_with_what_to_do(model_dir):
+    """Correction gives the equivalent rho_ABA now: a model that learnt the white coupling must be retrained."""
+    earlier = [*SPEC.names, "geometric_coupling", "geometric_d_ab_m"]
+    _rewrite(model_dir, _set("feature_names", earlier))
+    with pytest.raises(MpiLidarError, match=r"earlier geometric input 'geometric_coupling'.*retrain it"):
+        load_model(model_dir)

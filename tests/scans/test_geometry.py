@@ -5,9 +5,11 @@ import pytest
 
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, validity_flags
+from mpi_lidar.correction.gates import geometry_gate
 from mpi_lidar.scans.geometry import (
     DEFAULT_FOOTPRINT_AREA_M2,
     _pair_coupling,
+    facing_blocks,
     fit_block_planes,
     multipath_potential,
     point_cloud,
@@ -115,6 +117,62 @@ def test_multipath_potential__corner_grows_towards_the_edge_and_agrees_with_the_
     where = (true > 0.01) & (true < 0.9)
     ratio = potential.coupling[where] / true[where]
     assert 0.6 < np.median(ratio) < 1.3, "the render's coupling, estimated from its own noisy depth"
+
+
+def equivalent_rho_aba_of(scan) -> np.ndarray:
+    """The geometry gate's estimate of the equivalent rho_ABA of every pixel (H, W) at the default footprint."""
+    gate = geometry_gate(CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2))
+    gate.scan_candidates(scan, valid_depth(scan).ravel())
+    rho_aba, _ = gate.model_inputs(scan).pixels(np.arange(scan.shape[0] * scan.shape[1]))
+    return rho_aba.reshape(scan.shape)
+
+
+def board_medians(left: float, right: float) -> list[float]:
+    """The estimated equivalent rho_ABA on each board of a 90-degree corner seen 15 degrees off its bisector
+    (each board at its own incidence), median over the pixels with a true coupling of 0.01-0.9; each board's
+    median estimate / true lies within 0.65-1.4."""
+    scene = corner(90.0, 2.0, left, yaw_deg=15.0, albedo_right=right)
+    truth: dict[str, np.ndarray] = {}
+    scan = render(scene, Config(), np.random.default_rng(6), truth_out=truth)
+    estimate = equivalent_rho_aba_of(scan)
+    true, coupling = truth["rho_aba"].reshape(scan.shape), truth["coupling"].reshape(scan.shape)
+    where = (coupling > 0.01) & (coupling < 0.9)
+    medians = []
+    for side in (slice(0, scan.shape[1] // 2), slice(scan.shape[1] // 2, None)):  # the two boards
+        inside = where[:, side]
+        assert inside.sum() > 100
+        assert 0.65 < np.median(estimate[:, side][inside] / true[:, side][inside]) < 1.4
+        medians.append(float(np.median(estimate[:, side][inside])))
+    return medians
+
+
+def test_equivalent_rho_aba__follows_the_renderer_and_the_partner_albedo():
+    """The renderer's ratio over the albedo a cos_i the amplitude shows, estimated from the noisy scan."""
+    same = board_medians(0.8, 0.8)
+    dark_right = board_medians(0.9, 0.25)
+    # Each board's multipath comes from the other: a dark right board sends the left one less of it.
+    assert (dark_right[0] / dark_right[1]) / (same[0] / same[1]) == pytest.approx(0.25 / 0.9, rel=0.25)
+
+
+def test_equivalent_rho_aba__planes_have_none():
+    scan = render(flat_wall(30.0, height=48, width=64), Config(), np.random.default_rng(1))
+    assert equivalent_rho_aba_of(scan).max() == 0.0
+
+
+def test_coupling_to_pixels__follows_the_inverse_square_of_the_distance_from_an_edge():
+    """Coupling falling as 1 / a^2 from an edge is interpolated exactly between block centres, where a linear
+    interpolation overstates it; pixels among blocks without coupling get exactly 0."""
+    scene = flat_wall(0.0, height=16, width=64)
+    blocks = facing_blocks(exact_depth(scene), rays_of(scene))
+    hb, wb = blocks.usable.shape
+    b = blocks.block_pixels
+    a_blocks = (np.arange(wb) + 0.5) * b  # block centres' distance from the left border [px]
+    values = np.tile(1.0 / a_blocks**2, hb)
+    pixels = np.arange(b // 2, (wb - 1) * b + b // 2)  # the first row, from the first to the last block centre
+    found = blocks.coupling_to_pixels(values, blocks.pixel_coordinates(pixels))
+    np.testing.assert_allclose(found, 1.0 / (pixels + 0.5) ** 2, rtol=1e-9)
+    assert (blocks.to_pixels(values, blocks.pixel_coordinates(pixels)) >= found * (1 - 1e-12)).all()
+    assert blocks.coupling_to_pixels(np.zeros(hb * wb), blocks.pixel_coordinates(pixels)).max() == 0.0
 
 
 def test_coupling__renderer_and_gate_evaluate_the_same_kernel():
