@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.plane_partners import PlanePartners
 from mpi_lidar.correction.validity import quadrature_noise_v2
-from mpi_lidar.scans.geometry import FacingBlocks, nanmedian_last, to_blocks
+from mpi_lidar.scans.geometry import BAND_PIXELS, FacingBlocks, nanmedian_last, to_blocks
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores
 
@@ -322,11 +322,13 @@ class PixelCoupling:
         return phasor, kappa
 
 
-def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig) -> NDArray[np.float64]:
+def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig,
+                 tile_pixels: int = BAND_PIXELS) -> NDArray[np.float64]:
     """Albedo per block (Hb*Wb,) from the amplitude of its inlier pixels: Gamma d^2 / (Gamma_R cos_i).
 
     The median over the block's inliers of the amplitude (mean over frequencies), clipped to 0.01-1.5;
-    0 for blocks without a plane. Worked out a tile of whole blocks at a time (:meth:`FacingBlocks.tiles`).
+    0 for blocks without a plane. Worked out a tile of whole blocks, about ``tile_pixels``, at a time
+    (:meth:`FacingBlocks.tiles`), so its temporaries stay within the correction's tiles.
     """
     rays = scan.ray_rows()
 
@@ -335,7 +337,7 @@ def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig) -> NDAr
         return np.concatenate([_tile_albedo(scan, blocks, band_rays[:, columns], rows, columns, sensor)
                                for rows, columns in band], axis=1)
 
-    bands = blocks.tiles()
+    bands = blocks.tiles(tile_pixels)
     # Bands of a scan in memory on one thread per core; a scan in its store is read one band after the other
     # (it keeps one band of decoded rows, which two threads would take from each other).
     found = np.concatenate(on_cores(band_albedo, bands) if scan.in_memory() else [band_albedo(band) for band in bands])

@@ -146,7 +146,7 @@ class GeometryGate(Gate):
         from mpi_lidar.correction.calibration import block_albedo
 
         if self._measured_albedo is None:
-            self._measured_albedo = block_albedo(scan, self.blocks_, self.sensor)
+            self._measured_albedo = block_albedo(scan, self.blocks_, self.sensor, self.band_pixels)
         return self._measured_albedo
 
     def model_inputs(self, scan: Scan) -> geometry.EquivalentRhoAba | None:
