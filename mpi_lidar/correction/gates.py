@@ -126,7 +126,7 @@ class GeometryGate(Gate):
                                         max_range_m=self.partner_range_m, band_pixels=self.band_pixels)
         self.blocks_, self._measured_albedo = blocks, None
         if self.footprint_area_m2 != AUTO:
-            self.footprint_m2_ = float(self.footprint_area_m2)
+            self.footprint_m2_ = self.footprint_area_m2
             return blocks.block_potential(self.footprint_m2_)
         from mpi_lidar.correction.calibration import estimate_footprint
 
