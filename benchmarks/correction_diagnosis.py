@@ -86,7 +86,7 @@ def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: Corre
     if chosen.size < len(BIN_QUANTILES):
         return []  # the gate left the edges as measured: nothing to take apart
     cos_i = incidence_cosine(scan).ravel()[chosen]
-    inputs = geometry_inputs(*gate.model_inputs(scan).pixels(chosen))
+    inputs = geometry_inputs(*gate.model_inputs(scan).pixels(chosen, raw[chosen, f - 1]))
     exact = geometry_inputs(truth["rho_aba"][chosen], truth["d_ab_m"][chosen])
     measured = raw[chosen, f - 1]
     per_pixel = {"cos_i": cos_i, "bias_m": truth["bias_m"][chosen, -1],

@@ -114,7 +114,7 @@ def estimation_error(config: Config, seed: int) -> None:
         gate = geometry_gate(options, config.sensor)
         gate.scan_candidates(scan, depth_top.ravel())
         potential = gate.potential_.rows()
-        rho_aba, d_ab = gate.model_inputs(scan).pixels(np.arange(depth_top.size))
+        rho_aba, d_ab = gate.model_inputs(scan).pixels(np.arange(depth_top.size), depth_top.ravel())
         true = truth["coupling"].reshape(scan.shape)
         where = (true > 0.005) & (true < 0.9)
         if not where.any():

@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.plane_partners import PlanePartners
 from mpi_lidar.correction.validity import quadrature_noise_v2
-from mpi_lidar.scans.geometry import BAND_PIXELS, FacingBlocks, nanmedian_last, to_blocks
+from mpi_lidar.scans.geometry import BAND_PIXELS, EquivalentRhoAba, FacingBlocks, nanmedian_last, to_blocks
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores
 
@@ -192,7 +192,8 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     method = "reference" if reference else "planes"
 
     def pixel_coupling(rows: NDArray, planes: dict[int, NDArray] | None = None) -> PixelCoupling:
-        return PixelCoupling(scan, blocks, components, labels, pixels[rows], depth[rows, -1], sensor, planes)
+        return PixelCoupling(PlaneCoupling(scan, blocks, components, labels, sensor, planes), pixels[rows],
+                             depth[rows, -1])
 
     def problem(rows: NDArray, coupling: PixelCoupling, albedo: NDArray) -> _Problem:
         phasor, kappa = coupling(albedo)
@@ -235,44 +236,32 @@ def _largest_change(before: NDArray, after: NDArray) -> float:
     return float(np.max(np.abs(after[positive] / before[positive] - 1.0), initial=0.0))
 
 
-class PixelCoupling:
-    """The unit-footprint multipath phasor S_f (n, F) and white kappa (n,) of the fit's pixels, for any albedos.
+class PlaneCoupling:
+    """A scan's side of :class:`PixelCoupling`: the partner planes (:class:`PlanePartners`), their unit-footprint
+    sums at the block centres and the block pairs they do not describe, worked out once for any pixels.
 
-    Flat partners come from :class:`PlanePartners`, each pixel on its own surface's plane: worked out at the
-    block centres and interpolated (:func:`_pixel_phasors`), and per pixel where the interpolation would
-    reach a block of another surface or of none (the coupling changes fastest there, at an edge). Curved
-    partners, and every partner of a pixel on no plane (against a reference depth any surface is measured),
-    keep their block pairs (:class:`BlockPhasors`). Each pixel's surface is the one of its block or the
-    blocks around it whose plane lies nearest its measured range.
+    Read-only once made, so threads may share it.
     """
 
-    def __init__(self, scan: Scan, blocks: FacingBlocks, components: NDArray, labels: NDArray, pixels: NDArray,
-                 measured_range: NDArray, sensor: SensorConfig, fitted: dict[int, NDArray] | None = None):
-        self.blocks = blocks
+    def __init__(self, scan: Scan, blocks: FacingBlocks, components: NDArray, labels: NDArray, sensor: SensorConfig,
+                 fitted: dict[int, NDArray] | None = None):
+        self.scan, self.blocks = scan, blocks
+        self.speed_of_light_m_per_s = sensor.speed_of_light_m_per_s
         self.partners = PlanePartners(scan, blocks, components, labels, fitted)
-        grid = labels.reshape(blocks.usable.shape)
-        ys, xs = np.divmod(pixels, blocks.shape[1])
-        b = blocks.block_pixels
-        self.rays = scan.pixel_rays(ys, xs)
-        self.coordinates = blocks.pixel_coordinates(pixels)
-        self.own_block = (ys // b) * grid.shape[1] + xs // b
-        self.surface = self.partners.nearest_surface(self.rays, measured_range, ys // b, xs // b, grid)
-        at = functools.partial(self.partners.at_points, frequencies_hz=scan.frequencies_hz,
-                               speed_of_light_m_per_s=sensor.speed_of_light_m_per_s)
-        block_rows, block_columns = np.divmod(np.arange(labels.size), grid.shape[1])
+        self.grid = labels.reshape(blocks.usable.shape)
+        self.at_points = functools.partial(self.partners.at_points, frequencies_hz=scan.frequencies_hz,
+                                           speed_of_light_m_per_s=sensor.speed_of_light_m_per_s)
+        block_rows, block_columns = np.divmod(np.arange(labels.size), self.grid.shape[1])
         centre_range = np.linalg.norm(blocks.centres.reshape(-1, 3), axis=1)
         block_surface = self.partners.nearest_surface(self.partners.block_rays, centre_range, block_rows,
-                                                      block_columns, grid)
-        self.block_plane_phasor, block_kappa = at(self.partners.block_rays, block_surface)
+                                                      block_columns, self.grid)
+        self.block_plane_phasor, block_kappa = self.at_points(self.partners.block_rays, block_surface)
         self.block_plane_kappa = block_kappa.sum(1)
-        self.exact = self.partners.near_other_surface(self.coordinates, self.surface, grid)
-        self.exact_plane_phasor, exact_kappa = at(self.rays[self.exact], self.surface[self.exact])
-        self.exact_plane_kappa = exact_kappa.sum(1)
-        self.on_plane = np.isin(self.surface, list(self.partners.planes))
+        # The block pairs of receivers on a plane with curved partners, and of receivers on no plane.
         self.pair_sums = [(BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s, pairs),
-                            np.bincount(pairs[0], pairs[2], minlength=blocks.usable.size), rows)
-                           for pairs, rows in ((self.partners.curved, self.on_plane),
-                                               (self.partners.off_plane, ~self.on_plane)) if pairs[0].size]
+                           np.bincount(pairs[0], pairs[2], minlength=blocks.usable.size), on_plane)
+                          for pairs, on_plane in ((self.partners.curved, True), (self.partners.off_plane, False))
+                          if pairs[0].size]
 
     def light_free_albedo(self, measured: NDArray, components: NDArray, area: float) -> NDArray[np.float64]:
         """The albedo per surface (:func:`surface_albedo`, far blocks by :attr:`block_kappa`) of the blocks'
@@ -288,7 +277,7 @@ class PixelCoupling:
     def block_kappa(self) -> NDArray[np.float64]:
         """White coupling at unit footprint per block centre (Hb*Wb,): from the partner planes (beyond the view
         too) and the curved partners. It picks each surface's far blocks for its albedo: the blocks next to an
-        edge have no facing block pairs (too close to their partners for a pair) but much coupling."""
+        edge have no facing block pairs (too close for a pair) but much coupling."""
         return self.block_plane_kappa + sum((block_kappa for _, block_kappa, _ in self.pair_sums),
                                             np.zeros_like(self.block_plane_kappa))
 
@@ -296,30 +285,129 @@ class PixelCoupling:
         """The amplitude gain |1 + ratio| per block (Hb*Wb,), mean over the frequencies, at footprint ``area``
         and albedos ``albedo`` (Hb*Wb,): the light the partner planes and curved partners send back to the
         block's centre, capped like :meth:`_Problem.bias`."""
-        phasor = self._block_plane_phasor(albedo)
+        phasor = self.block_plane_phasor_for(albedo)
         for phasors, _, _ in self.pair_sums:
             phasor += phasors(albedo)
         return np.abs(1.0 + area * phasor / np.maximum(area * self.block_kappa, 1.0)[:, None]).mean(1)
 
-    def _block_plane_phasor(self, albedo: NDArray) -> NDArray[np.complex128]:
+    def block_plane_phasor_for(self, albedo: NDArray) -> NDArray[np.complex128]:
         """S_f (Hb*Wb, F) the partner planes give each block's centre for the albedos per block ``albedo``."""
         partner_albedo = albedo[self.partners.partner_block]
         return albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.block_plane_phasor)
 
+
+class PixelCoupling:
+    """The unit-footprint multipath phasor S_f (n, F) and white kappa (n,) of some pixels, for any albedos.
+
+    Flat partners come from the scan's :class:`PlaneCoupling`, each pixel on its own surface's plane: worked
+    out at the block centres and interpolated (:func:`_pixel_phasors`), and per pixel where the interpolation
+    would reach a block of another surface or of none (the coupling changes fastest there, at an edge). Curved
+    partners, and every partner of a pixel on no plane (against a reference depth any surface is measured),
+    keep their block pairs (:class:`BlockPhasors`). Each pixel's surface is the one of its block or the
+    blocks around it whose plane lies nearest its measured range.
+    """
+
+    def __init__(self, plane: PlaneCoupling, pixels: NDArray, measured_range: NDArray):
+        self.plane, self.blocks = plane, plane.blocks
+        blocks, partners = plane.blocks, plane.partners
+        ys, xs = np.divmod(pixels, blocks.shape[1])
+        b = blocks.block_pixels
+        self.rays = plane.scan.pixel_rays(ys, xs)
+        self.coordinates = blocks.pixel_coordinates(pixels)
+        self.own_block = (ys // b) * plane.grid.shape[1] + xs // b
+        self.surface = partners.nearest_surface(self.rays, measured_range, ys // b, xs // b, plane.grid)
+        self.exact = partners.near_other_surface(self.coordinates, self.surface, plane.grid)
+        self.exact_plane_phasor, exact_kappa = plane.at_points(self.rays[self.exact], self.surface[self.exact])
+        self.exact_plane_kappa = exact_kappa.sum(1)
+        self.on_plane = np.isin(self.surface, list(partners.planes))
+
+    @property
+    def block_kappa(self) -> NDArray[np.float64]:
+        """:attr:`PlaneCoupling.block_kappa`."""
+        return self.plane.block_kappa
+
+    def light_free_albedo(self, measured: NDArray, components: NDArray, area: float) -> NDArray[np.float64]:
+        """:meth:`PlaneCoupling.light_free_albedo`."""
+        return self.plane.light_free_albedo(measured, components, area)
+
     def __call__(self, albedo: NDArray) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
         """S_f (n, F) and kappa (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""
-        phasor, kappa = _pixel_phasors(self.blocks, self._block_plane_phasor(albedo), self.block_plane_kappa,
-                                       self.coordinates)
-        partner_albedo = albedo[self.partners.partner_block]
+        return self.at_block_sums(albedo, self.plane.block_plane_phasor_for(albedo),
+                                  [phasors(albedo) for phasors, _, _ in self.plane.pair_sums])
+
+    def at_block_sums(self, albedo: NDArray, block_plane_phasor: NDArray, pair_phasors: list[NDArray]
+                      ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+        """:meth:`__call__` with the block centres' sums for ``albedo`` given (the partner planes' and those of
+        each of the plane's block pairs), so that many sets of pixels can share them."""
+        plane = self.plane
+        phasor, kappa = _pixel_phasors(self.blocks, block_plane_phasor, plane.block_plane_kappa, self.coordinates)
+        partner_albedo = albedo[plane.partners.partner_block]
         own = albedo[self.own_block[self.exact]]
         phasor[self.exact] = own[:, None] * np.einsum("p,npf->nf", partner_albedo, self.exact_plane_phasor)
         kappa[self.exact] = self.exact_plane_kappa
-        for phasors, block_kappa, rows in self.pair_sums:
+        for (_, block_kappa, on_plane), pair_phasor in zip(plane.pair_sums, pair_phasors, strict=True):
+            rows = self.on_plane if on_plane else ~self.on_plane
             coordinates = (self.coordinates[0][rows], self.coordinates[1][rows])
-            pair_phasor, pair_kappa = _pixel_phasors(self.blocks, phasors(albedo), block_kappa, coordinates)
-            phasor[rows] += pair_phasor
-            kappa[rows] += pair_kappa
+            rows_phasor, rows_kappa = _pixel_phasors(self.blocks, pair_phasor, block_kappa, coordinates)
+            phasor[rows] += rows_phasor
+            kappa[rows] += rows_kappa
         return phasor, kappa
+
+
+class PlaneModelInputs:
+    """A correction model's geometric inputs per pixel from the partner planes: the rho_ABA and d_AB of the
+    surface facing the sensor that shows the pixel's multipath (:meth:`FacingBlocks.equivalent_rho_aba` says
+    why that is what a model trained on facing surfaces needs).
+
+    At footprint A the two-path ratio of a pixel is A S_f / max(A kappa, 1) (:class:`PixelCoupling`), with
+    S_f = rho_A sum_B rho_B kappa_B e^{j 4 pi f r_AB / c}. Its magnitude at the lowest frequency over the
+    albedo rho_A cos_i the pixel's amplitude shows is the equivalent rho_ABA, its phase over 4 pi f / c the
+    A-B distance the bias sees. Evaluated at each pixel on its own surface's plane, near an edge by the exact
+    sums over the partners' patches, this follows the coupling's steep rise towards an edge that sums from
+    block centre to block centre smear (1.2-2x high a few centimetres out, low at the edge). Pixels on no
+    plane, or whose point on it no partner plane lights, keep the block estimates ``fallback``. Read-only
+    once made, so threads may share it.
+    """
+
+    # Incidence cosines below this are taken as this: a surface seen edge-on has no albedo to speak of.
+    MIN_COS_I = 0.05
+
+    def __init__(self, fallback: EquivalentRhoAba, plane: PlaneCoupling | None = None, albedo: NDArray | None = None,
+                 area_m2: float = 0.0):
+        self.fallback, self.plane, self.albedo, self.area_m2 = fallback, plane, albedo, area_m2
+        if plane is not None:
+            self.block_plane_phasor = plane.block_plane_phasor_for(albedo)
+            self.pair_phasors = [phasors(albedo) for phasors, _, _ in plane.pair_sums]
+            self.lowest = int(np.argmin(plane.scan.frequencies_hz))
+            self.wavenumber = 4 * np.pi * plane.scan.frequencies_hz[self.lowest] / plane.speed_of_light_m_per_s
+
+    def pixels(self, pixels: NDArray, measured_range: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """rho_ABA (n,) and d_AB (n,) [m] of flat pixel indices (n,) whose highest-frequency range is
+        ``measured_range`` (n,) [m]: 0 and NaN where no partner."""
+        rho_aba, d_ab = self.fallback.pixels(pixels)
+        if self.plane is None or pixels.size == 0:
+            return rho_aba, d_ab
+        coupling = PixelCoupling(self.plane, pixels, measured_range)
+        phasor, kappa = coupling.at_block_sums(self.albedo, self.block_plane_phasor, self.pair_phasors)
+        ratio = self.area_m2 * phasor[:, self.lowest] / np.maximum(self.area_m2 * kappa, 1.0)
+        own = self.albedo[coupling.own_block]
+        # A pixel right at an edge may meet its plane just past the partner's face (no coupling there): the
+        # blocks' estimate stands for it.
+        planar = coupling.on_plane & (own > 0) & (np.abs(ratio) > 0)
+        normals = self._normals(coupling.surface[planar])
+        cos_i = np.maximum(np.abs(np.einsum("ni,ni->n", normals, coupling.rays[planar])), self.MIN_COS_I)
+        rho_aba[planar] = np.abs(ratio[planar]) / (own[planar] * cos_i)
+        d_ab[planar] = np.where(rho_aba[planar] > 0, np.mod(np.angle(ratio[planar]), 2 * np.pi) / self.wavenumber,
+                                np.nan)
+        return rho_aba, d_ab
+
+    def _normals(self, surfaces: NDArray) -> NDArray[np.float64]:
+        """The unit normal (n, 3) of each pixel's surface plane."""
+        planes = self.plane.partners.planes
+        normals = np.zeros((surfaces.size, 3))
+        for surface in np.unique(surfaces):
+            normals[surfaces == surface] = planes[int(surface)][0]
+        return normals
 
 
 def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig,

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.calibration import FootprintEstimate
+from mpi_lidar.correction.calibration import FootprintEstimate, PlaneModelInputs
 from mpi_lidar.correction.gates import (
     NO_GEOMETRY_INPUTS_NOTE,
     NO_GEOMETRY_NOTE,
@@ -40,7 +40,6 @@ from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.correction.validity import validity_flags
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
-from mpi_lidar.scans.geometry import EquivalentRhoAba
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores_by_rows
 
@@ -201,7 +200,7 @@ def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
 
 
 def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
-                    inputs: EquivalentRhoAba | None) -> tuple[NDArray[np.float64], float, float]:
+                    inputs: PlaneModelInputs | None) -> tuple[NDArray[np.float64], float, float]:
     """Corrected depth of raw rows (n, 2F) of flat pixel indices ``pixels`` (n,), and the CPU seconds and the
     longest wall seconds the geometric inputs took (the gate's share).
 
@@ -209,12 +208,13 @@ def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
     row ranges on the cores into one array; the model then predicts them all at once.
     """
     features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)
+    top_range = raw[:, raw.shape[1] // 2 - 1].astype(np.float64)  # the highest frequency's depth [m]
 
     def build(rows: slice) -> tuple[float, float]:
         cpu, wall = time.thread_time(), time.perf_counter()
         geometric = None
         if inputs is not None and model.geometric:
-            geometric = geometry_inputs(*inputs.pixels(pixels[rows]))
+            geometric = geometry_inputs(*inputs.pixels(pixels[rows], top_range[rows]))
         gate_share = (time.thread_time() - cpu, time.perf_counter() - wall)
         model.spec.transform_into(raw[rows], geometric, features[rows])
         return gate_share

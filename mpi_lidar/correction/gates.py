@@ -16,7 +16,7 @@ from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores
 
 if TYPE_CHECKING:
-    from mpi_lidar.correction.calibration import FootprintEstimate
+    from mpi_lidar.correction.calibration import FootprintEstimate, PlaneModelInputs
 
 
 class Gate(ABC):
@@ -149,19 +149,25 @@ class GeometryGate(Gate):
             self._measured_albedo = block_albedo(scan, self.blocks_, self.sensor, self.band_pixels)
         return self._measured_albedo
 
-    def model_inputs(self, scan: Scan) -> geometry.EquivalentRhoAba | None:
-        """A correction model's geometric inputs per block after :meth:`scan_candidates` (None for a scan without
-        geometry): each facing partner weighted by its surface's albedo (from the amplitude), over the incidence
-        cosine (:meth:`mpi_lidar.scans.geometry.FacingBlocks.equivalent_rho_aba`), at the footprint the
-        potential is for."""
-        from mpi_lidar.correction.calibration import partner_albedo
+    def model_inputs(self, scan: Scan) -> PlaneModelInputs | None:
+        """A correction model's geometric inputs after :meth:`scan_candidates`, at the footprint the potential is
+        for (None for a scan without geometry): per pixel from the partner planes
+        (:class:`mpi_lidar.correction.calibration.PlaneModelInputs`), and where a pixel lies on no plane from
+        the facing blocks, each partner weighted by its surface's albedo (from the amplitude) over the
+        incidence cosine (:meth:`mpi_lidar.scans.geometry.FacingBlocks.equivalent_rho_aba`)."""
+        from mpi_lidar.correction.calibration import PlaneCoupling, PlaneModelInputs, partner_albedo, surface_labels
 
         if self.potential_ is None or self.blocks_ is None:
             return None
         blocks = self.blocks_
-        albedo = (partner_albedo(blocks, self.measured_albedo(scan)) if blocks.pairs.a.size
-                  else np.zeros(blocks.usable.size))
-        return blocks.equivalent_rho_aba(self.footprint_m2_, albedo)
+        if blocks.pairs.a.size == 0 or self.footprint_m2_ <= 0:
+            return PlaneModelInputs(blocks.equivalent_rho_aba(0.0, np.zeros(blocks.usable.size)))
+        measured = self.measured_albedo(scan)
+        fallback = blocks.equivalent_rho_aba(self.footprint_m2_, partner_albedo(blocks, measured))
+        components, labels = surface_labels(blocks)
+        plane = PlaneCoupling(scan, blocks, components, labels, self.sensor)
+        albedo = plane.light_free_albedo(measured, components, self.footprint_m2_)
+        return PlaneModelInputs(fallback, plane, albedo, self.footprint_m2_)
 
     def scan_candidates(self, scan: Scan, valid_depth: NDArray) -> NDArray | None:
         """Also keeps the potential (``potential_``) and the expected bias map (``bias_m_``, float32 (H, W))."""

@@ -184,8 +184,8 @@ def board_albedos(scene, true_m2: float) -> tuple[list[float], list[float], list
     components, labels = calibration.surface_labels(blocks)
     pixels = np.flatnonzero(np.isfinite(depth).ravel())[::50]
     ys, xs = np.divmod(pixels, scan.shape[1])
-    coupling = calibration.PixelCoupling(scan, blocks, components, labels, pixels, depth[ys, xs].astype(np.float64),
-                                         Config().sensor)
+    plane = calibration.PlaneCoupling(scan, blocks, components, labels, Config().sensor)
+    coupling = calibration.PixelCoupling(plane, pixels, depth[ys, xs].astype(np.float64))
     measured = calibration.block_albedo(scan, blocks, Config().sensor)
     pair_kappa = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
     found = (coupling.light_free_albedo(measured, components, true_m2),

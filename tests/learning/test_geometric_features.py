@@ -148,7 +148,7 @@ def test_correct_scan__geometric_model_gets_the_gate_estimates(models):
                         options.footprint_area_m2)
     usable = np.isfinite(raw).all(1)
     gate.scan_candidates(scan, np.where(usable, raw[:, len(FREQS) - 1], np.nan))
-    inputs = geometry_inputs(*gate.model_inputs(scan).pixels(np.flatnonzero(corrected)))
+    inputs = geometry_inputs(*gate.model_inputs(scan).pixels(np.flatnonzero(corrected), raw[corrected, len(FREQS) - 1]))
     assert (inputs[:, 0] > 0).all()
     np.testing.assert_allclose(correction.depth.ravel()[corrected], model.predict_depth(raw[corrected], inputs),
                                atol=1e-6)

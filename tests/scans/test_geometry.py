@@ -5,6 +5,7 @@ import pytest
 
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, validity_flags
+from mpi_lidar.correction.calibration import PlaneModelInputs
 from mpi_lidar.correction.gates import geometry_gate
 from mpi_lidar.scans.geometry import (
     DEFAULT_FOOTPRINT_AREA_M2,
@@ -123,7 +124,7 @@ def equivalent_rho_aba_of(scan) -> np.ndarray:
     """The geometry gate's estimate of the equivalent rho_ABA of every pixel (H, W) at the default footprint."""
     gate = geometry_gate(CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2))
     gate.scan_candidates(scan, valid_depth(scan).ravel())
-    rho_aba, _ = gate.model_inputs(scan).pixels(np.arange(scan.shape[0] * scan.shape[1]))
+    rho_aba, _ = gate.model_inputs(scan).pixels(np.arange(scan.shape[0] * scan.shape[1]), valid_depth(scan).ravel())
     return rho_aba.reshape(scan.shape)
 
 
@@ -152,6 +153,42 @@ def test_equivalent_rho_aba__follows_the_renderer_and_the_partner_albedo():
     dark_right = board_medians(0.9, 0.25)
     # Each board's multipath comes from the other: a dark right board sends the left one less of it.
     assert (dark_right[0] / dark_right[1]) / (same[0] / same[1]) == pytest.approx(0.25 / 0.9, rel=0.25)
+
+
+@pytest.mark.parametrize("angle_deg", [90.0, 120.0])
+def test_plane_model_inputs__follow_the_renderer_from_the_edge_outwards(angle_deg):
+    """Per pixel from the partner planes, the equivalent rho_ABA stays within 0.85-1.45x of the renderer's in
+    every quantile of it, up to the edge itself (the blocks' estimate read 0.08x there on the 120-degree
+    corner and 1.6x a few centimetres out on the right-angled one), and d_AB within 1.5 cm."""
+    truth: dict[str, np.ndarray] = {}
+    scan = render(corner(angle_deg, 2.0, 0.8, height=48, width=96), Config(), np.random.default_rng(2),
+                  truth_out=truth)
+    gate = geometry_gate(CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2))
+    depth = valid_depth(scan).ravel()
+    gate.scan_candidates(scan, depth)
+    rho_aba, d_ab = gate.model_inputs(scan).pixels(np.arange(depth.size), depth)
+    where = (truth["coupling"] > 0.005) & (truth["coupling"] < 0.9)
+    true = truth["rho_aba"]
+    edges = np.quantile(true[where], [0.25, 0.5, 0.75, 0.9])
+    bins = np.searchsorted(edges, true, side="right")
+    for index in range(len(edges) + 1):
+        inside = where & (bins == index)
+        assert 0.85 < np.median(rho_aba[inside] / true[inside]) < 1.45, index
+        assert abs(np.nanmedian(d_ab[inside] - truth["d_ab_m"][inside])) < 0.015, index
+
+
+def test_plane_model_inputs__without_a_plane_give_the_blocks_estimate():
+    """A pixel on no flat surface (here: every pixel, with no plane given) keeps the blocks' estimate."""
+    scan = render(corner(90.0, 2.0, 0.8, height=48, width=96), Config(), np.random.default_rng(2))
+    gate = geometry_gate(CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2))
+    depth = valid_depth(scan).ravel()
+    gate.scan_candidates(scan, depth)
+    inputs = gate.model_inputs(scan)
+    pixels = np.arange(depth.size)
+    blocks_only = PlaneModelInputs(inputs.fallback)
+    for found, expected in zip(blocks_only.pixels(pixels, depth), inputs.fallback.pixels(pixels), strict=True):
+        np.testing.assert_array_equal(found, expected)
+    assert np.abs(inputs.pixels(pixels, depth)[0] - blocks_only.pixels(pixels, depth)[0]).max() > 0.01
 
 
 def test_equivalent_rho_aba__planes_have_none():
