@@ -104,8 +104,9 @@ def estimation_error(config: Config, seed: int) -> None:
     """How well the scan's geometry estimates the renderer's true coupling, equivalent rho_ABA (a correction
     model's input) and d_AB, from the noisy raw depth and amplitude."""
     print("| scene | estimate / true coupling, median (IQR) | estimate / true equivalent rho_ABA, median (IQR) "
-          "| d_AB error [cm], median (sd) | pixels |")
-    print("|---|---|---|---|---|")
+          "| d_AB error [cm], median (sd) | the blocks' rho_ABA / true, median (IQR) | their d_AB error [cm] "
+          "| pixels |")
+    print("|---|---|---|---|---|---|---|")
     options = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
     for index, (label, factory, _) in enumerate(scene_set()):
         truth: dict[str, np.ndarray] = {}
@@ -114,19 +115,24 @@ def estimation_error(config: Config, seed: int) -> None:
         gate = geometry_gate(options, config.sensor)
         gate.scan_candidates(scan, depth_top.ravel())
         potential = gate.potential_.rows()
-        rho_aba, d_ab = gate.model_inputs(scan).pixels(np.arange(depth_top.size), depth_top.ravel())
+        inputs = gate.model_inputs(scan)
+        rho_aba, d_ab = inputs.pixels(np.arange(depth_top.size), depth_top.ravel())
+        block_rho_aba, block_d_ab = inputs.fallback.pixels(np.arange(depth_top.size))
         true = truth["coupling"].reshape(scan.shape)
         where = (true > 0.005) & (true < 0.9)
         if not where.any():
             print(f"| {label} | no true coupling above 0.005; estimate max {potential.coupling.max():.3g} | "
-                  f"estimate max {rho_aba.max():.3g} | | 0 |")
+                  f"estimate max {rho_aba.max():.3g} | | estimate max {block_rho_aba.max():.3g} | | 0 |")
             continue
         flat = where.ravel()
         coupling_ratio = potential.coupling[where] / true[where]
         rho_ratio = rho_aba[flat] / truth["rho_aba"][flat]
         error = 100 * (d_ab[flat] - truth["d_ab_m"][flat])
+        block_ratio = block_rho_aba[flat] / truth["rho_aba"][flat]
+        block_error = 100 * (block_d_ab[flat] - truth["d_ab_m"][flat])
         print(f"| {label} | {quartiles(coupling_ratio)} | {quartiles(rho_ratio)} | {np.nanmedian(error):.1f} "
-              f"({np.nanstd(error):.1f}) | {int(where.sum())} |", flush=True)
+              f"({np.nanstd(error):.1f}) | {quartiles(block_ratio)} | {np.nanmedian(block_error):.1f} "
+              f"({np.nanstd(block_error):.1f}) | {int(where.sum())} |", flush=True)
 
 
 def quartiles(values: np.ndarray) -> str:

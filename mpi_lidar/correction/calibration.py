@@ -307,7 +307,10 @@ class PixelCoupling:
     blocks around it whose plane lies nearest its measured range.
     """
 
-    def __init__(self, plane: PlaneCoupling, pixels: NDArray, measured_range: NDArray):
+    def __init__(self, plane: PlaneCoupling, pixels: NDArray, measured_range: NDArray,
+                 frequencies_hz: tuple[float, ...] | None = None):
+        """``frequencies_hz``: those of the exact per-pixel sums, the scan's by default; :meth:`at_block_sums`
+        then takes the block sums of the same frequencies."""
         self.plane, self.blocks = plane, plane.blocks
         blocks, partners = plane.blocks, plane.partners
         ys, xs = np.divmod(pixels, blocks.shape[1])
@@ -317,7 +320,9 @@ class PixelCoupling:
         self.own_block = (ys // b) * plane.grid.shape[1] + xs // b
         self.surface = partners.nearest_surface(self.rays, measured_range, ys // b, xs // b, plane.grid)
         self.exact = partners.near_other_surface(self.coordinates, self.surface, plane.grid)
-        self.exact_plane_phasor, exact_kappa = plane.at_points(self.rays[self.exact], self.surface[self.exact])
+        at_points = plane.at_points if frequencies_hz is None else functools.partial(
+            partners.at_points, frequencies_hz=frequencies_hz, speed_of_light_m_per_s=plane.speed_of_light_m_per_s)
+        self.exact_plane_phasor, exact_kappa = at_points(self.rays[self.exact], self.surface[self.exact])
         self.exact_plane_kappa = exact_kappa.sum(1)
         self.on_plane = np.isin(self.surface, list(partners.planes))
 
@@ -376,10 +381,12 @@ class PlaneModelInputs:
                  area_m2: float = 0.0):
         self.fallback, self.plane, self.albedo, self.area_m2 = fallback, plane, albedo, area_m2
         if plane is not None:
-            self.block_plane_phasor = plane.block_plane_phasor_for(albedo)
-            self.pair_phasors = [phasors(albedo) for phasors, _, _ in plane.pair_sums]
-            self.lowest = int(np.argmin(plane.scan.frequencies_hz))
-            self.wavenumber = 4 * np.pi * plane.scan.frequencies_hz[self.lowest] / plane.speed_of_light_m_per_s
+            # Only the lowest frequency's sums are needed: a quarter of the per-pixel work of all four.
+            lowest = int(np.argmin(plane.scan.frequencies_hz))
+            self.frequency_hz = float(plane.scan.frequencies_hz[lowest])
+            self.block_plane_phasor = plane.block_plane_phasor_for(albedo)[:, [lowest]]
+            self.pair_phasors = [phasors(albedo)[:, [lowest]] for phasors, _, _ in plane.pair_sums]
+            self.wavenumber = 4 * np.pi * self.frequency_hz / plane.speed_of_light_m_per_s
 
     def pixels(self, pixels: NDArray, measured_range: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """rho_ABA (n,) and d_AB (n,) [m] of flat pixel indices (n,) whose highest-frequency range is
@@ -387,9 +394,9 @@ class PlaneModelInputs:
         rho_aba, d_ab = self.fallback.pixels(pixels)
         if self.plane is None or pixels.size == 0:
             return rho_aba, d_ab
-        coupling = PixelCoupling(self.plane, pixels, measured_range)
+        coupling = PixelCoupling(self.plane, pixels, measured_range, (self.frequency_hz,))
         phasor, kappa = coupling.at_block_sums(self.albedo, self.block_plane_phasor, self.pair_phasors)
-        ratio = self.area_m2 * phasor[:, self.lowest] / np.maximum(self.area_m2 * kappa, 1.0)
+        ratio = self.area_m2 * phasor[:, 0] / np.maximum(self.area_m2 * kappa, 1.0)
         own = self.albedo[coupling.own_block]
         # A pixel right at an edge may meet its plane just past the partner's face (no coupling there): the
         # blocks' estimate stands for it.

@@ -350,6 +350,12 @@ def _phasor_sums(kappa: NDArray, r: NDArray, wavenumbers: NDArray) -> NDArray[np
     Where the wavenumbers are small multiples of a common one (the sensor's frequencies are: 2, 3, 4 and 5
     times 6.25 MHz) one complex exponential and its powers replace a cosine and a sine per frequency.
     """
+    if wavenumbers.size == 1:
+        # One frequency (a correction model's inputs): its cosine and sine in single precision, as r is, and
+        # summed in double; a complex exponential costs several times more.
+        phase = np.float32(wavenumbers[0]) * r
+        return ((kappa * np.cos(phase)).sum(1, dtype=np.float64)
+                + 1j * (kappa * np.sin(phase)).sum(1, dtype=np.float64))[:, None]
     multiples = _common_multiples(wavenumbers)
     if multiples is None:
         return np.stack([(kappa * np.cos(k * r)).sum(1) + 1j * (kappa * np.sin(k * r)).sum(1) for k in wavenumbers],
