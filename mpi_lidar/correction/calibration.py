@@ -205,7 +205,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     rows = np.flatnonzero(usable)
     first_rows = rows[::FIRST_ROUND_STRIDE]
     first_coupling = pixel_coupling(first_rows)
-    first_albedo = first_coupling.light_free_albedo(measured_albedo, components, 0.0)
+    first_albedo = first_coupling.plane.light_free_albedo(measured_albedo, components, 0.0)
     first_problem = problem(first_rows, first_coupling, first_albedo)
     first = first_problem.solve(method, with_amplitude=False, tolerance=EARLY_ROUND_STEP)
     if not (np.isfinite(first.area_m2) and first.area_m2 > 0):  # no multipath to correct for: one round on all
@@ -219,7 +219,7 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     # at the estimate before it, and a round that moves them by more than ALBEDO_STEP is followed by another.
     area, albedo = first.area_m2, None
     for _ in range(ALBEDO_ROUNDS):
-        light_free = last_coupling.light_free_albedo(measured_albedo, components, area)
+        light_free = last_coupling.plane.light_free_albedo(measured_albedo, components, area)
         if albedo is not None and _largest_change(albedo, light_free) <= ALBEDO_STEP:
             break
         albedo = light_free
@@ -326,15 +326,6 @@ class PixelCoupling:
         self.exact_plane_kappa = exact_kappa.sum(1)
         self.on_plane = np.isin(self.surface, list(partners.planes))
 
-    @property
-    def block_kappa(self) -> NDArray[np.float64]:
-        """:attr:`PlaneCoupling.block_kappa`."""
-        return self.plane.block_kappa
-
-    def light_free_albedo(self, measured: NDArray, components: NDArray, area: float) -> NDArray[np.float64]:
-        """:meth:`PlaneCoupling.light_free_albedo`."""
-        return self.plane.light_free_albedo(measured, components, area)
-
     def __call__(self, albedo: NDArray) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
         """S_f (n, F) and kappa (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""
         return self.at_block_sums(albedo, self.plane.block_plane_phasor_for(albedo),
@@ -391,9 +382,8 @@ class PlaneModelInputs:
     def pixels(self, pixels: NDArray, measured_range: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """rho_ABA (n,) and d_AB (n,) [m] of flat pixel indices (n,) whose highest-frequency range is
         ``measured_range`` (n,) [m]: 0 and NaN where no partner."""
-        rho_aba, d_ab = self.fallback.pixels(pixels)
         if self.plane is None or pixels.size == 0:
-            return rho_aba, d_ab
+            return self.fallback.pixels(pixels)
         coupling = PixelCoupling(self.plane, pixels, measured_range, (self.frequency_hz,))
         phasor, kappa = coupling.at_block_sums(self.albedo, self.block_plane_phasor, self.pair_phasors)
         ratio = self.area_m2 * phasor[:, 0] / np.maximum(self.area_m2 * kappa, 1.0)
@@ -401,6 +391,8 @@ class PlaneModelInputs:
         # A pixel right at an edge may meet its plane just past the partner's face (no coupling there): the
         # blocks' estimate stands for it.
         planar = coupling.on_plane & (own > 0) & (np.abs(ratio) > 0)
+        rho_aba, d_ab = np.empty(pixels.size), np.empty(pixels.size)
+        rho_aba[~planar], d_ab[~planar] = self.fallback.pixels(pixels[~planar])
         normals = self._normals(coupling.surface[planar])
         cos_i = np.maximum(np.abs(np.einsum("ni,ni->n", normals, coupling.rays[planar])), self.MIN_COS_I)
         rho_aba[planar] = np.abs(ratio[planar]) / (own[planar] * cos_i)
@@ -454,11 +446,10 @@ def _tile_albedo(scan: Scan, blocks: FacingBlocks, rays: NDArray, rows: slice, c
     return nanmedian_last(np.where(blocks.keep[block_rows, block_columns], ratio, np.nan))  # NaN: no inliers
 
 
-def partner_albedo(blocks: FacingBlocks, measured: NDArray) -> NDArray[np.float64]:
+def partner_albedo(blocks: FacingBlocks, measured: NDArray, components: NDArray) -> NDArray[np.float64]:
     """The albedo per block (Hb*Wb,) that weighs each partner's multipath in a correction model's inputs: its
-    connected surface's :func:`surface_albedo` of the ``measured`` albedos (:func:`block_albedo`), picked by
-    the blocks' white coupling."""
-    components, _ = surface_labels(blocks)
+    connected surface's (``components``, :func:`surface_labels`) :func:`surface_albedo` of the ``measured``
+    albedos (:func:`block_albedo`), picked by the blocks' white coupling."""
     white = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
     return surface_albedo(measured, components, white)
 

@@ -208,13 +208,13 @@ def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
     row ranges on the cores into one array; the model then predicts them all at once.
     """
     features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)
-    top_range = raw[:, raw.shape[1] // 2 - 1].astype(np.float64)  # the highest frequency's depth [m]
+    top = raw.shape[1] // 2 - 1  # the highest frequency's depth column
 
     def build(rows: slice) -> tuple[float, float]:
         cpu, wall = time.thread_time(), time.perf_counter()
         geometric = None
         if inputs is not None and model.geometric:
-            geometric = geometry_inputs(*inputs.pixels(pixels[rows], top_range[rows]))
+            geometric = geometry_inputs(*inputs.pixels(pixels[rows], raw[rows, top].astype(np.float64)))
         gate_share = (time.thread_time() - cpu, time.perf_counter() - wall)
         model.spec.transform_into(raw[rows], geometric, features[rows])
         return gate_share

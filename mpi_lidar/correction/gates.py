@@ -163,8 +163,8 @@ class GeometryGate(Gate):
         if blocks.pairs.a.size == 0 or self.footprint_m2_ <= 0:
             return PlaneModelInputs(blocks.equivalent_rho_aba(0.0, np.zeros(blocks.usable.size)))
         measured = self.measured_albedo(scan)
-        fallback = blocks.equivalent_rho_aba(self.footprint_m2_, partner_albedo(blocks, measured))
         components, labels = surface_labels(blocks)
+        fallback = blocks.equivalent_rho_aba(self.footprint_m2_, partner_albedo(blocks, measured, components))
         plane = PlaneCoupling(scan, blocks, components, labels, self.sensor)
         albedo = plane.light_free_albedo(measured, components, self.footprint_m2_)
         return PlaneModelInputs(fallback, plane, albedo, self.footprint_m2_)

@@ -182,14 +182,11 @@ def board_albedos(scene, true_m2: float) -> tuple[list[float], list[float], list
     depth = scan.depth[-1]
     blocks = facing_blocks(np.where(np.isfinite(depth), depth, np.nan), scan.rays())
     components, labels = calibration.surface_labels(blocks)
-    pixels = np.flatnonzero(np.isfinite(depth).ravel())[::50]
-    ys, xs = np.divmod(pixels, scan.shape[1])
     plane = calibration.PlaneCoupling(scan, blocks, components, labels, Config().sensor)
-    coupling = calibration.PixelCoupling(plane, pixels, depth[ys, xs].astype(np.float64))
     measured = calibration.block_albedo(scan, blocks, Config().sensor)
     pair_kappa = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
-    found = (coupling.light_free_albedo(measured, components, true_m2),
-             calibration.surface_albedo(measured, components, coupling.block_kappa),
+    found = (plane.light_free_albedo(measured, components, true_m2),
+             calibration.surface_albedo(measured, components, plane.block_kappa),
              calibration.surface_albedo(measured, components, pair_kappa))
     boards = [np.flatnonzero(components == c)[0] for c in np.unique(components[components >= 0])
               if (components == c).sum() > 20]
