@@ -1,22 +1,43 @@
 # Two commands do all the set-up on a fresh machine with Python 3.11+ and make:
 #   make run    build .venv from uv.lock, then run the main job on embedded defaults
-#   make test   build .venv from uv.lock, then run the test suite
+#   make test   build .venv from uv.lock, install the system packages (chromium), then run the test suite
+# and, while working: make test-quick (the unit tests, under two minutes), make lint (ruff, import contracts, mypy).
 PYTHON ?= python3
 VENV := .venv
 UV_VERSION := 0.13.9
 RUN_DIR ?= runs/quick
 
-.PHONY: run test lint bench clean-venv
+.PHONY: run test test-quick system-deps lint bench clean-venv
 
 run: $(VENV)/.installed
 	$(VENV)/bin/mpi-lidar pipeline --preset quick --out $(RUN_DIR)
 
-test: $(VENV)/.installed
-	$(VENV)/bin/python -m pytest
+# pytest exits 5 when it collected no test: a failure here, said out loud (CI must never pass or fail on nothing).
+NO_TESTS = { rc=$$?; [ $$rc -ne 5 ] || echo "pytest collected no tests (exit 5): check testpaths and markers" >&2; exit $$rc; }
+
+test: $(VENV)/.installed system-deps
+	$(VENV)/bin/python -m pytest || $(NO_TESTS)
+
+# The unit tests only (tests/conftest.py marks every test unit or integration).
+test-quick: $(VENV)/.installed
+	$(VENV)/bin/python -m pytest -m unit -q || $(NO_TESTS)
+
+# System packages the tests need: chromium renders the HTML reports (tests/reporting/test_browser.py). Installed
+# here, as root, where /usr/bin/chromium is missing; never by a test.
+CHROMIUM ?= /usr/bin/chromium
+system-deps:
+	@if [ ! -x $(CHROMIUM) ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    DEBIAN_FRONTEND=noninteractive apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium; \
+	  else \
+	    echo "make system-deps: $(CHROMIUM) is missing; install chromium as root (apt-get install -y chromium)" >&2; \
+	  fi; \
+	fi
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/lint-imports
+	$(VENV)/bin/mypy
 
 bench: $(VENV)/.installed
 	$(VENV)/bin/python -m benchmarks.sensor

@@ -3,7 +3,7 @@
 Run: .venv/bin/python -m benchmarks.calibration_diagnosis [--quick] [--seed 1]
 Renders corners at several true footprints A_fp and prints, per corner, the ratio estimate / truth of:
 
-1. ``shipped``: :func:`mpi_lidar.correction.calibration.estimate_footprint` as correction runs it (the flat
+1. ``shipped``: :func:`mpi_lidar.correction.footprint.estimate_footprint` as correction runs it (the flat
    surfaces as planes continued beyond the view);
 2. ``amplitude alone``: the footprint the amplitude tells, which the shipped estimate joins with the depth's
    (the same model fitted to the amplitude, one albedo per surface eliminated, started from the depth's
@@ -29,8 +29,10 @@ from numpy.typing import NDArray
 
 from benchmarks.calibration import coupling_gain
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correction import calibration
-from mpi_lidar.correction.validity import quadrature_noise_v2
+from mpi_lidar.correction import footprint
+from mpi_lidar.correction.footprint import _albedo, _estimate
+from mpi_lidar.correction.footprint._fit import FootprintFit
+from mpi_lidar.correction.validity import depth_noise_m
 from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
@@ -84,57 +86,55 @@ def exact_unit_phasors(scan: Scan, angle_deg: float, albedo: float, pixels: NDAr
 def exact_estimates(scan: Scan, blocks: geometry.FacingBlocks, valid: NDArray, sensor: SensorConfig,
                     angle_deg: float, albedo: float, max_pixels: int) -> tuple:
     """Rows 3 and 4: the planes fit and the reference fit with the exact per-pixel model."""
-    _, labels = calibration.surface_labels(blocks)
-    unit_kappa = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
-    pixels = calibration._fit_pixels(blocks, labels, unit_kappa, valid, max_pixels)
+    labels = footprint.surface_labels(blocks).flat
+    unit_coupling = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
+    pixels = _estimate._fit_pixels(blocks, labels, unit_coupling, valid, max_pixels)
     pixels = pixels[np.isfinite(scan.reference_depth.ravel()[pixels])]
     ys, xs = np.divmod(pixels, blocks.shape[1])
     depth = scan.depth[:, ys, xs].astype(np.float64).T
     amplitude = scan.amplitude[:, ys, xs].astype(np.float64).T
     metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * np.asarray(scan.frequencies_hz))
-    sigma = quadrature_noise_v2(sensor, scan.frequencies_hz, amplitude) / np.maximum(amplitude, 1e-12)
-    sigma = np.maximum(sigma * metres_per_rad, 1e-5)
+    sigma = np.maximum(depth_noise_m(sensor, scan.frequencies_hz, amplitude), 1e-5)
     surface = labels[(ys // blocks.block_pixels) * blocks.usable.shape[1] + xs // blocks.block_pixels]
     phasor, kappa = exact_unit_phasors(scan, angle_deg, albedo, pixels, sensor.speed_of_light_m_per_s)
     arguments = (depth, sigma, phasor, kappa, metres_per_rad, amplitude / sensor.gamma_r_v2, scan.pixel_rays(ys, xs),
                  surface)
-    planes = calibration._Problem(*arguments, None).solve("planes", with_amplitude=False)
-    reference = calibration._Problem(*arguments, scan.reference_depth.ravel()[pixels].astype(np.float64))
-    return planes, reference.solve("reference", with_amplitude=False)
+    planes = FootprintFit(*arguments, None).solve(footprint.EstimateMethod.PLANES, with_amplitude=False)
+    reference = FootprintFit(*arguments, scan.reference_depth.ravel()[pixels].astype(np.float64))
+    return planes, reference.solve(footprint.EstimateMethod.REFERENCE, with_amplitude=False)
 
 
 def diagnose(angle: float, distance: float, albedo: float, true_m2: float, seed: int, max_pixels: int
-             ) -> dict[str, calibration.FootprintEstimate]:
+             ) -> dict[str, footprint.FootprintEstimate]:
     """The four estimates of one rendered corner."""
     config = Config()
     scan = render(corner(angle, distance, albedo), config, np.random.default_rng(seed),
                   coupling_gain=coupling_gain(true_m2))
     valid = np.isfinite(scan.depth[-1])
     blocks = geometry.facing_blocks(np.where(valid, scan.depth[-1], np.nan), scan.ray_rows())
-    amplitude_fits: list[calibration.FootprintEstimate] = []
-    solve = calibration._Problem._solve
+    amplitude_fits: list[footprint.FootprintEstimate] = []
+    fit_amplitude = FootprintFit._fit_amplitude
 
-    def kept_amplitude_fit(problem: calibration._Problem, method: str, use_depth: bool, use_amplitude: bool,
-                           **options: float) -> calibration.FootprintEstimate:
-        found = solve(problem, method, use_depth, use_amplitude, **options)
-        if use_amplitude and not use_depth:
-            amplitude_fits.append(found)
+    def kept_amplitude_fit(fit: FootprintFit, method: footprint.EstimateMethod, **options: float
+                           ) -> footprint.FootprintEstimate:
+        found = fit_amplitude(fit, method, **options)
+        amplitude_fits.append(found)
         return found
 
-    with mock.patch.object(calibration._Problem, "_solve", kept_amplitude_fit):
-        found = {"shipped": calibration.estimate_footprint(scan, blocks, valid.ravel(), config.sensor,
-                                                           max_pixels=max_pixels)}
-    found["amplitude alone"] = amplitude_fits[-1] if amplitude_fits else calibration.NOTHING_MEASURED
-    true_albedo = lambda measured, components, unit_kappa: np.where(measured > 0, albedo, 0.0)  # noqa: E731
-    with mock.patch.object(calibration, "surface_albedo", true_albedo):
-        found["true albedo"] = calibration.estimate_footprint(scan, blocks, valid.ravel(), config.sensor,
-                                                              max_pixels=max_pixels)
+    with mock.patch.object(FootprintFit, "_fit_amplitude", kept_amplitude_fit):
+        found = {"shipped": footprint.estimate_footprint(scan, blocks, valid.ravel(), config.sensor,
+                                                         max_pixels=max_pixels)}
+    found["amplitude alone"] = amplitude_fits[-1] if amplitude_fits else footprint.NOTHING_MEASURED
+    true_albedo = lambda measured, components, coupling: np.where(measured > 0, albedo, 0.0)  # noqa: E731
+    with mock.patch.object(_albedo, "surface_albedo", true_albedo):
+        found["true albedo"] = footprint.estimate_footprint(scan, blocks, valid.ravel(), config.sensor,
+                                                            max_pixels=max_pixels)
     found["exact, planes"], found["exact, reference"] = exact_estimates(scan, blocks, valid.ravel(), config.sensor,
                                                                         angle, albedo, max_pixels)
     return found
 
 
-def cell(estimate: calibration.FootprintEstimate, true_m2: float) -> str:
+def cell(estimate: footprint.FootprintEstimate, true_m2: float) -> str:
     return f"{estimate.area_m2 / true_m2:.2f}{'*' if estimate.significant else ''}"
 
 
@@ -144,7 +144,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
     corners, footprints = (CORNERS[:1], FOOTPRINTS_M2[1::2]) if args.quick else (CORNERS, FOOTPRINTS_M2)
-    max_pixels = 2_000 if args.quick else calibration.MAX_FIT_PIXELS
+    max_pixels = 2_000 if args.quick else _estimate.MAX_FIT_PIXELS
     print(f"Machine: {platform.node()} ({platform.machine()}), {date.today()}; seed {args.seed}\n")
     for angle, distance, albedo in corners:
         print(f"Corner {angle} deg, {distance} m, albedo {albedo}: estimate / true footprint\n")

@@ -10,7 +10,7 @@ Run: .venv/bin/python -m benchmarks.cluster [--samples 40000] [--trials 8] [--sc
 3. Batch correction of ``--scans`` small scans (32 x 48 pixels, four frequencies) in one batch.
 
 Wall times exclude starting clusters and the workers' first imports (a small warm-up run). Prints
-Markdown tables for docs/operations.md.
+Markdown tables for docs/results/cluster.md.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.train import train_and_save
-from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.scans.store import write_scan
 from mpi_lidar.workflows.correct_archive import correct_archive
 from mpi_lidar.workflows.generate import generate
 

@@ -60,8 +60,11 @@ from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE
 from mpi_lidar.learning.model import DatasetCard, load_model, save_model
 from mpi_lidar.learning.train import DEFAULT_EARLY_STOPPING, DEFAULT_ROUNDS, model_card, train_arrays
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
-from mpi_lidar.reporting.scan_report import DEFAULT_OUTPUTS, OUTPUT_LEVELS, scan_metrics, write_scan_outputs
-from mpi_lidar.scans.scan import Scan, read_scan, write_scan
+from mpi_lidar.reporting.metrics import scan_metrics
+from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS
+from mpi_lidar.reporting.scan_outputs import write_scan_outputs
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
 from mpi_lidar.simulation.sampling import THETA_NAMES
 from mpi_lidar.simulation.scenes import SCENES, render

@@ -31,9 +31,8 @@ from benchmarks.calibration import (
     usable_pixels,
 )
 from benchmarks.scenes import EdgeLine, edge_line
-from mpi_lidar.config import Config
-from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
-from mpi_lidar.correction.gates import geometry_gate
+from mpi_lidar.config import Config, SensorConfig
+from mpi_lidar.correction import CorrectionOptions, Flag, analyse_geometry, correct_scan
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.scans.geometry import surface_normals
@@ -79,14 +78,14 @@ def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: Corre
     raw = scan.raw_pixels()
     f = len(scan.frequencies_hz)
     usable = usable_pixels(scan, correction.flags)
-    gate = geometry_gate(options)
-    gate.scan_candidates(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan))
+    geometry = analyse_geometry(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan), options, SensorConfig(),
+                                with_model_inputs=True)
     chosen = np.flatnonzero((usable & near_edges(scan, edges)).ravel()
                             & (correction.flags.ravel() == Flag.CORRECTED))
     if chosen.size < len(BIN_QUANTILES):
         return []  # the gate left the edges as measured: nothing to take apart
     cos_i = incidence_cosine(scan).ravel()[chosen]
-    inputs = geometry_inputs(*gate.model_inputs(scan).pixels(chosen, raw[chosen, f - 1]))
+    inputs = geometry_inputs(*geometry.model_inputs.pixels(chosen, raw[chosen, f - 1]))
     exact = geometry_inputs(truth["rho_aba"][chosen], truth["d_ab_m"][chosen])
     measured = raw[chosen, f - 1]
     per_pixel = {"cos_i": cos_i, "bias_m": truth["bias_m"][chosen, -1],

@@ -23,8 +23,7 @@ from datetime import date
 import numpy as np
 
 from mpi_lidar.config import Config
-from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
-from mpi_lidar.correction.gates import geometry_gate
+from mpi_lidar.correction import GATES, INVALID_FLAGS, CorrectionOptions, Flag, analyse_geometry, correct_scan
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_area
 from mpi_lidar.scans.scan import Scan
@@ -112,10 +111,9 @@ def estimation_error(config: Config, seed: int) -> None:
         truth: dict[str, np.ndarray] = {}
         scan = render(factory(), config, np.random.default_rng([seed, index]), truth_out=truth)
         depth_top = np.where(np.isfinite(scan.reference_depth), scan.depth[-1], np.nan)  # sky: no return
-        gate = geometry_gate(options, config.sensor)
-        gate.scan_candidates(scan, depth_top.ravel())
-        potential = gate.potential_.rows()
-        inputs = gate.model_inputs(scan)
+        scene = analyse_geometry(scan, depth_top.ravel(), options, config.sensor, with_model_inputs=True)
+        potential = scene.potential.rows()
+        inputs = scene.model_inputs
         rho_aba, d_ab = inputs.pixels(np.arange(depth_top.size), depth_top.ravel())
         block_rho_aba, block_d_ab = inputs.fallback.pixels(np.arange(depth_top.size))
         true = truth["coupling"].reshape(scan.shape)
@@ -146,7 +144,7 @@ def main() -> None:
     parser.add_argument("--model", action="append")
     parser.add_argument("--estimation-error", action="store_true",
                         help="Only compare the geometric coupling estimate with the renderer's truth.")
-    parser.add_argument("--gate", action="append", choices=["geometry", "all", "consistency"])
+    parser.add_argument("--gate", action="append", choices=GATES)
     parser.add_argument("--min-bias-mm", action="append", type=float)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--matched-footprint", action="store_true",
@@ -178,7 +176,7 @@ def main() -> None:
         for path, model in models.items():
             for gate in gates:
                 for threshold in (thresholds if gate == "geometry" else [float("nan")]):
-                    # The footprint the renders were made with (or the imports' own): section 4 of docs/scenes.md
+                    # The footprint the renders were made with (or the imports' own): docs/results/scenes.md
                     footprint = footprint_area_m2 or DEFAULT_FOOTPRINT_AREA_M2
                     bias = {"min_multipath_bias_m": threshold / 1e3} if gate == "geometry" else {}
                     options = CorrectionOptions(gate=gate, footprint_area_m2=footprint, **bias)

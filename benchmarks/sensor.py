@@ -1,7 +1,7 @@
 """Sensor simulator figures: speed per core of both fidelities, raw and noise-only MAE, depth noise std.
 
 Run: .venv/bin/python -m benchmarks.sensor [--rows N]
-Prints markdown tables; docs/benchmarks.md records them with machine and date.
+Prints markdown tables; docs/results/sensor.md records them with machine and date.
 """
 
 from __future__ import annotations

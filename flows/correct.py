@@ -23,18 +23,18 @@ from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from flows.runtime import PrefectExecutor, dask_task_runner, shared_api
-from mpi_lidar.correction import CorrectionOptions, ScanOutcome
+from mpi_lidar.correction import GATES, CorrectionOptions, ScanOutcome
 from mpi_lidar.correction.profile import profile_options
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.reporting.scan_report import batch_report, write_batch_report
+from mpi_lidar.reporting.batch_report import batch_report, write_batch_report
 from mpi_lidar.workflows.correct_archive import batch_failure, correct_archive, process_scan
 
 TABLE_ARTIFACT_KEY = "correction-table"
 SUMMARY_ARTIFACT_KEY = "correction-summary"
-Gate = Literal["geometry", "all", "consistency"]  # mpi_lidar.correction.GATES, as a parameter schema enum
+Gate = Literal[GATES]  # the values of mpi_lidar.correction.GateName, as a parameter schema enum
 FailOn = Literal["degraded", "unchanged", "failed"]  # mpi_lidar.workflows.correct_archive.FAIL_ON
-Outputs = Literal["full", "light", "data"]  # mpi_lidar.reporting.scan_report.OUTPUT_LEVELS
-PointCloud = Literal["las", "laz", "ply"]  # mpi_lidar.scans.pointcloud.POINT_CLOUD_FORMATS
+Outputs = Literal["full", "light", "data"]  # mpi_lidar.reporting.output_levels.OutputLevel
+PointCloud = Literal["las", "laz", "ply"]  # mpi_lidar.scans.pointcloud.PointCloudFormat
 
 # One scan: the library's process_scan itself (validity mask, gate, inference, outputs), as a task run named
 # after its source. A bad scan returns a 'failed' outcome, so the one retry is for infrastructure failures.

@@ -19,9 +19,9 @@ except PackageNotFoundError:  # running from a source tree that was never instal
 _EXPORTS = {
     "Config": "mpi_lidar.config",
     "Scan": "mpi_lidar.scans.scan",
-    "read_scan": "mpi_lidar.scans.scan",
-    "write_scan": "mpi_lidar.scans.scan",
-    "load_scan_file": "mpi_lidar.scans.scan",
+    "read_scan": "mpi_lidar.scans.store",
+    "write_scan": "mpi_lidar.scans.store",
+    "load_scan_file": "mpi_lidar.scans.importers",
     "POINT_CLOUD_FORMATS": "mpi_lidar.scans.pointcloud",
     "correction_fields": "mpi_lidar.scans.pointcloud",
     "write_point_cloud": "mpi_lidar.scans.pointcloud",

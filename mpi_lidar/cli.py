@@ -7,12 +7,13 @@ import sys
 import tempfile
 import traceback
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from mpi_lidar.config import PRESETS, resolve_config
+from mpi_lidar.correction.gate_names import GATES
 from mpi_lidar.errors import EXIT_FAILURE, EXIT_USER_ERROR, MpiLidarError
 from mpi_lidar.learning.feature_choices import (  # not .features: that imports dask, and --help must be quick
     DEFAULT_FEATURE_SET,
@@ -22,8 +23,10 @@ from mpi_lidar.learning.feature_choices import (  # not .features: that imports 
     TARGET_MODES,
 )
 from mpi_lidar.redact import redact
+from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS
 
 if TYPE_CHECKING:
+    from mpi_lidar.learning.feature_choices import FeatureSet, TargetMode
     from mpi_lidar.learning.features import FeatureSpec
 
 
@@ -103,7 +106,8 @@ def feature_spec(data: Path, feature_set: str | None, target_mode: str | None,
     from mpi_lidar.simulation import dataset
 
     info = dataset.dataset_info(data)
-    return FeatureSpec(info.frequencies_hz, feature_set or DEFAULT_FEATURE_SET, target_mode or DEFAULT_TARGET_MODE,
+    return FeatureSpec(info.frequencies_hz, cast("FeatureSet", feature_set or DEFAULT_FEATURE_SET),
+                       cast("TargetMode", target_mode or DEFAULT_TARGET_MODE),
                        DEFAULT_GEOMETRIC if geometric is None else geometric)
 
 
@@ -264,14 +268,14 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.argument("scans", nargs=-1, required=True)
 @click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output directory.")
-@click.option("--gate", type=click.Choice(["geometry", "all", "consistency"]), default="geometry", show_default=True,
+@click.option("--gate", type=click.Choice(GATES), default="geometry", show_default=True,
               help="Which valid pixels get corrected: where the scan's geometry allows multipath (geometry; "
                    "on scans without geometry a pixel-wise model corrects every valid pixel and a geometric model, "
                    "the default, leaves them as measured: status unchanged), every valid pixel (all), or "
                    "frequency disagreement (consistency).")
 @click.option("--min-bias-mm", type=click.FloatRange(min=0), default=None,
               help="Geometry gate: correct pixels whose expected multipath bias reaches this. [mm] "
-                   "(default 4; 1 suits geometric models on weak multipath, see docs/scenes.md)")
+                   "(default 4; 1 suits geometric models on weak multipath, see docs/results/scenes.md)")
 @click.option("--footprint-area-m2", default=None, metavar="auto|A",
               help="Effective receiver footprint of your sensor, which scales the geometric coupling [m^2], or "
                    "auto: each scan measures its own from its facing surfaces, and pixels that depend on an "
@@ -286,11 +290,12 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--fail-on", "fail_on", type=click.Choice(["degraded", "unchanged", "failed"]), multiple=True,
               help="Exit 1 (after writing the summary) when a scan has this status; repeatable. "
                    "A failed scan always does.")
-@click.option("--outputs", type=click.Choice(["full", "light", "data"]), default="light", show_default=True,
+@click.option("--outputs", type=click.Choice(OUTPUT_LEVELS), default=DEFAULT_OUTPUTS, show_default=True,
               help="What each scan writes: corrected.zarr, metrics.json, report and a small thumbnail (light); "
                    "only corrected.zarr and metrics.json (data); or also maps, error histogram, point-cloud "
                    "views, a 3-D view and point clouds (full, several times slower). A scan already corrected at a "
                    "lower level is corrected again to add the rest.")
+# The formats of mpi_lidar.scans.pointcloud.PointCloudFormat, written out: importing it would load laspy for --help.
 @click.option("--point-cloud", "point_clouds", type=click.Choice(["las", "laz", "ply"]), multiple=True,
               help="Write the corrected point cloud in this format at any --outputs level; repeatable: "
                    "corrected.las / corrected.laz (LAS 1.4, the raw range an extra dimension) or raw.ply and "
@@ -317,7 +322,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
 
     from mpi_lidar.correction import CorrectionOptions
     from mpi_lidar.correction.profile import profile_options
-    from mpi_lidar.reporting.scan_report import write_batch_report
+    from mpi_lidar.reporting.batch_report import write_batch_report
     from mpi_lidar.workflows.correct_archive import (
         correct_archive,
         expand_archive,
@@ -396,7 +401,7 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
     Every file is read and checked before anything is written: one bad file (or an existing store) refuses
     the whole import with one error line (exit 2), and nothing is written.
     """
-    from mpi_lidar.scans.scan import find_scan_files, import_files, plan_import
+    from mpi_lidar.scans.importers import find_scan_files, import_files, plan_import
 
     freqs = None
     if frequencies:

@@ -321,12 +321,48 @@ def validate_overrides(overrides: dict[str, object], base: Config, source: str) 
         raise ConfigError(f"{source}: {describe_validation_error(exc)}") from None
 
 
-def describe_validation_error(exc: ValidationError) -> str:
-    """The first problem of a pydantic error as 'field.path: message', one line."""
-    first = exc.errors()[0]
-    where = ".".join(str(part) for part in first["loc"]) or "config"
-    message = first["msg"].removeprefix("Value error, ")
-    if first["type"] == "extra_forbidden":
-        message = "unknown field (check its spelling against the documented configuration)"
-    more = len(exc.errors()) - 1
-    return f"{where}: {message}" + (f" (and {more} more problem{'s' * (more > 1)})" if more else "")
+def describe_validation_error(exc: ValidationError, root: str = "config", *, shown: int | None = 1,
+                              keys: bool = False, verbatim: bool = False) -> str:
+    """The problems of a pydantic error in one line, each as 'field.path: message'.
+
+    The one formatter of the package's validation errors (configurations, correction options, sensor
+    profiles, model cards). ``root`` names a problem of the whole object (an empty path). ``shown``: how many
+    problems are listed (None: all, joined by "; "); with fewer, the first ones and how many more there are.
+    ``verbatim``: pydantic's messages as they are; otherwise "Value error, " is dropped and an unknown field
+    says to check its spelling. ``keys``: the problems of a JSON document's keys (a model card): a missing or
+    unknown field as "lacks key 'a.b'" / "has unknown key 'a.b'", any other with the JSON kind of the value
+    found, each problem once, "; and N more" after the first ``shown``.
+    """
+    problems: list[str] = []
+    errors = exc.errors(include_url=False)
+    for error in errors:
+        where = ".".join(str(part) for part in error["loc"]) or root
+        if keys:
+            if error["type"] == "missing":
+                problem = f"lacks key {where!r}"
+            elif error["type"] == "extra_forbidden":
+                problem = f"has unknown key {where!r}"
+            else:
+                problem = f"{where}: {error['msg']} (found {json_kind(error.get('input'))})"
+            if problem not in problems:
+                problems.append(problem)
+            continue
+        message = error["msg"]
+        if not verbatim:
+            message = message.removeprefix("Value error, ")
+            if error["type"] == "extra_forbidden":
+                message = "unknown field (check its spelling against the documented configuration)"
+        problems.append(f"{where}: {message}")
+    listed = problems if shown is None else problems[:shown]
+    if keys:
+        more = f"; and {len(problems) - len(listed)} more" if len(problems) > len(listed) else ""
+        return ("; ".join(listed) + more).replace("\n", " ")
+    more_count = len(errors) - len(listed)
+    more = f" (and {more_count} more problem{'s' * (more_count > 1)})" if more_count else ""
+    return "; ".join(listed) + more
+
+
+def json_kind(value: object) -> str:
+    """The JSON name of a value's kind (list, string, number, boolean, null; else its Python type's name)."""
+    kinds = {list: "list", str: "string", bool: "boolean", int: "number", float: "number", type(None): "null"}
+    return kinds.get(type(value), type(value).__name__)

@@ -13,7 +13,7 @@ import pytest
 
 import mpi_lidar
 from mpi_lidar.correction import Flag
-from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.scans.store import write_scan
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
@@ -37,7 +37,7 @@ def test_api__every_exported_name_resolves():
     for name in mpi_lidar.__all__:
         assert getattr(mpi_lidar, name) is not None, name
         assert name in dir(mpi_lidar)
-    from mpi_lidar.scans.scan import read_scan
+    from mpi_lidar.scans.store import read_scan
 
     assert mpi_lidar.read_scan is read_scan
     with pytest.raises(AttributeError, match="no attribute 'nothing'"):

@@ -4,7 +4,7 @@ Hypothesis drives the readers of configurations, dataset stores, scan stores, .n
 with malformed input. Each reader either returns a valid object or raises an :class:`MpiLidarError` (one
 line: what, where, what to do); no other exception type may escape. Where a command reads the file, the
 command exits 2 with one ``error:`` line and writes nothing. ``HOSTILE_EXAMPLES`` inputs per reader, and
-the number of readers, give the count docs/operations.md quotes.
+the number of readers, give the count docs/how-to/dask-cluster.md quotes.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from hypothesis import strategies as st
 from mpi_lidar.config import Config, load_config
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, load_model
-from mpi_lidar.scans.scan import load_npz, read_scan, write_scan
+from mpi_lidar.scans.importers import load_npz
+from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.verify import verify_store
 from tests.cli_runner import assert_one_error_line, call_main

@@ -1,4 +1,4 @@
-"""Correction of one scan: validity mask, gates that skip what needs no correction, inference per pixel.
+"""Correction of one scan: validity mask -> scene geometry -> gates that skip what needs no correction -> model.
 
 Each name of ``__all__`` is imported from its module on first access (PEP 562), so the options, flags and
 statuses (``from mpi_lidar.correction import CorrectionOptions``) come without the model's libraries
@@ -12,43 +12,36 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the names for type checkers; at run time __getattr__ imports them
     from mpi_lidar.correction.correct import Correction, correct_scan, in_model_range
-    from mpi_lidar.correction.gates import (
-        NO_GEOMETRY_INPUTS_NOTE,
-        NO_GEOMETRY_NOTE,
-        ConsistencyGate,
-        CorrectAll,
-        Gate,
-        GeometryGate,
-        geometry_gate,
-        make_gate,
-    )
+    from mpi_lidar.correction.gates import ConsistencyGate, CorrectAll, Gate, GeometryGate, make_gate
     from mpi_lidar.correction.options import (
         CORRECTED_SCHEMA,
         GATES,
         INVALID_FLAGS,
         CorrectionOptions,
         Flag,
+        GateName,
         ScanStatus,
     )
     from mpi_lidar.correction.outcome import ScanOutcome
-    from mpi_lidar.correction.validity import noise_floor_v2, quadrature_noise_v2, validity_flags
+    from mpi_lidar.correction.scene import NO_GEOMETRY_INPUTS_NOTE, NO_GEOMETRY_NOTE, SceneGeometry, analyse_geometry
+    from mpi_lidar.correction.validity import depth_noise_m, noise_floor_v2, quadrature_noise_v2, validity_flags
 
 _MODULES = {
     "mpi_lidar.correction.correct": ("Correction", "correct_scan", "in_model_range"),
-    "mpi_lidar.correction.gates": ("NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "ConsistencyGate", "CorrectAll",
-                                   "Gate", "GeometryGate", "geometry_gate", "make_gate"),
+    "mpi_lidar.correction.gates": ("ConsistencyGate", "CorrectAll", "Gate", "GeometryGate", "make_gate"),
     "mpi_lidar.correction.options": ("CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "CorrectionOptions", "Flag",
-                                     "ScanStatus"),
+                                     "GateName", "ScanStatus"),
     "mpi_lidar.correction.outcome": ("ScanOutcome",),
-    "mpi_lidar.correction.validity": ("noise_floor_v2", "quadrature_noise_v2", "validity_flags"),
+    "mpi_lidar.correction.scene": ("NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "SceneGeometry", "analyse_geometry"),
+    "mpi_lidar.correction.validity": ("depth_noise_m", "noise_floor_v2", "quadrature_noise_v2", "validity_flags"),
 }
 _EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = [
     "CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "ConsistencyGate",
-    "CorrectAll", "Correction", "CorrectionOptions", "Flag", "Gate", "GeometryGate", "ScanOutcome", "ScanStatus",
-    "correct_scan", "geometry_gate", "in_model_range", "make_gate", "noise_floor_v2", "quadrature_noise_v2",
-    "validity_flags",
+    "CorrectAll", "Correction", "CorrectionOptions", "Flag", "Gate", "GateName", "GeometryGate", "ScanOutcome",
+    "ScanStatus", "SceneGeometry", "analyse_geometry", "correct_scan", "depth_noise_m", "in_model_range",
+    "make_gate", "noise_floor_v2", "quadrature_noise_v2", "validity_flags",
 ]
 
 

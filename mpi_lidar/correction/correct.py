@@ -28,16 +28,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.calibration import FootprintEstimate, PlaneModelInputs
-from mpi_lidar.correction.gates import (
-    NO_GEOMETRY_INPUTS_NOTE,
-    NO_GEOMETRY_NOTE,
-    GeometryGate,
-    geometry_gate,
-    make_gate,
-)
-from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
-from mpi_lidar.correction.validity import validity_flags
+from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
+from mpi_lidar.correction.gates import Gate, make_gate
+from mpi_lidar.correction.options import CorrectionOptions, Flag
+from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
+from mpi_lidar.correction.validity import usable_depth_of, validity_flags
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.scans.scan import Scan
@@ -52,11 +47,12 @@ PARALLEL_MIN_ROWS = 16_384
 class Correction:
     """A corrected scan: depth (H, W) [m] (NaN where invalid), flags (H, W), and what it cost.
 
-    ``multipath_bias_m`` (H, W) is the geometry gate's expected multipath bias [m] (None for other gates
-    or without geometry); ``gate_s`` the time the gate took [s]; ``notes`` what the report must say;
+    ``multipath_bias_m`` (H, W) is the scene geometry's expected multipath bias [m] (None where the geometry
+    was not analysed or the scan has none); ``gate_s`` the time the scene geometry and the gate took [s];
+    ``notes`` what the report must say;
     ``cpu_s`` the CPU seconds of this process (all threads) per stage: validity, gate, inference (the model's
     features and its prediction) [s]; ``calibration`` the scan's own footprint estimate where the footprint
-    was "auto" and the geometry was used (None otherwise).
+    was "auto" and the geometry was analysed (None otherwise).
     """
 
     depth: NDArray[np.float32]
@@ -91,11 +87,13 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
                  sensor: SensorConfig | None = None) -> Correction:
     """Correct one scan in this process, in tiles of whole rows of about ``options.tile_pixels`` pixels.
 
-    Everything per pixel (validity mask, model range, a pixel-wise gate, geometric inputs, inference) runs
-    tile by tile, so its working memory is that of one tile whatever the scan's size; the geometry gate runs
-    between the two passes, itself in tiles of whole blocks (its planes) and bands of rows (its potential),
-    with only its facing pairs over the whole scan. ``scan`` may keep its maps in the store
-    (:class:`mpi_lidar.scans.scan.StoredMap`). Every pixel gets exactly the value it gets from the whole scan
+    The stages: validity (:func:`_validity_pass`) -> scene geometry (:func:`analyse_geometry`, where the gate or
+    the model needs it) -> the gate's decision (:func:`_gate`) -> the model (:func:`_predict`). Everything per
+    pixel (validity mask, model range, a pixel-wise gate, geometric inputs, inference) runs tile by tile, so its
+    working memory is that of one tile whatever the scan's size; the scene geometry runs between the two passes,
+    itself in tiles of whole blocks (its planes) and bands of rows (its potential), with only its facing pairs
+    over the whole scan. ``scan`` may keep its maps in the store
+    (:class:`mpi_lidar.scans.stored_map.StoredMap`). Every pixel gets exactly the value it gets from the whole scan
     in memory at once (tests/correction/test_tiling.py, tests/scans/test_stored_maps.py).
     """
     started = time.perf_counter()
@@ -105,7 +103,26 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     tiles = row_tiles(*scan.shape, options.tile_pixels)
     with clock("validity"):
         flags, usable_depth = _validity_pass(scan, model, options, sensor, tiles)
-    return _gate_and_predict(scan, model, options, sensor, tiles, flags, usable_depth, clock, started)
+    gate_started = time.perf_counter()
+    with clock("gate"):
+        gate = make_gate(options)
+        scene = None
+        if gate.uses_geometry or model.geometric:
+            scene = analyse_geometry(scan, usable_depth, options, sensor, with_model_inputs=model.geometric)
+        notes = _gate(flags, gate, scene)
+    gate_s = time.perf_counter() - gate_started
+    inputs = None if scene is None else scene.model_inputs
+    bias_m = None if scene is None else scene.bias_m
+    calibration = None if scene is None else scene.footprint
+    predict = not (model.geometric and (scene is None or not scene.has_geometry))
+    del scene  # its masks are in the flags now
+    depth = usable_depth  # the scene geometry is done with it: filled in place, no copy
+    inference_s = 0.0
+    if predict:
+        gate_s, inference_s = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
+    h, w = scan.shape
+    return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
+                      bias_m, notes, clock.seconds, calibration)
 
 
 def _validity_pass(scan: Scan, model: CorrectionModel, options: CorrectionOptions, sensor: SensorConfig,
@@ -115,7 +132,6 @@ def _validity_pass(scan: Scan, model: CorrectionModel, options: CorrectionOption
     f = len(scan.frequencies_hz)
     flags = np.empty(scan.shape[0] * scan.shape[1], dtype=np.uint8)
     usable_depth = np.empty(flags.size, dtype=np.float32)
-    invalid = [int(flag) for flag in INVALID_FLAGS]
     for pixels, raw in _raw_tiles(scan, tiles):
         def check(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
             part = raw[rows]
@@ -124,48 +140,36 @@ def _validity_pass(scan: Scan, model: CorrectionModel, options: CorrectionOption
             part_flags[(part_flags == Flag.NOT_NEEDED) & ~in_model_range(top, model, options)] = Flag.OUT_OF_RANGE
             where = slice(start + rows.start, start + rows.stop)
             flags[where] = part_flags
-            usable_depth[where] = np.where(~np.isin(part_flags, invalid), top, np.nan)
+            usable_depth[where] = usable_depth_of(part, part_flags)
 
         on_cores_by_rows(check, raw.shape[0], PARALLEL_MIN_ROWS)
     return flags, usable_depth
 
 
-def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOptions, sensor: SensorConfig,
-                      tiles: list[slice], flags: NDArray[np.uint8], usable_depth: NDArray[np.float32],
-                      clock: _StageClock, started: float) -> Correction:
-    """The gate over the whole scan, then the model on the pixels it lets through, tile by tile
-    (:func:`correct_scan` after its first pass)."""
-    h, w = scan.shape
-    gate_started = time.perf_counter()
-    with clock("gate"):
-        gate = make_gate(options, sensor)
-        candidates = gate.scan_candidates(scan, usable_depth)
-        notes: tuple[str, ...] = ()
-        geometry = gate if isinstance(gate, GeometryGate) else None
-        if model.geometric and (geometry is None or geometry.potential_ is None):
-            geometry = geometry_gate(options, sensor)
-            geometry.scan_candidates(scan, usable_depth)  # for the inputs only: this gate decides nothing
-        potential = None if geometry is None else geometry.potential_
-        inputs = geometry.model_inputs(scan) if model.geometric and geometry is not None else None
-        calibration = None if geometry is None else geometry.calibration_
-        uncalibrated = None if geometry is None else geometry.uncalibrated_
-        if uncalibrated is not None:
-            flags[(flags == Flag.NOT_NEEDED) & uncalibrated] = Flag.UNCALIBRATED
-            del uncalibrated
-        if candidates is not None:
-            flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
-            del candidates
-        elif gate.uses_geometry and not model.geometric:
-            notes = (NO_GEOMETRY_NOTE,)
-        predict = not (model.geometric and potential is None)
-        if not predict:
-            notes = (NO_GEOMETRY_INPUTS_NOTE,)
-        if calibration is not None and calibration.pixels > 0:  # nothing to say where nothing faces
-            notes += (calibration_note(calibration, int((flags == Flag.UNCALIBRATED).sum())),)
-    gate_s = time.perf_counter() - gate_started
-    depth = usable_depth  # the gate is done with it (the geometry gate copied it): filled in place, no copy
+def _gate(flags: NDArray[np.uint8], gate: Gate, scene: SceneGeometry | None) -> tuple[str, ...]:
+    """The gate's decision over the whole scan, written into the valid pixels' ``flags`` (H*W,) in place:
+    UNCALIBRATED where the scan's own footprint is not significant and its bias could reach the threshold,
+    NO_MULTIPATH where the gate rules multipath out. Returns what the report must say."""
+    notes: tuple[str, ...] = () if scene is None else scene.notes
+    if scene is not None and scene.uncalibrated is not None:
+        flags[(flags == Flag.NOT_NEEDED) & scene.uncalibrated] = Flag.UNCALIBRATED
+    candidates = gate.candidates(scene)
+    if candidates is not None:
+        flags[(flags == Flag.NOT_NEEDED) & ~candidates] = Flag.NO_MULTIPATH
+    calibration = None if scene is None else scene.footprint
+    if calibration is not None and calibration.pixels > 0:  # nothing to say where nothing faces
+        notes += (calibration_note(calibration, int((flags == Flag.UNCALIBRATED).sum())),)
+    return notes
+
+
+def _predict(scan: Scan, model: CorrectionModel, sensor: SensorConfig, tiles: list[slice], gate: Gate,
+             flags: NDArray[np.uint8], depth: NDArray[np.float32], inputs: PlaneModelInputs | None,
+             clock: _StageClock, gate_s: float) -> tuple[float, float]:
+    """The model on the pixels the gate lets through, tile by tile (the second pass): their corrected depth into
+    ``depth`` (H*W,) and CORRECTED into ``flags`` in place. Returns the gate's wall seconds (``gate_s`` plus the
+    pixel-wise gate's and the geometric inputs' share) and the inference's."""
     inference_s = 0.0
-    for pixels, raw in _raw_tiles(scan, tiles) if predict else ():  # second pass: the pixels that need it
+    for pixels, raw in _raw_tiles(scan, tiles):
         tile_cpu, tile_started = time.process_time(), time.perf_counter()
         valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
         needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
@@ -181,8 +185,7 @@ def _gate_and_predict(scan: Scan, model: CorrectionModel, options: CorrectionOpt
         clock.add("inference", time.process_time() - tile_cpu - gate_cpu)
         gate_s += gate_wall
         inference_s += time.perf_counter() - tile_started - gate_wall
-    return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
-                      None if geometry is None else geometry.bias_m_, notes, clock.seconds, calibration)
+    return gate_s, inference_s
 
 
 def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:

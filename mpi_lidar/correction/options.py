@@ -5,17 +5,20 @@ from __future__ import annotations
 import hashlib
 import json
 from enum import IntEnum, StrEnum
-from typing import Annotated, Literal
+from typing import Annotated, Final, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from mpi_lidar.config import describe_validation_error
+from mpi_lidar.correction.gate_names import GATES as GATES  # re-exported: the gates of the options
+from mpi_lidar.correction.gate_names import GateName
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans import geometry
 
 CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
-AUTO = "auto"  # footprint_area_m2: each scan measures its own (mpi_lidar.correction.calibration)
-GATES = ("geometry", "all", "consistency")
+AUTO: Final = "auto"  # footprint_area_m2: each scan measures its own (mpi_lidar.correction.footprint)
+
 
 
 class Flag(IntEnum):
@@ -65,7 +68,7 @@ class CorrectionOptions(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
-    gate: Literal["geometry", "all", "consistency"] = "geometry"
+    gate: GateName = GateName.GEOMETRY
     min_amplitude_sigmas: NonNegative = 5.0
     saturation_amplitude_v2: Positive = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
     max_depth_spread_m: Positive = 0.3
@@ -80,7 +83,7 @@ class CorrectionOptions(BaseModel):
     geometry_block_m: Positive = geometry.DEFAULT_BLOCK_M
     partner_range_m: Positive = geometry.DEFAULT_MAX_RANGE_M
     # The receiver footprint A_fp [m^2] that scales the geometric coupling, or "auto": each scan estimates its
-    # own from the depth and amplitude near its facing surfaces (mpi_lidar.correction.calibration).
+    # own from the depth and amplitude near its facing surfaces (mpi_lidar.correction.footprint).
     footprint_area_m2: Positive | Literal["auto"] = AUTO
     tile_pixels: Annotated[int, Field(ge=1)] = 262_144
     # Above this share of invalid pixels a scan is 'degraded', not 'corrected': past half the map the
@@ -96,7 +99,7 @@ class CorrectionOptions(BaseModel):
         Fields that only classify the outcome (``max_invalid_share``) are left out, always: changing them
         must not re-correct a scan, and outputs written before they existed keep their hash.
         """
-        pixels = self.model_dump(exclude=STATUS_ONLY_OPTIONS)
+        pixels = self.model_dump(exclude=set(STATUS_ONLY_OPTIONS))
         if pixels["sensor_profile_sha256"] is None:  # hashes from before profiles existed stay the same
             del pixels["sensor_profile_sha256"]
         if pixels["near_range_fraction"] == 0:  # the rule before it existed: those outputs keep their hash
@@ -111,7 +114,7 @@ class CorrectionOptions(BaseModel):
     @classmethod
     def from_cli(cls, gate: str = "geometry", min_bias_mm: float | None = None,
                  footprint_area_m2: float | str | None = None, max_invalid_share: float | None = None,
-                 sensor_profile: dict[str, float] | None = None) -> CorrectionOptions:
+                 sensor_profile: dict[str, float | str] | None = None) -> CorrectionOptions:
         """The options of ``mpi-lidar correct`` and of the correction flow, in their units; None keeps a default.
 
         ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000);
@@ -126,7 +129,7 @@ class CorrectionOptions(BaseModel):
         try:
             return cls(gate=gate, **overrides)
         except ValidationError as exc:
-            problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors())
+            problems = describe_validation_error(exc, "options", shown=None, verbatim=True)
             raise MpiLidarError(f"invalid correction options ({problems})") from None
 
 

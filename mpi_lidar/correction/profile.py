@@ -20,16 +20,17 @@ import hashlib
 import json
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Final, Literal, TypedDict
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from mpi_lidar.correction.calibration import FootprintEstimate
+from mpi_lidar.config import describe_validation_error
+from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.options import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.storage.atomic import atomic_path
 
-PROFILE_SCHEMA = "mpi-lidar/sensor@1"
+PROFILE_SCHEMA: Final = "mpi-lidar/sensor@1"
 _DEFAULTS = CorrectionOptions()
 
 
@@ -57,9 +58,9 @@ class SensorProfile(BaseModel):
     @classmethod
     def from_estimate(cls, estimate: FootprintEstimate, sources: list[str], **thresholds: float) -> SensorProfile:
         """The profile of a pooled footprint estimate over ``sources`` (the scans' paths)."""
-        return cls(footprint_area_m2=estimate.area_m2, **thresholds,
-                   calibration={**{k: v for k, v in estimate.to_dict().items() if k != "area_m2"},
-                                "sources": sources})
+        return cls.model_validate({"footprint_area_m2": estimate.area_m2, **thresholds,
+                                   "calibration": {**{k: v for k, v in estimate.to_dict().items() if k != "area_m2"},
+                                                   "sources": sources}})
 
 
 def read_profile(path: str | Path) -> SensorProfile:
@@ -76,16 +77,22 @@ def read_profile(path: str | Path) -> SensorProfile:
     try:
         return SensorProfile.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'profile'}: {e['msg']}" for e in exc.errors())
+        problems = describe_validation_error(exc, "profile", shown=None, verbatim=True)
         raise MpiLidarError(f"sensor profile {path} is invalid ({problems})") from None
 
 
-def profile_options(path: str | Path | None) -> dict[str, object]:
+class ProfileOptions(TypedDict, total=False):
+    """The :meth:`CorrectionOptions.from_cli` arguments a sensor profile sets."""
+
+    sensor_profile: dict[str, float | str]
+
+
+def profile_options(path: str | Path | None) -> ProfileOptions:
     """The :meth:`CorrectionOptions.from_cli` arguments of the profile at ``path`` (none for None)."""
     if path is None:
         return {}
     profile = read_profile(path)
-    return {"sensor_profile": {**profile.options(), "sensor_profile_sha256": profile.record()["sha256"]}}
+    return {"sensor_profile": {**profile.options(), "sensor_profile_sha256": str(profile.record()["sha256"])}}
 
 
 def write_profile(profile: SensorProfile, path: str | Path) -> Path:

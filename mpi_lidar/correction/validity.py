@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
-from mpi_lidar.correction.options import CorrectionOptions, Flag
+from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.physics.sensor import received_voltage_amplitude
 
@@ -59,3 +59,22 @@ def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: Cor
         flags[where] = flag
     return flags
 
+
+
+def depth_noise_m(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray) -> NDArray:
+    """Std of the measured depth (n, F) [m] of single-path light of the measured amplitudes (n, F) [V^2].
+
+    sigma_f = sigma_q(Gamma_f) / Gamma_f * c / (4 pi f): the quadrature noise (:func:`quadrature_noise_v2`) over
+    the amplitude is the phase noise [rad], and c / 4 pi f [m/rad] turns phase into depth. Amplitudes below
+    1e-12 V^2 divide as 1e-12.
+    """
+    metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * np.asarray(frequencies_hz, dtype=np.float64))
+    noise = quadrature_noise_v2(sensor, tuple(frequencies_hz), amplitude_v2)
+    return noise / np.maximum(amplitude_v2, 1e-12) * metres_per_rad[None, :]
+
+
+def usable_depth_of(raw: NDArray, flags: NDArray) -> NDArray:
+    """The highest-frequency depth (n,) [m] of raw rows (n, 2F) whose ``flags`` (n,) are not invalid
+    (:data:`INVALID_FLAGS`), NaN elsewhere: what the scene geometry is worked out from."""
+    f = raw.shape[1] // 2
+    return np.where(~np.isin(flags, [int(flag) for flag in INVALID_FLAGS]), raw[:, f - 1], np.nan)

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import optuna
@@ -43,21 +44,30 @@ PAPER_TABLE2: dict[str, tuple[float, float, float, float, float]] = {
 PAPER_RAW_MAE_MM = 9.857
 
 Suggest = Callable[[optuna.Trial], object]
+Trial = optuna.trial.BaseTrial  # a study's trial while tuning, a FixedTrial of the best parameters after
 
 
-def _scaled(regressor: object) -> object:
+class Regressor(Protocol):
+    """What the benchmarks need of a scikit-learn regressor."""
+
+    def fit(self, x: NDArray, y: NDArray) -> object: ...
+
+    def predict(self, x: NDArray) -> NDArray: ...
+
+
+def _scaled(regressor: Regressor) -> Regressor:
     """Standardised inputs and target: distance- and gradient-based learners need comparable scales."""
     return TransformedTargetRegressor(regressor=make_pipeline(StandardScaler(), regressor),
                                       transformer=StandardScaler())
 
 
-def knn(trial: optuna.Trial | None, seed: int) -> object:
+def knn(trial: Trial | None, seed: int) -> Regressor:
     k = trial.suggest_int("n_neighbors", 2, 50, log=True) if trial else 10
     weights = trial.suggest_categorical("weights", ["uniform", "distance"]) if trial else "distance"
     return _scaled(KNeighborsRegressor(n_neighbors=k, weights=weights))
 
 
-def random_forest(trial: optuna.Trial | None, seed: int) -> object:
+def random_forest(trial: Trial | None, seed: int) -> Regressor:
     return RandomForestRegressor(
         n_estimators=trial.suggest_int("n_estimators", 50, 200, log=True) if trial else 100,
         max_depth=trial.suggest_int("max_depth", 6, 20) if trial else 14,
@@ -66,11 +76,11 @@ def random_forest(trial: optuna.Trial | None, seed: int) -> object:
     )
 
 
-def svm(trial: optuna.Trial | None, seed: int) -> object:
+def svm(trial: Trial | None, seed: int) -> Regressor:
     return _scaled(SVR(kernel="rbf", C=10.0, epsilon=0.01, gamma="scale"))
 
 
-def dnn(trial: optuna.Trial | None, seed: int) -> object:
+def dnn(trial: Trial | None, seed: int) -> Regressor:
     width1 = trial.suggest_int("hidden_1", 16, 256, log=True) if trial else 64
     width2 = trial.suggest_int("hidden_2", 16, 256, log=True) if trial else 64
     return _scaled(MLPRegressor(
@@ -84,7 +94,7 @@ def dnn(trial: optuna.Trial | None, seed: int) -> object:
 @dataclass(frozen=True)
 class Baseline:
     name: str
-    build: Callable[[optuna.Trial | None, int], object]
+    build: Callable[[Trial | None, int], Regressor]
     tuned: bool
     max_rows: int | None = None
 
@@ -177,6 +187,6 @@ def table2(data_path: str | Path, model_dir: str | Path | None = None, *, train_
         "ReLU (the paper: LeakyReLU, PyTorch on a GPU). XGBoost: the model directory's own training (xgboost.dask).",
         "Why we differ: at Table I noise the multipath offset is nearly the same at the four frequencies while "
         "their noise is 1-11 mm, so no estimator can reach the paper's 1.96 mm; an independent estimate of the "
-        "Bayes limit under this prior is about 5.7 mm (docs/limits.md).",
+        "Bayes limit under this prior is about 5.7 mm (docs/results/limits.md).",
     ]
     return Table2(rows, notes)

@@ -12,10 +12,10 @@ FeatureSet = Literal["raw", "engineered"]
 TargetMode = Literal["absolute", "residual"]
 FEATURE_SETS: tuple[str, ...] = ("raw", "engineered")
 # Engineered features with the residual target: 6.01 mm test MAE at Table I noise against 6.43 mm for the
-# paper's raw inputs and absolute target (200,000 train rows; docs/tradeoff.md).
+# paper's raw inputs and absolute target (200,000 train rows; docs/results/tradeoff.md).
 DEFAULT_FEATURE_SET: FeatureSet = "engineered"
 DEFAULT_TARGET_MODE: TargetMode = "residual"
 # Geometric inputs: better than the same prior's pixel-wise model on every rendered corner of the scene set
-# (docs/scenes.md, section 4); such a model leaves scans without geometry uncorrected.
+# (docs/results/scenes.md); such a model leaves scans without geometry uncorrected.
 DEFAULT_GEOMETRIC = True
 TARGET_MODES: tuple[str, ...] = ("absolute", "residual")

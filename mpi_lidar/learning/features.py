@@ -19,14 +19,14 @@ distance d_AB that the scan's geometry estimates for the pixel: those of the sur
 would show the pixel's multipath at its amplitude (:meth:`mpi_lidar.scans.geometry.FacingBlocks.equivalent_rho_aba`:
 the partners' albedos and the incidence angle are in it). Training rows face the sensor and have no scan, so
 :func:`synthetic_geometry` builds the estimate from the row's rho_ABA and d_AB and an estimation error
-(docs/scenes.md, section 3b).
+(docs/results/geometry.md, section 3b).
 """
 
 from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,13 +45,14 @@ from mpi_lidar.simulation.dataset import frequency_labels, raw_feature_names
 
 if TYPE_CHECKING:
     import dask.array as da
+    from typing_extensions import TypeIs
 
 # Amplitudes below this are treated as no return when forming ratios and logs. [V^2]
 AMPLITUDE_FLOOR_V2 = 1e-12
 GEOMETRIC_NAMES = ("geometric_rho_aba", "geometric_d_ab_m")
 # Error of the geometric estimates the training rows get: the estimated rho_ABA is the true one times a
 # log-normal factor of median 1 and log-spread 0.2, the d_AB estimate 0.2 cm long with an sd of 1.1 cm (the
-# medians and within-scene spreads over the rendered corners of docs/scenes.md, section 1, of the per-pixel
+# medians and within-scene spreads over the rendered corners of docs/results/geometry.md, section 1, of the per-pixel
 # estimates from the partner planes). Those corners read rho_ABA 1.07-1.22x with the true footprint given and
 # a spread of about 0.1 in log within a scene; with the footprint the scan measures (the default) the
 # calibration, which rests on the same model, takes that factor up, and its own scatter widens the spread.
@@ -169,6 +170,12 @@ class FeatureSpec:
         """The measured depth column the residual target is relative to."""
         return self.raw_names[self.n_freq - 1] if self.target_mode == "residual" else None
 
+    @overload
+    def transform(self, raw: NDArray, geometry: NDArray | None = None) -> NDArray[np.float32]: ...
+
+    @overload
+    def transform(self, raw: da.Array, geometry: NDArray | da.Array | None = None) -> da.Array: ...
+
     def transform(self, raw: NDArray | da.Array, geometry: NDArray | da.Array | None = None,
                   ) -> NDArray[np.float32] | da.Array:
         """Model inputs from raw measurements (n, 2F), numpy or dask (block by block).
@@ -180,17 +187,17 @@ class FeatureSpec:
         if is_dask_array(raw):
             import dask.array as da  # loaded already: raw is a dask array
 
-            raw = raw.rechunk({1: -1})
+            lazy = raw.rechunk({1: -1})
             base = len(self.names) - (len(GEOMETRIC_NAMES) if self.geometric else 0)
-            features = raw.map_blocks(self._transform_block, dtype=np.float32, chunks=(raw.chunks[0], (base,)))
+            features = da.map_blocks(self._transform_block, lazy, dtype=np.float32, chunks=(lazy.chunks[0], (base,)))
             if not self.geometric:
                 return features
-            extra = da.asarray(geometry).astype(np.float32).rechunk((raw.chunks[0], -1))
+            extra = da.asarray(geometry).astype(np.float32).rechunk((lazy.chunks[0], -1))
             return da.concatenate([features, extra], axis=1).rechunk({1: -1})
         raw = self._checked(raw)
         return self.transform_into(raw, geometry, np.empty((raw.shape[0], len(self.names)), dtype=np.float32))
 
-    def transform_into(self, raw: NDArray, geometry: NDArray | None, out: NDArray[np.float32]
+    def transform_into(self, raw: NDArray, geometry: NDArray | da.Array | None, out: NDArray[np.float32]
                        ) -> NDArray[np.float32]:
         """:meth:`transform` of numpy rows written into ``out`` (n, len(names)) float32, which is returned.
 
@@ -239,15 +246,33 @@ class FeatureSpec:
         out[:, 4 * f - 1] = np.log(top_amplitude)
         return out
 
+    @overload
+    def reference_depth(self, raw: NDArray) -> NDArray: ...
+
+    @overload
+    def reference_depth(self, raw: da.Array) -> da.Array: ...
+
     def reference_depth(self, raw: NDArray | da.Array) -> NDArray | da.Array:
         """The measured depth a residual is relative to (zero for the absolute target). [m]"""
         if self.target_mode == "absolute":
             return raw[:, 0] * 0.0
         return raw[:, self.n_freq - 1].astype(np.float64)
 
+    @overload
+    def target(self, raw: NDArray, true_depth: NDArray) -> NDArray: ...
+
+    @overload
+    def target(self, raw: da.Array, true_depth: da.Array) -> da.Array: ...
+
     def target(self, raw: NDArray | da.Array, true_depth: NDArray | da.Array) -> NDArray | da.Array:
         """What the model learns: the true depth, or the true depth minus the reference depth. [m]"""
         return true_depth - self.reference_depth(raw)
+
+    @overload
+    def depth(self, raw: NDArray, prediction: NDArray) -> NDArray: ...
+
+    @overload
+    def depth(self, raw: da.Array, prediction: da.Array) -> da.Array: ...
 
     def depth(self, raw: NDArray | da.Array, prediction: NDArray | da.Array) -> NDArray | da.Array:
         """Corrected depth from a prediction. [m]"""
@@ -255,7 +280,7 @@ class FeatureSpec:
 
 
 
-def is_dask_array(values: object) -> bool:
+def is_dask_array(values: object) -> TypeIs[da.Array]:
     """Whether ``values`` is a dask array, without importing dask (if it is not loaded, it cannot be one)."""
     module = sys.modules.get("dask.array")
     return module is not None and isinstance(values, module.Array)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationError, model_validator
 
 from mpi_lidar import __version__
-from mpi_lidar.config import Config, config_sha256
+from mpi_lidar.config import Config, config_sha256, describe_validation_error, json_kind
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSet, FeatureSpec, TargetMode
 from mpi_lidar.storage.atomic import atomic_path
@@ -188,37 +188,16 @@ def read_card(card_path: Path) -> ModelCard:
     except OSError as exc:
         raise MpiLidarError(f"{card_path} cannot be read: {exc.strerror or exc}") from None
     if not isinstance(found, dict):
-        raise MpiLidarError(f"{card_path} holds a JSON {_json_kind(found)}, not an object; the model directory "
+        raise MpiLidarError(f"{card_path} holds a JSON {json_kind(found)}, not an object; the model directory "
                             "is damaged")
     if found.get("schema") != MODEL_SCHEMA:
         raise MpiLidarError(f"{card_path} has schema {found.get('schema')!r}, expected {MODEL_SCHEMA!r}")
     try:
         return ModelCard.model_validate_json(text, strict=True)
     except ValidationError as exc:
-        raise MpiLidarError(f"{card_path} is not a valid model card: {_problems(exc)}; the model directory is "
-                            "damaged or from another mpi-lidar version") from None
-
-
-def _json_kind(value: object) -> str:
-    kinds = {list: "list", str: "string", bool: "boolean", int: "number", float: "number", type(None): "null"}
-    return kinds.get(type(value), type(value).__name__)
-
-
-def _problems(exc: ValidationError, shown: int = 3) -> str:
-    """The validation errors in one line: where in the card, and what is wrong there."""
-    found: list[str] = []
-    for error in exc.errors(include_url=False):
-        where = ".".join(str(part) for part in error["loc"]) or "the card"
-        if error["type"] == "missing":
-            problem = f"lacks key {where!r}"
-        elif error["type"] == "extra_forbidden":
-            problem = f"has unknown key {where!r}"
-        else:
-            problem = f"{where}: {error['msg']} (found {_json_kind(error.get('input'))})"
-        if problem not in found:
-            found.append(problem)
-    more = f"; and {len(found) - shown} more" if len(found) > shown else ""
-    return ("; ".join(found[:shown]) + more).replace("\n", " ")
+        problems = describe_validation_error(exc, "the card", shown=3, keys=True)
+        raise MpiLidarError(f"{card_path} is not a valid model card: {problems}; the model directory is damaged or "
+                            "from another mpi-lidar version") from None
 
 
 # --- the model -----------------------------------------------------------------------------------------------

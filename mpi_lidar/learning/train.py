@@ -39,7 +39,8 @@ if TYPE_CHECKING:
 
 VALIDATION_EVERY = 10
 # Absolute error: the model then estimates the posterior median of the depth, which minimises the MAE (the
-# multipath bias is one-sided, so the mean is off): 5.87 mm against 6.01 mm for squared error (docs/tradeoff.md).
+# multipath bias is one-sided, so the mean is off): 5.87 mm against 6.01 mm for squared error
+# (docs/results/tradeoff.md).
 BASE_PARAMS: dict[str, object] = {"objective": "reg:absoluteerror", "tree_method": "hist", "eval_metric": "mae"}
 DEFAULT_PARAMS: dict[str, object] = {
     "max_depth": 8, "learning_rate": 0.1, "subsample": 0.8, "colsample_bytree": 1.0,
@@ -61,8 +62,8 @@ def check_params(params: Mapping[str, object], source: str) -> dict[str, object]
         raise MpiLidarError(f"{source}: unknown parameters {unknown}; known: {sorted(PARAM_BOUNDS)}")
     for name, value in params.items():
         kind, low, high = PARAM_BOUNDS[name]
-        number = isinstance(value, int | float) and not isinstance(value, bool)
-        if not number or (kind is int and value != int(value)) or not low <= value <= high:
+        if (not isinstance(value, int | float) or isinstance(value, bool)
+                or (kind is int and value != int(value)) or not low <= value <= high):
             raise MpiLidarError(f"{source}: {name} = {value!r} must be {'an integer' if kind is int else 'a number'} "
                                 f"in [{low:g}, {high:g}]")
     return dict(params)

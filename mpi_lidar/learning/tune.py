@@ -35,8 +35,6 @@ from mpi_lidar.learning.train import check_dataset_matches, training_geometry, x
 from mpi_lidar.redact import MASK, SECRET_KEYS, redact
 from mpi_lidar.simulation import dataset
 
-optuna.logging.set_verbosity(optuna.logging.WARNING)  # one line per trial is noise at archive scale
-
 DEFAULT_TRIALS = 30
 DEFAULT_TUNE_ROWS = 100_000
 HEARTBEAT_S = 10
@@ -95,6 +93,9 @@ def masked(url: str) -> str:
 
 def _storage(url: str) -> optuna.storages.RDBStorage:
     url = normalise_storage_url(url)
+    # Every study is opened here: optuna's one line per trial is noise at archive scale. Set where a study is
+    # opened, not on import: importing this module changes no logging of the caller's.
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
     # The heartbeat that fails the trials of dead workers is marked experimental; it is what we rely on.
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
     try:

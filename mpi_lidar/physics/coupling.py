@@ -103,5 +103,8 @@ def footprint_coupling(cos_a: ArrayLike, cos_b: ArrayLike, area_b_m2: ArrayLike,
     -------
     kappa_B times the reflectance, shape of the broadcast arguments. [1]
     """
-    weight = reflectance * (np.asarray(cos_a, dtype=np.float64) * cos_b) ** 2 * area_b_m2 * footprint_area_m2
-    return weight / (np.pi**2 * np.asarray(r_m, dtype=np.float64) ** 4 * cos_i)
+    def real(values: ArrayLike) -> NDArray[np.float64]:
+        return np.asarray(values, dtype=np.float64)  # no copy for float64 input; the same values for any other
+
+    weight = real(reflectance) * (real(cos_a) * real(cos_b)) ** 2 * real(area_b_m2) * footprint_area_m2
+    return weight / (np.pi**2 * real(r_m) ** 4 * real(cos_i))

@@ -112,7 +112,7 @@ def model_phasors(direct_depth_m: ArrayLike, path_offset_m: ArrayLike, direct_am
 
 
 def _valid_rows(raw: NDArray[np.float64], f: int) -> NDArray[np.bool_]:
-    return np.isfinite(raw).all(axis=1) & (raw[:, f:] > 0).all(axis=1)
+    return np.all(np.isfinite(raw), axis=1) & np.all(raw[:, f:] > 0, axis=1)
 
 
 def unwrapped_weighted_depth(raw: ArrayLike, frequencies_hz: ArrayLike,
@@ -227,8 +227,8 @@ def prony_two_path(raw: ArrayLike, frequencies_hz: ArrayLike, *, max_offset_m: f
 
     # Amplitudes: least squares on the Vandermonde system z_k = c_D u^k + c_M v^k.
     k = np.arange(f)
-    u_safe = np.where(merged, 1.0, u)
-    v_safe = np.where(merged, 0.5, v)
+    u_safe: NDArray[np.complex128] = np.where(merged, 1.0, u)
+    v_safe: NDArray[np.complex128] = np.where(merged, 0.5, v)
     vander = np.stack([u_safe[:, None] ** k, v_safe[:, None] ** k], axis=-1)  # (n, F, 2)
     amps, _ = _svd_lstsq(vander, z)
     c_d, c_m = amps[:, 0], amps[:, 1]

@@ -1,4 +1,9 @@
-"""Report pieces written as files: markdown tables and PNG figures (written atomically)."""
+"""Report pieces written as files: markdown tables and PNG figures (written atomically).
+
+Figures are :class:`matplotlib.figure.Figure` objects of their own, never pyplot's: importing this module
+or writing a report changes nothing of pyplot's global state (its backend, a user's open figures), and
+``Figure.savefig`` renders PNGs with the Agg canvas whatever backend pyplot uses.
+"""
 
 from __future__ import annotations
 
@@ -6,21 +11,21 @@ import json
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol, cast
 
 import jinja2
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from markdown_it import MarkdownIt
 from markupsafe import Markup
+from matplotlib.figure import Figure
 
 from mpi_lidar.learning.evaluate import Evaluation
 from mpi_lidar.learning.model import ModelCard
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.atomic import atomic_path
+
+if TYPE_CHECKING:
+    import zarr
 
 
 class GenerationRun(Protocol):
@@ -54,24 +59,24 @@ def generation_markdown(summary: dataset.DatasetSummary, run: GenerationRun, wor
     return "\n".join(lines)
 
 
-def save_figure(fig: plt.Figure, path: str | Path) -> Path:
+def save_figure(fig: Figure, path: str | Path) -> Path:
     """Save a figure through a temporary file and a rename, so a reader never sees half a PNG."""
     path = Path(path)
-    try:
-        with atomic_path(path, replace=True, what="figure") as staging:
-            fig.savefig(staging, dpi=120, bbox_inches="tight", format="png")
-    finally:
-        plt.close(fig)
+    with atomic_path(path, replace=True, what="figure") as staging:
+        fig.savefig(staging, dpi=120, bbox_inches="tight", format="png")
     return path
 
 
 def depth_error_histogram(store: str | Path, png: str | Path, frequency_index: int = -1) -> Path:
     """Histogram of the absolute raw depth error at one frequency (the paper's Fig. 5: 31.25 MHz)."""
     group = dataset.open_store(store)
-    frequency = group.attrs["frequencies_hz"][frequency_index]
-    column = frequency_index % len(group.attrs["frequencies_hz"])
-    error_mm = 1e3 * np.abs(group["features"][:, column].astype(np.float64) - group["target"][:])
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    frequencies_hz = cast("list[float]", group.attrs["frequencies_hz"])
+    frequency = frequencies_hz[frequency_index]
+    column = frequency_index % len(frequencies_hz)
+    features, target = cast("zarr.Array", group["features"]), cast("zarr.Array", group["target"])
+    error_mm = 1e3 * np.abs(np.asarray(features[:, column]).astype(np.float64) - np.asarray(target[:]))
+    fig = Figure(figsize=(6.4, 4.0))
+    ax = fig.subplots()
     upper = float(np.quantile(error_mm, 0.995))
     ax.hist(error_mm, bins=120, range=(0, upper), color="#3b6ea5")
     ax.axvline(error_mm.mean(), color="#c0392b", lw=1.5, label=f"MAE {error_mm.mean():.3f} mm")
@@ -176,25 +181,21 @@ class Report:
                                   blocks=rendered, scripts=scripts)
 
 
-def write_report(report: Report, report_dir: str | Path, figures: dict[str, plt.Figure]) -> Path:
+def write_report(report: Report, report_dir: str | Path, figures: dict[str, Figure]) -> Path:
     """Write the report directory atomically: built beside it, then swapped in.
 
     A previous report of ours at the same place is replaced; any other existing directory is refused.
     """
     report_dir = Path(report_dir)
-    try:
-        with atomic_path(report_dir, replace=True, what="report", keep=_not_a_report) as staging:
-            staging.mkdir()
-            for name, fig in figures.items():
-                save_figure(fig, staging / name)
-            (staging / "report.md").write_text(report.markdown())
-            (staging / "report.html").write_text(report.html())
-            (staging / "metrics.json").write_text(
-                json.dumps(report.data, indent=2, sort_keys=True, default=float) + "\n")
-            (staging / REPORT_MARKER).write_text("")
-    finally:
-        for fig in figures.values():
-            plt.close(fig)
+    with atomic_path(report_dir, replace=True, what="report", keep=_not_a_report) as staging:
+        staging.mkdir()
+        for name, fig in figures.items():
+            save_figure(fig, staging / name)
+        (staging / "report.md").write_text(report.markdown())
+        (staging / "report.html").write_text(report.html())
+        (staging / "metrics.json").write_text(
+            json.dumps(report.data, indent=2, sort_keys=True, default=float) + "\n")
+        (staging / REPORT_MARKER).write_text("")
     return report_dir
 
 
@@ -202,9 +203,10 @@ def _not_a_report(path: Path) -> bool:
     return not (path / REPORT_MARKER).exists()
 
 
-def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> plt.Figure:
+def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> Figure:
     """Overlaid histograms of signed errors (e.g. before and after correction), MAE in the legend."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig = Figure(figsize=(6.4, 4.0))
+    ax = fig.subplots()
     finite = np.concatenate([e[np.isfinite(e)] for e in errors_mm.values()])
     limit = float(np.quantile(np.abs(finite), 0.995)) if finite.size else 1.0
     for label, e in errors_mm.items():
@@ -222,11 +224,11 @@ def _geometric_note(model_card: ModelCard) -> list[str]:
     if not model_card.geometric:
         return []
     return ["The model takes geometric inputs (rho_ABA, d_AB). Dataset rows have no scan, so their inputs are "
-            "synthetic estimates drawn from each row's true parameters with the error model of docs/scenes.md "
-            "(section 3b): the corrected figures hold where real scans match that error."]
+            "synthetic estimates drawn from each row's true parameters with the error model of "
+            "docs/results/geometry.md (section 3b): the corrected figures hold where real scans match that error."]
 
 
-def evaluation_report(evaluation: Evaluation, model_card: ModelCard) -> tuple[Report, dict[str, plt.Figure]]:
+def evaluation_report(evaluation: Evaluation, model_card: ModelCard) -> tuple[Report, dict[str, Figure]]:
     """Report of a model on a dataset split: the metrics table and the error histogram before/after."""
     table = Table(
         ("estimate", "rows", "MAE [mm]", "RMSE [mm]", "max abs error [mm]", "bias [mm]"),

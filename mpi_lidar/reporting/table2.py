@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from mpi_lidar.learning.baselines import PAPER_RAW_MAE_MM, PAPER_TABLE2, Table2
 from mpi_lidar.reporting.report import Report, Table
@@ -27,7 +27,7 @@ def table2_table(result: Table2) -> Table:
                   "training [s]", "fit rows"), tuple(body))
 
 
-def table2_report(result: Table2) -> tuple[Report, dict[str, plt.Figure]]:
+def table2_report(result: Table2) -> tuple[Report, dict[str, Figure]]:
     """Table II as a report with its bar chart."""
     report = Report(
         title="Table II: depth correction including MPI",
@@ -37,9 +37,10 @@ def table2_report(result: Table2) -> tuple[Report, dict[str, plt.Figure]]:
     return report, {"table2_mae.png": table2_figure(result)}
 
 
-def table2_figure(result: Table2) -> plt.Figure:
+def table2_figure(result: Table2) -> Figure:
     """Test MAE of every method, ours against the paper's."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     names = [row.name for row in result.rows]
     ax.bar(np.arange(len(names)) - 0.2, [1e3 * row.mae_test for row in result.rows], 0.4, label="ours")
     paper = [PAPER_TABLE2[n][3] if n in PAPER_TABLE2 else np.nan for n in names]

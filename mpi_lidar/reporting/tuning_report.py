@@ -4,20 +4,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 import optuna
+from matplotlib.figure import Figure
 from optuna.trial import TrialState
 
 from mpi_lidar.reporting.report import Report, Table
 
 
-def history_figure(study: optuna.Study) -> plt.Figure:
+def history_figure(study: optuna.Study) -> Figure:
     """Validation MAE of each complete trial and the best so far (the optimisation history)."""
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     numbers = np.array([t.number for t in complete])
     values = 1e3 * np.array([t.value for t in complete])
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig = Figure(figsize=(6.4, 4.0))
+    ax = fig.subplots()
     ax.scatter(numbers, values, s=14, label="trial")
     if values.size:
         ax.step(numbers, np.minimum.accumulate(values), where="post", color="#c0392b", label="best so far")
@@ -28,12 +29,13 @@ def history_figure(study: optuna.Study) -> plt.Figure:
     return fig
 
 
-def importance_figure(study: optuna.Study) -> plt.Figure | None:
+def importance_figure(study: optuna.Study) -> Figure | None:
     """fANOVA importance of each parameter; None with fewer than two complete trials (nothing to compare)."""
     if len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))) < 2:
         return None
     importances = optuna.importance.get_param_importances(study)
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig = Figure(figsize=(6.4, 4.0))
+    ax = fig.subplots()
     names = list(importances)[::-1]
     ax.barh(names, [importances[n] for n in names], color="#3b6ea5")
     ax.set_xlabel("importance (fANOVA)")
@@ -42,7 +44,7 @@ def importance_figure(study: optuna.Study) -> plt.Figure | None:
     return fig
 
 
-def tuning_report(study: optuna.Study, storage_label: str) -> tuple[Report, dict[str, plt.Figure]]:
+def tuning_report(study: optuna.Study, storage_label: str) -> tuple[Report, dict[str, Figure]]:
     """Best trial and trial table (values in mm) with the history and importance plots."""
     figures = {"optimisation_history.png": history_figure(study)}
     importance = importance_figure(study)

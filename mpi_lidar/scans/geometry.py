@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,7 +72,17 @@ class MultipathPotential:
     block_pixels: int
 
 
-def block_size_pixels(depth: NDArray, rays: NDArray, block_m: float) -> int:
+class RayRowsLike(Protocol):
+    """Unit rays (H, W, 3) read a band of rows at a time (``rays[top:bottom]``): an array or a scan's
+    :class:`mpi_lidar.scans.scan.RayRows`, which builds each band only when asked."""
+
+    @property
+    def shape(self) -> tuple[int, ...]: ...
+
+    def __getitem__(self, rows: slice, /) -> NDArray: ...
+
+
+def block_size_pixels(depth: NDArray, rays: NDArray | RayRowsLike, block_m: float) -> int:
     """Side of a square pixel block spanning about ``block_m`` [m] at the scan's median range (4 to
     :data:`MAX_BLOCK_PIXELS`).
 
@@ -95,7 +106,7 @@ def block_size_pixels(depth: NDArray, rays: NDArray, block_m: float) -> int:
     return int(np.clip(round(block_m / pitch_m), 4, MAX_BLOCK_PIXELS))
 
 
-def _median(values: NDArray) -> np.float64:
+def _median(values: NDArray) -> np.floating:
     """np.median of ``values`` taken in float64, without a float64 copy of them all (float32 widens exactly)."""
     n = values.size
     middle = np.partition(values.ravel(), [(n - 1) // 2, n // 2])[[(n - 1) // 2, n // 2]].astype(np.float64)
@@ -160,7 +171,8 @@ def fit_block_planes(points: NDArray, b: int, min_share: float = 0.3
     distance = np.where(keep, vector_length(np.nan_to_num(p)), np.nan)
     with np.errstate(invalid="ignore"):  # blocks without points compare NaN
         keep &= np.abs(distance - nanmedian_last(distance)[..., None]) <= EDGE_JUMP_M
-    centres = normals = None
+    centres: NDArray  # both set by the two fits below
+    normals: NDArray
     for _ in range(2):
         count = keep.sum(-1)
         weight = keep[..., None]
@@ -394,7 +406,7 @@ class EquivalentRhoAba:
         return rho_aba, np.where(rho_aba > 0, d_ab, np.nan)
 
 
-def facing_blocks(depth: NDArray, rays: NDArray, *, block_m: float = DEFAULT_BLOCK_M,
+def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float = DEFAULT_BLOCK_M,
                   max_range_m: float = DEFAULT_MAX_RANGE_M, min_cos: float = DEFAULT_MIN_COS,
                   band_pixels: int = BAND_PIXELS) -> FacingBlocks:
     """Block planes of a range map (H, W) [m] along unit rays (H, W, 3) and the block pairs that face each other.

@@ -12,6 +12,7 @@ dtype, with its unit in the description. LAZ (laspy's lazrs backend) is the same
 from __future__ import annotations
 
 from collections.abc import Mapping
+from enum import StrEnum
 from pathlib import Path
 
 import laspy
@@ -21,7 +22,16 @@ from plyfile import PlyData, PlyElement
 
 from mpi_lidar.storage.atomic import atomic_path
 
-POINT_CLOUD_FORMATS = ("las", "laz", "ply")
+
+class PointCloudFormat(StrEnum):
+    """A point-cloud file format: LAS 1.4, LAZ (compressed LAS) or binary PLY."""
+
+    LAS = "las"
+    LAZ = "laz"
+    PLY = "ply"
+
+
+POINT_CLOUD_FORMATS = tuple(fmt.value for fmt in PointCloudFormat)
 LAS_SCALE_M = 1e-4  # 0.1 mm
 # What each field of correction_fields() holds, with its unit (LAS extra-bytes descriptions: 31 characters).
 FIELD_DESCRIPTIONS = {

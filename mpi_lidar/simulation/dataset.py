@@ -16,21 +16,22 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 import zarr
 from numpy.typing import NDArray
+from zarr.codecs import BloscCodec
 
 from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
 from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import SensorModel, make_sensor
-from mpi_lidar.scans.scan import consolidate
+from mpi_lidar.scans.store import consolidate
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
 from mpi_lidar.storage.integrity import FINGERPRINT_BYTES, check_fingerprint, fingerprint, read_chunk
@@ -132,7 +133,7 @@ def simulate_chunk(config: Config, index: int) -> Chunk:
 # --- the store ----------------------------------------------------------------------------------------
 
 
-def _root_attributes(config: Config) -> dict[str, object]:
+def _root_attributes(config: Config) -> dict[str, Any]:
     return {
         "schema": SCHEMA,
         "frequencies_hz": list(config.frequencies_hz),
@@ -150,7 +151,7 @@ def _root_attributes(config: Config) -> dict[str, object]:
 def _build_layout(path: Path, config: Config) -> None:
     plan = SamplingPlan.from_config(config)
     n, rows, width = plan.samples, plan.chunk_rows, 2 * len(config.frequencies_hz)
-    compressors = [zarr.codecs.BloscCodec(cname="zstd", clevel=3, shuffle="shuffle")]
+    compressors = [BloscCodec(cname="zstd", clevel=3, shuffle="shuffle")]
     group = zarr.open_group(store=str(path), mode="w-")
     specs = {
         "features": ((n, width), (rows, width), "float32", ("sample", "feature")),
@@ -219,7 +220,7 @@ def _check_same_config(path: Path, group: zarr.Group, config: Config) -> None:
         )
 
 
-def open_store(path: str | Path, mode: str = "r") -> zarr.Group:
+def open_store(path: str | Path, mode: Literal["r", "r+"] = "r") -> zarr.Group:
     """Open a dataset store after checking its schema and arrays; :class:`StoreError` on anything else."""
     path = Path(path)
     if not path.exists():
@@ -236,7 +237,7 @@ def open_store(path: str | Path, mode: str = "r") -> zarr.Group:
     return group
 
 
-def _check_layout(path: Path, group: zarr.Group, attrs: dict[str, object]) -> None:
+def _check_layout(path: Path, group: zarr.Group, attrs: Mapping[str, Any]) -> None:
     try:
         n, width = int(attrs["samples"]), 2 * len(attrs["frequencies_hz"])
         chunks = -(-n // int(attrs["chunk_rows"]))
@@ -248,7 +249,7 @@ def _check_layout(path: Path, group: zarr.Group, attrs: dict[str, object]) -> No
         if "chunk_sha256" in group:
             expected["chunk_sha256"] = ((chunks, len(DATA_ARRAYS), FINGERPRINT_BYTES), np.uint8)
         for name, (shape, dtype) in expected.items():
-            array = group[name]
+            array = _array(group, name)
             if array.shape != shape or array.dtype != dtype:
                 raise StoreError(f"dataset {path}: array {name!r} is {array.dtype}{array.shape}, "
                                  f"expected {np.dtype(dtype)}{shape}; the store is damaged: regenerate it")
@@ -257,6 +258,11 @@ def _check_layout(path: Path, group: zarr.Group, attrs: dict[str, object]) -> No
     except (TypeError, ValueError) as exc:
         raise StoreError(f"dataset {path} has malformed attributes ({type(exc).__name__}: {exc}); "
                          "the store is damaged: regenerate it") from None
+
+
+def _array(group: zarr.Group, name: str) -> zarr.Array:
+    """The array ``name`` of a dataset store (:func:`open_store` checked that each is an array of its shape)."""
+    return cast(zarr.Array, group[name])
 
 
 def store_config(group: zarr.Group) -> Config:
@@ -269,7 +275,7 @@ def completed_chunks(group: zarr.Group) -> NDArray[np.bool_]:
 
 def _read_whole(group: zarr.Group, name: str) -> NDArray:
     """A small bookkeeping array, read at once; damage to it is one :class:`IntegrityError` naming it."""
-    array = group[name]
+    array = _array(group, name)
     return read_chunk(array, (slice(None),) * array.ndim, str(getattr(group.store, "root", group.store)), name, "(any)")
 
 
@@ -293,19 +299,20 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
     written after the data, so a chunk interrupted part-way is redone on the next run.
     """
     group = zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
-    if group["chunk_done"][index]:
+    if _array(group, "chunk_done")[index]:
         return False
     chunk = simulate_chunk(config, index)
     rows = SamplingPlan.from_config(config).rows(index)
-    group["features"][rows] = chunk.features
-    group["target"][rows] = chunk.target
-    group["theta"][rows] = chunk.theta
-    group["split"][rows] = chunk.split
+    _array(group, "features")[rows] = chunk.features
+    _array(group, "target")[rows] = chunk.target
+    _array(group, "theta")[rows] = chunk.theta
+    _array(group, "split")[rows] = chunk.split
     if "chunk_sha256" in group:  # stores written before fingerprints existed have none
-        group["chunk_sha256"][index] = np.stack([
-            np.frombuffer(fingerprint(np.asarray(getattr(chunk, name), dtype=group[name].dtype)), dtype=np.uint8)
+        _array(group, "chunk_sha256")[index] = np.stack([
+            np.frombuffer(fingerprint(np.asarray(getattr(chunk, name), dtype=_array(group, name).dtype)),
+                          dtype=np.uint8)
             for name in DATA_ARRAYS])
-    group["chunk_done"][index] = 1
+    _array(group, "chunk_done")[index] = 1
     return True
 
 
@@ -344,7 +351,7 @@ def dataset_info(path: str | Path) -> DatasetInfo:
 
 def _info(path: str | Path, group: zarr.Group) -> DatasetInfo:
     done = completed_chunks(group)
-    attrs = group.attrs
+    attrs: Mapping[str, Any] = group.attrs  # JSON whose layout open_store checked
     return DatasetInfo(
         path=str(path),
         config=store_config(group),
@@ -383,7 +390,7 @@ def read_lazy(path: str | Path) -> LazyDataset:
     info = _complete_info(path)
     group = open_store(path)
     fingerprints = chunk_fingerprints(group)
-    arrays = {name: _verified_lazy(path, group[name], k, fingerprints) for k, name in enumerate(DATA_ARRAYS)}
+    arrays = {name: _verified_lazy(path, _array(group, name), k, fingerprints) for k, name in enumerate(DATA_ARRAYS)}
     return LazyDataset(info=info, **arrays)
 
 
@@ -407,7 +414,7 @@ def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArr
     where = tuple(slice(start, stop) for start, stop in info["array-location"])
     index = info["chunk-location"][0]
     group = zarr.open_group(store=path, mode="r", use_consolidated=False)
-    values = read_chunk(group[array_name], where, path, array_name, index)
+    values = read_chunk(_array(group, array_name), where, path, array_name, index)
     if fingerprints is not None:
         check_fingerprint(values, fingerprints[index, k], path, array_name, index)
     return values
@@ -416,10 +423,11 @@ def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArr
 def read_verified_chunk(path: str | Path, group: zarr.Group, index: int, fingerprints: NDArray | None,
                         names: tuple[str, ...] = DATA_ARRAYS) -> dict[str, NDArray]:
     """The rows of chunk ``index`` of the named arrays, each checked against its fingerprint."""
-    rows = slice(index * group["target"].chunks[0], (index + 1) * group["target"].chunks[0])
+    chunk_rows = _array(group, "target").chunks[0]
+    rows = slice(index * chunk_rows, (index + 1) * chunk_rows)
     out = {}
     for name in names:
-        array = group[name]
+        array = _array(group, name)
         where = (rows,) + (slice(None),) * (array.ndim - 1)
         values = read_chunk(array, where, str(path), name, index)
         if fingerprints is not None:
@@ -483,7 +491,7 @@ def _rows_verified(path: str | Path, rows: NDArray[np.int64], names: tuple[str, 
     """The given sorted rows of the named arrays, read chunk by chunk, every chunk touched verified."""
     group = open_store(path)
     fingerprints = chunk_fingerprints(group)
-    chunk_rows = group["target"].chunks[0]
+    chunk_rows = _array(group, "target").chunks[0]
     parts: dict[str, list[NDArray]] = {name: [] for name in names}
     for index in np.unique(rows // chunk_rows):
         chunk = read_verified_chunk(path, group, int(index), fingerprints, names)
@@ -553,5 +561,5 @@ def summarize(path: str | Path, noise_only_rows: int = 200_000) -> DatasetSummar
         rmse_m=tuple(np.sqrt((error**2).mean(0)).tolist()),
         noise_only_mae_m=tuple(np.abs(noise_error).mean(0).tolist()),
         noise_only_rows=rows,
-        config_sha256=group.attrs["config_sha256"],
+        config_sha256=cast(str, group.attrs["config_sha256"]),
     )

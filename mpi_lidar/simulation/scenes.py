@@ -23,6 +23,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Unpack
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,7 +39,11 @@ from mpi_lidar.physics.coupling import (
 )
 from mpi_lidar.physics.sensor import received_voltage_amplitude
 from mpi_lidar.physics.transport import path_phasor
-from mpi_lidar.scans.scan import Scan, grid_rays, write_scan
+from mpi_lidar.scans.scan import Scan, grid_rays
+from mpi_lidar.scans.store import write_scan
+
+if TYPE_CHECKING:
+    from mpi_lidar.scans.scan import ScanExtras
 
 DEFAULT_PATCH_SPACING_M = 0.02
 PIXEL_BLOCK = 512
@@ -208,7 +213,7 @@ class Scene:
     surfaces: tuple[Surface, ...]
     azimuth_rad: NDArray[np.float64]
     elevation_rad: NDArray[np.float64]
-    notes: dict[str, object] = field(default_factory=dict)
+    notes: dict[str, float] = field(default_factory=dict)  # e.g. angle_deg, patch_spacing_m; copied to the scan
 
 
 def _grid(height: int, width: int, half_width_rad: float, half_height_rad: float,
@@ -520,7 +525,7 @@ def render_scenes(out_dir: str | Path, names: tuple[str, ...] = DEMO_SCENES, con
 
 
 def scan_from_phasors(name: str, gamma_phasor: NDArray, config: Config, rng: np.random.Generator,
-                      dc_gamma: NDArray | None = None, **optional: object) -> Scan:
+                      dc_gamma: NDArray | None = None, **optional: Unpack[ScanExtras]) -> Scan:
     """A scan from externally rendered correlation phasors (F, H, W) [V^2] (eq 11) through our sensor model.
 
     ``dc_gamma`` (F, H, W) is the sum of the path magnitudes [V^2]; without it the magnitude of the phasor
@@ -535,7 +540,7 @@ def scan_from_phasors(name: str, gamma_phasor: NDArray, config: Config, rng: np.
 
 
 def scan_from_transient(name: str, histogram: NDArray, bin_s: float, config: Config, rng: np.random.Generator,
-                        **optional: object) -> Scan:
+                        **optional: Unpack[ScanExtras]) -> Scan:
     """A scan from transient histograms (T, H, W): correlation amplitude [V^2] per round-trip-time bin [s].
 
     The phasor at f is sum_t h(t) e^{j 2 pi f t} (t the bin's round-trip time) and the DC part sum_t h(t).

@@ -70,6 +70,8 @@ def atomic_path(target: str | Path, *, replace: bool = False, what: str = "outpu
         target.parent.mkdir(parents=True, exist_ok=True)
         yield staging
         _publish(staging, target)
+    except MpiLidarError:  # already one line (a StoreError is also an OSError): not a failed write
+        raise
     except OSError as exc:
         raise error(f"cannot write {what} {target}: {exc.strerror or exc}; choose a writable path "
                             "with free space") from None

@@ -37,7 +37,7 @@ def fingerprint(values: NDArray) -> bytes:
     """SHA-256 of an array's decoded values: dtype, shape, then its C-order bytes."""
     values = np.ascontiguousarray(values)
     digest = hashlib.sha256(f"{values.dtype.str}{values.shape}".encode())
-    digest.update(values.reshape(-1).view(np.uint8))  # its C-order bytes, not copied
+    digest.update(values.reshape(-1).view(np.uint8).data)  # its C-order bytes, not copied
     return digest.digest()
 
 
@@ -61,7 +61,7 @@ def array_fingerprints(values: NDArray, chunks: tuple[int, ...]) -> list[str]:
 def read_chunk(array: zarr.Array, where: tuple[slice, ...], store: str, name: str, index: object) -> NDArray:
     """One chunk's values; a chunk that no longer decodes is an :class:`IntegrityError` naming it."""
     try:
-        return array[where]
+        return np.asarray(array[where])
     except Exception as exc:  # codecs raise RuntimeError, ValueError or their own types on damaged bytes
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise IntegrityError(f"{store}: chunk {index} of {name!r} cannot be decoded ({reason}); the store is "

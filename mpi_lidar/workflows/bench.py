@@ -14,10 +14,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
-import matplotlib.pyplot as plt
+import matplotlib
 import numpy as np
 import xgboost as xgb
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
@@ -29,6 +32,11 @@ from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE
 from mpi_lidar.learning.model import booster_depth
 from mpi_lidar.learning.train import DEFAULT_PARAMS, TrainResult, train_arrays
 from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+    from mpi_lidar.learning.baselines import Regressor
 
 # Seed streams of the benchmark (under the configured dataset seed): train and test never share one.
 TRAIN_STREAM, TEST_STREAM = 101, 202
@@ -85,7 +93,7 @@ def pareto_front(error: Sequence[float], cost: Sequence[float]) -> NDArray[np.bo
     e, c = np.asarray(error, dtype=np.float64), np.asarray(cost, dtype=np.float64)
     dominated = ((e[None, :] <= e[:, None]) & (c[None, :] <= c[:, None])
                  & ((e[None, :] < e[:, None]) | (c[None, :] < c[:, None])))
-    return ~dominated.any(axis=1)
+    return ~np.any(dominated, axis=1)
 
 
 # --- estimators -------------------------------------------------------------------------------------------
@@ -118,7 +126,8 @@ def top_depth(frequencies_hz: tuple[float, ...]) -> Predictor:
     return lambda raw: raw[:, top].astype(np.float64)
 
 
-def _sklearn(build: Callable[[None, int], object], spec: FeatureSpec, max_rows: int | None) -> Callable:
+def _sklearn(build: Callable[[None, int], Regressor], spec: FeatureSpec, max_rows: int | None
+             ) -> Callable[[Sample], Predictor]:
     def fit(train: Sample) -> Predictor:
         rows = train.head(max_rows) if max_rows else train
         model = build(None, 0)
@@ -277,7 +286,7 @@ def range_guarded_depth(booster: xgb.Booster, spec: FeatureSpec, raw: NDArray, d
     extrapolate, so a model must not touch depths it never saw. A model also learns the prior's edge (near
     the top of the range a measured depth is pulled inwards, since no true depth lies beyond it), so a
     positive tolerance lets rows from beyond the range be corrected wrongly: at +2 cm the MAE of a d_AS
-    2.4-3.0 m set rises about 1.5% above the raw depth's, at 0 it stays equal (docs/tradeoff.md).
+    2.4-3.0 m set rises about 1.5% above the raw depth's, at 0 it stays equal (docs/results/model-range.md).
     """
     depth = top_depth(spec.frequencies_hz)(raw)
     inside = in_depth_range(depth, d_as_m, CorrectionOptions(range_tolerance_m=tolerance_m))
@@ -350,7 +359,8 @@ def run_bench(plan: BenchPlan, config: Config | None = None, spec: FeatureSpec |
     step = on_step or (lambda _name: None)
     train = simulate(config, plan.rows, TRAIN_STREAM)
     test = simulate(config, plan.test_rows, TEST_STREAM)
-    rows, fitted = [], {}
+    rows: list[BenchRow] = []
+    fitted: dict[str, tuple[Predictor, float]] = {}
     for method in methods(config, spec, plan.xgb_sizes, plan.learner_rows, plan.solver_rows):
         step(method.name)
         if method.gate_of is not None:  # the gated twin of a model already trained: same model, same fit time
@@ -364,10 +374,10 @@ def run_bench(plan: BenchPlan, config: Config | None = None, spec: FeatureSpec |
     learning, full = [], None
     for fraction in plan.curve_fractions:
         n = max(100, round(fraction * plan.rows))
-        fitted = reference_xgboost(spec, train.head(n))
-        full = fitted if n == plan.rows else full
+        trained = reference_xgboost(spec, train.head(n))
+        full = trained if n == plan.rows else full
         learning.append(curve_point("learning", spec, train.head(n), test, float(config.simulator.noise_scale),
-                                    fitted))
+                                    trained))
     step("noise curve")
     noise = []
     for scale in plan.noise_scales:
@@ -394,7 +404,7 @@ def run_bench(plan: BenchPlan, config: Config | None = None, spec: FeatureSpec |
 # --- outputs -------------------------------------------------------------------------------------------------
 
 
-def _write_csv(path: Path, records: Sequence[object]) -> None:
+def _write_csv(path: Path, records: Sequence[DataclassInstance]) -> None:
     names = [f.name for f in fields(records[0])]
     with path.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=names)
@@ -437,16 +447,18 @@ def out_of_range_table(o: OutOfRange):
                    f"{100 * o.corrected_share:.1f}%"),))
 
 
-def tradeoff_figure(rows: list[BenchRow]) -> plt.Figure:
+def tradeoff_figure(rows: list[BenchRow]) -> Figure:
     """Test MAE against training time and against inference throughput, Pareto fronts drawn as steps."""
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+    fig = Figure(figsize=(13, 5.5))
+    axes = fig.subplots(1, 2)
     trained = [r.train_s for r in rows if r.train_s > 0]
     floor = 0.3 * min(trained) if trained else 1e-3
     panels = ((axes[0], [max(r.train_s, floor) for r in rows], "pareto_train",
                f"training time [s] (no training drawn at {floor:.2g} s)"),
               (axes[1], [r.rows_per_s for r in rows], "pareto_inference", "inference throughput [rows/s]"))
     families = sorted({r.family for r in rows})
-    colors = dict(zip(families, plt.cm.tab10.colors, strict=False))
+    tab10 = cast(ListedColormap, matplotlib.colormaps["tab10"])  # a listed map: its colours are RGB triples
+    colors = dict(zip(families, cast("Sequence[tuple[float, float, float]]", tab10.colors), strict=False))
     for ax, x, flag, label in panels:
         for r, xi in zip(rows, x, strict=True):
             on = getattr(r, flag)
@@ -468,8 +480,9 @@ def tradeoff_figure(rows: list[BenchRow]) -> plt.Figure:
     return fig
 
 
-def curve_figure(points: list[CurvePoint], x_name: str, xlabel: str) -> plt.Figure:
-    fig, ax = plt.subplots(figsize=(6, 4))
+def curve_figure(points: list[CurvePoint], x_name: str, xlabel: str) -> Figure:
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     x = [getattr(p, x_name) for p in points]
     for name, label in (("raw_mae_mm", "raw 31.25 MHz"), ("weighted_mae_mm", "weighted depth"),
                         ("xgboost_mae_mm", "XGBoost")):

@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.calibration import FootprintEstimate, estimate_footprint, pool_estimates
-from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions
+from mpi_lidar.correction.footprint import NOTHING_MEASURED, FootprintEstimate, estimate_footprint, pool_estimates
+from mpi_lidar.correction.options import CorrectionOptions
 from mpi_lidar.correction.profile import SensorProfile, write_profile
-from mpi_lidar.correction.validity import validity_flags
+from mpi_lidar.correction.scene import scene_blocks
+from mpi_lidar.correction.validity import usable_depth_of, validity_flags
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.scans import geometry
-from mpi_lidar.scans.scan import Scan, read_scan
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.store import read_scan
 from mpi_lidar.workflows.correct_archive import expand_archive
 
 
@@ -30,16 +31,17 @@ class ScanEstimate:
 def scan_footprint(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, use_reference: bool = True
                    ) -> FootprintEstimate:
     """The footprint one scan measures: against its reference depth where it has one (and ``use_reference``),
-    else against its own surfaces. A scan without geometry measures nothing."""
-    rays = scan.ray_rows()
-    if rays is None:
-        return FootprintEstimate(float("nan"), float("inf"), 0, 0)
+    else against its own surfaces. A scan without geometry measures nothing.
+
+    The stages of correction (:func:`mpi_lidar.correction.correct_scan`) up to the footprint: validity over the
+    whole scan (no model, so no model range), then the scene's blocks (:func:`scene_blocks`)."""
+    if scan.ray_rows() is None:
+        return NOTHING_MEASURED
     raw = scan.raw_pixels()
-    flags = validity_flags(raw, scan.frequencies_hz, options, sensor)
-    valid = ~np.isin(flags, [int(f) for f in INVALID_FLAGS])
-    top = np.where(valid, raw[:, len(scan.frequencies_hz) - 1], np.nan)
-    blocks = geometry.facing_blocks(top.reshape(scan.shape), rays, block_m=options.geometry_block_m,
-                                    max_range_m=options.partner_range_m)
+    usable_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, options, sensor))
+    valid = np.isfinite(usable_depth)
+    blocks = scene_blocks(scan, usable_depth, options)
+    assert blocks is not None  # the scan has rays
     reference = use_reference and scan.reference_depth is not None
     if reference:
         valid &= np.isfinite(np.asarray(scan.reference_depth, dtype=np.float64)).ravel()

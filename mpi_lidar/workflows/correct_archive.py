@@ -29,11 +29,11 @@ import json
 import os
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from pathlib import Path, PurePosixPath
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict
 
 import zarr
 
@@ -41,15 +41,11 @@ from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, cor
 from mpi_lidar.correction.outcome import invalid_share, scan_status
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, CorrectionModel, load_model
-from mpi_lidar.reporting.scan_report import (
-    check_outputs,
-    covers,
-    point_cloud_files,
-    point_cloud_formats,
-    scan_metrics,
-    write_scan_outputs,
-)
-from mpi_lidar.scans.scan import SCAN_SUFFIX, STORED_MAPS_ABOVE_BYTES, read_scan
+from mpi_lidar.reporting.metrics import scan_metrics
+from mpi_lidar.reporting.output_levels import check_outputs, covers
+from mpi_lidar.reporting.point_cloud_files import point_cloud_files, point_cloud_formats
+from mpi_lidar.reporting.scan_outputs import write_scan_outputs
+from mpi_lidar.scans.store import SCAN_SUFFIX, STORED_MAPS_ABOVE_BYTES, read_scan
 from mpi_lidar.storage.atomic import remove_interrupted_staging
 from mpi_lidar.workflows.executor import Executor, as_executor
 
@@ -57,7 +53,7 @@ if TYPE_CHECKING:
     from distributed import Client
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")  # fullmatch: "$" would let a final newline pass
-SUMMARY_NAME = "summary"  # <out>/summary/: the batch summary (mpi_lidar.reporting.scan_report)
+SUMMARY_NAME = "summary"  # <out>/summary/: the batch summary (mpi_lidar.reporting.batch_report)
 RESERVED_SUFFIX = ".scan"  # a scan whose output would be <out>/summary/ goes to <out>/summary.scan/ instead
 MAX_REASON_CHARS = 500
 
@@ -132,11 +128,18 @@ def _already_done(target: Path, scan_sha: str, model_sha: str, options_sha: str,
         attrs = zarr.open_group(store=str(target / "corrected.zarr"), mode="r").attrs
     except Exception:  # no store, or a foreign one: not done
         return False
+    written = attrs.get("outputs")  # absent in outputs written before output levels existed
     return (attrs.get("scan_sha256"), attrs.get("model_sha256"), attrs.get("options_sha256")) == (
-        scan_sha, model_sha, options_sha) and covers(attrs.get("outputs"), outputs)
+        scan_sha, model_sha, options_sha) and covers(written if isinstance(written, str) else None, outputs)
 
 
-def _existing_results(target: Path) -> dict[str, object] | None:
+class _Existing(TypedDict):
+    counts: dict[str, int]
+    metrics: dict[str, dict[str, float]]
+    notes: tuple[str, ...]
+
+
+def _existing_results(target: Path) -> _Existing | None:
     """Counts, metrics and notes of a scan's existing outputs (its ``metrics.json``); None if unreadable.
 
     Outputs are written whole or not at all, so an unreadable ``metrics.json`` means they were damaged or
@@ -171,7 +174,7 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
 
     ``output`` is the scan's output directory relative to ``out_dir`` (:func:`scan_output_paths` of the
     whole batch); None derives it from ``source`` alone (its store name without the suffix). ``outputs`` is
-    the output level (:data:`mpi_lidar.reporting.scan_report.OUTPUT_LEVELS`: full, light, data);
+    the output level (:data:`mpi_lidar.reporting.output_levels.OUTPUT_LEVELS`: full, light, data);
     ``point_clouds`` the point-cloud formats written at any level (``las``, ``laz``, ``ply``; None: ply and
     las at level full, none below), and a scan done before without one of them is corrected again. Every
     exception (any type: a damaged store, a bug, no memory) fails this scan alone with a one-line reason
@@ -192,7 +195,7 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
 # glibc gives every thread that allocates its own heap (arena), and memory freed in one arena is reused only
 # by the threads of that arena. A scan's tiles are allocated by this thread, the plane fits' threads, zarr's
 # decoders and XGBoost's threads in turn, so each arena ends up holding a share of the freed tiles: at
-# 4000 x 4000 that was 50-160 MiB of the peak resident set (docs/benchmarks.md). One arena for all threads
+# 4000 x 4000 that was 50-160 MiB of the peak resident set (docs/results/correction.md). One arena for all threads
 # reuses them wherever they were freed, at the same speed on the 2-core machine. (A fixed mmap threshold
 # would give them back to the system too, but costs a quarter more time in page faults.)
 _M_ARENA_MAX = -8  # mallopt's parameter number, from glibc's malloc.h
@@ -306,8 +309,8 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     (:func:`scan_output_paths`) fail the batch with one line; then staging directories an interrupted run
     left in ``out_dir`` (and in the folders of nested outputs) are removed. ``on_scan`` sees each outcome as
     it finishes; the outcomes come back by source. ``outputs`` is the output level of every scan
-    (:data:`mpi_lidar.reporting.scan_report.OUTPUT_LEVELS`); the command line and the correction flow default
-    to ``light`` (:data:`~mpi_lidar.reporting.scan_report.DEFAULT_OUTPUTS`), the pipeline writes ``full``.
+    (:data:`mpi_lidar.reporting.output_levels.OUTPUT_LEVELS`); the command line and the correction flow default
+    to ``light`` (:data:`~mpi_lidar.reporting.output_levels.DEFAULT_OUTPUTS`), the pipeline writes ``full``.
     ``point_clouds``: the point-cloud formats every scan writes (``las``, ``laz``, ``ply``) at any level;
     None: ply and las at level full, none below.
     """
@@ -337,10 +340,11 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
 
 # --- which outcomes fail a batch --------------------------------------------------------------------------
 
-FAIL_ON = ("degraded", "unchanged", "failed")  # statuses --fail-on / fail_on may name; failed always fails
+# The statuses --fail-on / fail_on may name; failed always fails.
+FAIL_ON = (ScanStatus.DEGRADED, ScanStatus.UNCHANGED, ScanStatus.FAILED)
 
 
-def failing_outcomes(outcomes: list[ScanOutcome], fail_on: tuple[str, ...] | list[str] = ()) -> list[ScanOutcome]:
+def failing_outcomes(outcomes: list[ScanOutcome], fail_on: Sequence[str] = ()) -> list[ScanOutcome]:
     """The outcomes that fail the batch: every failed scan, and those whose status is in ``fail_on``.
 
     A skipped scan counts with the status its existing outputs earned (:attr:`ScanOutcome.effective_status`),
@@ -370,7 +374,7 @@ def _why(outcome: ScanOutcome) -> str:
     return why
 
 
-def batch_failure(outcomes: list[ScanOutcome], fail_on: tuple[str, ...] | list[str] = ()) -> str | None:
+def batch_failure(outcomes: list[ScanOutcome], fail_on: Sequence[str] = ()) -> str | None:
     """One line saying why the batch fails (``2 of 5 scans failed or degraded (...)``), or None if it does not."""
     bad = failing_outcomes(outcomes, fail_on)
     if not bad:

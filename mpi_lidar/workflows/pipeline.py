@@ -27,9 +27,9 @@ from mpi_lidar.learning.evaluate import Evaluation, evaluate_model
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.learning.model import CARD_FILE, load_model, read_card
 from mpi_lidar.learning.train import train_and_save, xgb_params
+from mpi_lidar.reporting.batch_report import write_batch_report
 from mpi_lidar.reporting.report import Report, evaluation_report, write_report
-from mpi_lidar.reporting.scan_report import write_batch_report
-from mpi_lidar.scans.scan import SCAN_SUFFIX
+from mpi_lidar.scans.store import SCAN_SUFFIX
 from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.scenes import DEMO_SCENES, render_scenes
 from mpi_lidar.workflows.correct_archive import correct_archive
@@ -130,6 +130,7 @@ def run_pipeline(
     storage = tune.default_storage(data)
     settings = tune.TuneSettings(str(data), spec, tune_rows=min(tune_rows, config.dataset.samples))
     tuning = steps.tune(storage, STUDY, settings, trials)
+    assert tuning.best_value_m is not None, "the study has complete trials"
     echo(f"study '{STUDY}': {tuning.trials_run} trials run, best validation MAE {1e3 * tuning.best_value_m:.3f} mm")
 
     params = tune.best_params(tune.load_existing_study(storage, STUDY))

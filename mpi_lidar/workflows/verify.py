@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import zarr
 
 from mpi_lidar.correction import CORRECTED_SCHEMA
 from mpi_lidar.errors import StoreError
-from mpi_lidar.scans.scan import SCAN_SCHEMA, read_scan
+from mpi_lidar.scans.store import SCAN_SCHEMA, read_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.integrity import IntegrityError, verify_array
 
@@ -59,7 +60,7 @@ def _verified_arrays(path: Path, kind: str, check: bool) -> Verified:
     fingerprints = fingerprints if isinstance(fingerprints, dict) else None
     chunks = 0
     for name in sorted(group.array_keys()):
-        array = group[name]
+        array = cast("zarr.Array", group[name])
         expected = None if fingerprints is None else fingerprints.get(name)
         if fingerprints is not None and expected is None:
             raise IntegrityError(f"{path}: array {name!r} has no recorded fingerprints; the store was altered")

@@ -121,7 +121,7 @@ def test_simulate__writes_store_and_prints_summary(runs):
         mae, _, noise = rows[f / 1e6]
         assert mae == pytest.approx(summary.mae_m[j] * 1e3, abs=1e-3)
         assert noise == pytest.approx(summary.noise_only_mae_m[j] * 1e3, abs=1e-3)
-    # the calibration anchor of docs/benchmarks.md, with the wider tolerance of 2,000 rows
+    # the calibration anchor of docs/results/sensor.md, with the wider tolerance of 2,000 rows
     assert rows[31.25][0] == pytest.approx(9.84, abs=1.5)
     assert rows[31.25][2] == pytest.approx(1.6, abs=0.3)
     assert all(rows[f][2] < rows[f][0] for f in rows)

@@ -1,13 +1,16 @@
-"""Every command of the README's command table runs (small sizes): exit code 0 and its telling output line.
+"""Every command the README shows runs (small sizes): exit code 0 and its telling output line.
 
-The commands run through :func:`mpi_lidar.cli.main` in this process, in the order a user would chain them
-(simulate, tune, train, evaluate, ...), each on the previous one's outputs. A README row without a case here
-fails the first test, so a documented command can never go untested again.
+The commands of the README's command table run through :func:`mpi_lidar.cli.main` in this process, in the
+order a user would chain them (simulate, tune, train, evaluate, ...), each on the previous one's outputs. A
+README row without a case here fails the first test, so a documented command can never go untested again.
+The README's own-scans block ("Correct your own scans") runs line by line, as written, on files prepared
+the way it describes them.
 """
 
 from __future__ import annotations
 
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -15,12 +18,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import mpi_lidar
 from mpi_lidar import cli
 from mpi_lidar.config import Config
 from tests.cli_runner import call_main
+from tests.model_factory import tiny_model
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 SMALL_CONFIG = "[dataset]\nsamples = 3000\nchunk_rows = 1500\nseed = 3\n"
+
+
+def readme_shell_blocks() -> list[str]:
+    """The ```bash blocks of the README."""
+    return re.findall(r"```bash\n(.*?)```", README.read_text(), flags=re.S)
+
+
+def own_scans_block() -> list[str]:
+    """The command lines of the README's "Correct your own scans" block (each a ``mpi-lidar`` command)."""
+    section = README.read_text().split("\n## Correct your own scans\n", 1)[1].split("\n## ", 1)[0]
+    block = re.findall(r"```bash\n(.*?)```", section, flags=re.S)[0]
+    return [line for line in block.splitlines() if line.strip()]
 
 
 def readme_commands() -> list[str]:
@@ -41,28 +58,36 @@ def work(tmp_path_factory) -> Path:
 
 
 def cases(w: Path) -> dict[str, tuple[list[str | Path], str]]:
-    """Command -> (arguments, a fragment of a line its output must hold), in the order they run."""
+    """Command -> (arguments, a fragment of a line its output must hold), in the order they run.
+
+    The commands write where ``pipeline`` keeps its run (``run/``: dataset.zarr, optuna.db, model/, scenes/), as
+    a user chaining them would: the pipeline, last, resumes on them (the dataset, the study's trials, the model
+    of its best parameters and two of the demo scenes are kept) and adds the rest: evaluation, the third demo
+    scene and the corrected scenes.
+    """
+    run = w / "run"
+    data, model, scenes = run / "dataset.zarr", run / "model", run / "scenes"
     return {
-        "simulate": (["simulate", "--out", w / "d.zarr", "--config", w / "small.toml", "--workers", 0],
+        "simulate": (["simulate", "--out", data, "--config", w / "small.toml", "--workers", 0],
                      "chunks simulated"),
-        "tune": (["tune", "--data", w / "d.zarr", "--trials", 2, "--tune-rows", 1000, "--workers", 0],
+        "tune": (["tune", "--data", data, "--trials", 1, "--tune-rows", 1000, "--workers", 0],
                  "study 'xgboost'"),
-        "train": (["train", "--data", w / "d.zarr", "--out", w / "model", "--study", "xgboost", "--workers", 0],
+        "train": (["train", "--data", data, "--out", model, "--study", "xgboost", "--workers", 0],
                   "model written to"),
-        "evaluate": (["evaluate", "--data", w / "d.zarr", "--model", w / "model", "--out", w / "report"],
+        "evaluate": (["evaluate", "--data", data, "--model", model, "--out", w / "report"],
                      "report written to"),
-        "render-scenes": (["render-scenes", "--out", w / "scenes", "--scene", "flat_wall", "--scene",
+        "render-scenes": (["render-scenes", "--out", scenes, "--scene", "flat_wall", "--scene",
                            "cornered_board"], "wrote"),
-        "calibrate": (["calibrate", w / "scenes" / "cornered_board.scan.zarr", "--out", w / "sensor.toml"],
+        "calibrate": (["calibrate", scenes / "cornered_board.scan.zarr", "--out", w / "sensor.toml"],
                       "sensor profile written to"),
-        "correct": (["correct", w / "scenes", "--model", w / "model", "--out", w / "corrected", "--sensor",
+        "correct": (["correct", scenes, "--model", model, "--out", w / "corrected", "--sensor",
                      w / "sensor.toml", "--workers", 0], "flat_wall"),
         "import-scan": (["import-scan", w / "frame.npz", "--out", w / "frame.scan.zarr"], "written to"),
-        "verify": (["verify", w / "d.zarr", w / "frame.scan.zarr"], "ok "),
-        "table2": (["table2", "--data", w / "d.zarr", "--out", w / "table2", "--trials", 1, "--train-rows", 500,
+        "verify": (["verify", data, w / "frame.scan.zarr"], "ok "),
+        "table2": (["table2", "--data", data, "--out", w / "table2", "--trials", 1, "--train-rows", 500,
                     "--svm-rows", 200], "report written to"),
         "bench": (["bench", "--out", w / "bench", "--quick"], "report written to"),
-        "pipeline": (["pipeline", "--out", w / "run", "--config", w / "small.toml", "--trials", 1,
+        "pipeline": (["pipeline", "--out", run, "--config", w / "small.toml", "--trials", 1,
                       "--tune-rows", 1000, "--workers", 0], "test split:"),
     }
 
@@ -73,12 +98,45 @@ def test_readme_table__every_command_has_a_case(tmp_path):
     assert sorted(documented) == sorted(cases(tmp_path))
 
 
+def test_readme_shell_blocks__every_mpi_lidar_command_has_a_case(tmp_path):
+    shown = {m for block in readme_shell_blocks() for m in re.findall(r"^mpi-lidar ([a-z0-9-]+)", block, flags=re.M)}
+    assert shown and shown <= set(cases(tmp_path))
+
+
+@pytest.mark.slow
+def test_readme_own_scans_block__runs_as_written(tmp_path, monkeypatch, capsys):
+    lines = own_scans_block()
+    assert [shlex.split(line)[:2] for line in lines] == [["mpi-lidar", "import-scan"], ["mpi-lidar", "calibrate"],
+                                                         ["mpi-lidar", "correct"], ["mpi-lidar", "verify"]]
+    # what the README says raw/ holds: depth, amplitude, frequencies_hz and the scan grid (plus a reference)
+    code, _, stderr = call_main(monkeypatch, capsys, "render-scenes", "--out", tmp_path / "rendered", "--scene",
+                                "cornered_board")
+    assert code == 0, stderr
+    scan = mpi_lidar.read_scan(tmp_path / "rendered" / "cornered_board.scan.zarr")
+    (tmp_path / "raw").mkdir()
+    np.savez(tmp_path / "raw" / "corner.npz", depth=np.asarray(scan.depth), amplitude=np.asarray(scan.amplitude),
+             frequencies_hz=np.asarray(scan.frequencies_hz), azimuth_rad=np.asarray(scan.azimuth_rad),
+             elevation_rad=np.asarray(scan.elevation_rad), reference_depth=np.asarray(scan.reference_depth))
+    tiny_model(tmp_path / "runs" / "quick" / "model")  # what `make run` leaves there
+    monkeypatch.chdir(tmp_path)
+    for line in lines:
+        code, stdout, stderr = call_main(monkeypatch, capsys, *shlex.split(line)[1:])
+        assert code == 0, f"{line}: exit {code}\n{stdout}\n{stderr}"
+    outputs = tmp_path / "corrected" / "corner"
+    for name in ("corrected.zarr", "metrics.json", "report.html", "corrected.las", "corrected.ply", "raw.ply"):
+        assert (outputs / name).exists(), name
+    assert (tmp_path / "corrected" / "summary").is_dir()
+
+
 @pytest.mark.slow
 def test_readme_table__every_command_runs(work, monkeypatch, capsys):
     for name, (args, fragment) in cases(work).items():
         code, stdout, stderr = call_main(monkeypatch, capsys, *args)
         assert code == 0, f"{name}: exit {code}\n{stderr}"
         assert any(fragment in line for line in stdout.splitlines()), f"{name}: no line with {fragment!r}\n{stdout}"
+    # the pipeline, last, resumed on what the commands before it left in its run directory
+    assert "0 chunks written, 2 already there" in stdout and "0 trials run" in stdout, stdout
+    assert f"model {work / 'run' / 'model'}: reused" in stdout, stdout
 
 
 @pytest.mark.parametrize("command", [["benchmarks.sensor", "--rows", "2000"],

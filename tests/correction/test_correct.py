@@ -14,7 +14,8 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import NO_GEOMETRY_NOTE, CorrectionOptions, Flag, ScanStatus, correct_scan
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
-from mpi_lidar.scans.scan import Scan, write_scan
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
 from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
 from tests.scan_factory import two_path_scan
@@ -219,16 +220,6 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model
 def test_flag__existing_codes_are_stable():
     assert [int(f) for f in Flag] == list(range(9))
     assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0 and Flag.UNCALIBRATED == 8
-
-
-def test_batch_report__gated_out_counts_both_skip_flags():
-    from mpi_lidar.correction import ScanOutcome
-    from mpi_lidar.reporting.scan_report import batch_report
-
-    outcome = ScanOutcome("s.scan.zarr", "s", "corrected",
-                          counts={"corrected": 4, "not_needed": 1, "no_multipath": 3, "not_finite": 2})
-    report = batch_report([outcome], 1.0).markdown()
-    assert "gated out" in report and "| 40.0 % |" in report
 
 
 def test_scan_status__degraded_then_unchanged_then_corrected():

@@ -8,7 +8,7 @@ import zarr
 
 from flows.correct import SUMMARY_ARTIFACT_KEY, TABLE_ARTIFACT_KEY, correct_archive_flow
 from mpi_lidar.correction import CorrectionOptions
-from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.scans.store import write_scan
 from tests.flows.helpers import artifacts
 from tests.scan_factory import two_path_scan
 

@@ -13,7 +13,7 @@ import zarr
 
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.scans.scan import read_scan, write_scan
+from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.scan_factory import two_path_scan

@@ -25,7 +25,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import FeatureSpec
-from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.scans.store import write_scan
 from mpi_lidar.workflows.correct_archive import correct_archive
 from mpi_lidar.workflows.generate import generate
 from tests.integration.conftest import (

@@ -1,6 +1,6 @@
 """Load: four trial processes on one PostgreSQL study, and 200 scans in one batch, every one accounted for.
 
-Throughput figures come from ``python -m benchmarks.cluster`` (docs/operations.md), not from these tests.
+Throughput figures come from ``python -m benchmarks.cluster`` (docs/results/cluster.md), not from these tests.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import FeatureSpec
-from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.scans.store import write_scan
 from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.integration.conftest import DaskCluster, database_url
 from tests.scan_factory import two_path_scan

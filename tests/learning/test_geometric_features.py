@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config, PriorConfig
-from mpi_lidar.correction import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, GeometryGate, correct_scan
+from mpi_lidar.correction import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, analyse_geometry, correct_scan
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import evaluate_model
 from mpi_lidar.learning.features import (
@@ -144,11 +144,10 @@ def test_correct_scan__geometric_model_gets_the_gate_estimates(models):
     corrected = correction.flags.ravel() == Flag.CORRECTED
     assert corrected.sum() > 100
     raw = scan.raw_pixels()
-    gate = GeometryGate(options.min_multipath_bias_m, options.geometry_block_m, options.partner_range_m,
-                        options.footprint_area_m2)
     usable = np.isfinite(raw).all(1)
-    gate.scan_candidates(scan, np.where(usable, raw[:, len(FREQS) - 1], np.nan))
-    inputs = geometry_inputs(*gate.model_inputs(scan).pixels(np.flatnonzero(corrected), raw[corrected, len(FREQS) - 1]))
+    scene = analyse_geometry(scan, np.where(usable, raw[:, len(FREQS) - 1], np.nan), options, Config().sensor,
+                             with_model_inputs=True)
+    inputs = geometry_inputs(*scene.model_inputs.pixels(np.flatnonzero(corrected), raw[corrected, len(FREQS) - 1]))
     assert (inputs[:, 0] > 0).all()
     np.testing.assert_allclose(correction.depth.ravel()[corrected], model.predict_depth(raw[corrected], inputs),
                                atol=1e-6)

@@ -1,10 +1,9 @@
 """The HTML reports in a real headless browser: they render, raise no console error, and every image loads and
-fits the page width. Chromium comes from the distribution; the fixture installs it where it is missing."""
+fits the page width. Chromium comes from the distribution, installed by `make system-deps`, never by a test."""
 
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -13,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from mpi_lidar.correction import CorrectionOptions
-from mpi_lidar.reporting.scan_report import write_batch_report
-from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.reporting.batch_report import write_batch_report
+from mpi_lidar.scans.store import write_scan
 from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
@@ -39,15 +38,11 @@ window.addEventListener("load", () => setTimeout(() => {
 
 @pytest.fixture(scope="session")
 def chromium() -> str:
+    """The headless browser, installed by the project's set-up (`make system-deps`, run by `make test`)."""
     found = shutil.which("chromium") or shutil.which("chromium-browser")
-    if found:
-        return found
-    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    for command in (["apt-get", "update", "-q"], ["apt-get", "install", "-y", "-q", "chromium"]):
-        result = subprocess.run(command, capture_output=True, text=True, timeout=900, env=env)
-        assert result.returncode == 0, f"installing chromium failed: {result.stderr[-2000:]}"
-    found = shutil.which("chromium")
-    assert found, "chromium was installed but is not on PATH"
+    if not found:
+        pytest.fail("chromium is not installed: run `make system-deps` as root (or `apt-get install -y chromium`)",
+                    pytrace=False)
     return found
 
 

@@ -1,52 +1,30 @@
-"""Per-scan outputs of an archived scan (no reference depth): what correction did in maps.png, the point clouds
-through the LAS/PLY writers, and the interactive 3-D view of report.html."""
+"""One scan's outputs: each output level's files, the full outputs of an archived scan (maps, named point
+clouds, the interactive 3-D view), and nothing of pyplot's global state touched on the way."""
 
 from __future__ import annotations
 
-import matplotlib
-
-from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
-
-matplotlib.use("Agg")
-
 import json
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import laspy
+import matplotlib.image
 import numpy as np
 import pytest
 from plyfile import PlyData
 
-from mpi_lidar.correction import CorrectionOptions, Flag
-from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.reporting.scan_report import (
-    PLOTLY_JS,
-    VIEW_3D_FALLBACK,
-    VIEW_3D_POINTS,
-    applied_correction_mm,
-    maps_figure,
-    point_cloud_formats,
-    point_cloud_view_3d,
-)
-from mpi_lidar.scans.scan import write_scan
-from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
+from mpi_lidar.config import Config
+from mpi_lidar.correction import CorrectionOptions
+from mpi_lidar.reporting.figures import FLAG_COLOURS, PLOTLY_JS, VIEW_3D_FALLBACK
+from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS, OutputLevel, covers
+from mpi_lidar.scans.store import write_scan
+from mpi_lidar.simulation.scenes import cornered_board, render
+from mpi_lidar.workflows.correct_archive import process_scan
 from tests.model_factory import tiny_model
-from tests.scan_factory import two_path_scan
 
 FIELDS = {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2", "row", "column"}
-
-
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory) -> Path:
-    return tiny_model(tmp_path_factory.mktemp("model") / "model")
-
-
-@pytest.fixture(scope="module")
-def archived(tmp_path_factory):
-    """A scan as an archive holds it: geometry, no reference depth."""
-    scan = replace(two_path_scan("archived"), reference_depth=None, reference_mask=None)
-    return scan, write_scan(scan, tmp_path_factory.mktemp("scans") / "archived.scan.zarr")
 
 
 @pytest.fixture(scope="module")
@@ -85,78 +63,101 @@ def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full
     assert {"corrected.las", "raw.ply", "corrected.ply", PLOTLY_JS} <= set(files)
 
 
-def test_light__no_point_clouds_unless_asked(model_dir, archived, tmp_path):
-    light = process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"), outputs="light")
-    names = {p.name for p in Path(light.output).iterdir()}
-    assert not names & {"raw.ply", "corrected.ply", "corrected.las", "corrected.laz", PLOTLY_JS}
-    outcomes = correct_archive([str(archived[1])], model_dir, tmp_path / "asked", CorrectionOptions(gate="all"),
-                               outputs="light", point_clouds=("laz",))
-    names = {p.name for p in Path(outcomes[0].output).iterdir()}
-    assert "corrected.laz" in names and not names & {"raw.ply", "corrected.ply", "corrected.las", PLOTLY_JS}
-    assert set(laspy.read(Path(outcomes[0].output) / "corrected.laz").point_format.extra_dimension_names) >= FIELDS
-    # the light outputs exist, but without the PLY files asked for now: corrected again to add them
-    again = process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"), outputs="light",
-                         point_clouds=("ply",))
-    assert again.status == "corrected" and (Path(again.output) / "corrected.ply").is_file()
-    assert process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"),
-                        outputs="light", point_clouds=("ply",)).status == "skipped"
+# --- output levels ----------------------------------------------------------------------------------------
+
+FILES = {
+    "data": {"corrected.zarr", "metrics.json"},
+    "light": {"corrected.zarr", "metrics.json", "report.md", "report.html", "thumbnail.png"},
+    "full": {"corrected.zarr", "metrics.json", "report.md", "report.html", "maps.png", "error_hist.png",
+             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las", "plotly.min.js"},
+}
+GEOMETRY_FILES = {"point_cloud.png", "raw.ply", "corrected.ply", "corrected.las", "plotly.min.js"}
 
 
-def test_point_cloud_formats__default_by_level_and_unknown_refused(model_dir, archived, tmp_path):
-    assert point_cloud_formats("full") == ("ply", "las") and point_cloud_formats("light") == ()
-    assert point_cloud_formats("data", ["laz", "ply", "laz"]) == ("ply", "laz")
-    assert point_cloud_formats("full", ()) == ()
-    with pytest.raises(MpiLidarError, match="unknown point cloud format 'xyz'"):
-        correct_archive([str(archived[1])], model_dir, tmp_path / "out", CorrectionOptions(), point_clouds=["xyz"])
-    assert not (tmp_path / "out").exists(), "refused before anything is written"
+def _listing(path: Path) -> set[str]:
+    return {p.name for p in path.iterdir() if not p.name.startswith(".")}
 
 
-def test_maps_figure__archived_scan_shows_what_correction_did_in_degrees(model_dir, archived):
-    from mpi_lidar import correct_scan, load_model
-
-    scan = archived[0]
-    options = CorrectionOptions(gate="geometry", min_multipath_bias_m=0.0, footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
-    correction = correct_scan(scan, load_model(model_dir), options)
-    assert correction.multipath_bias_m is not None
-    fig = maps_figure(scan, correction)
-    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
-    assert not any("skipped" in t for t in texts), texts
-    titles = [ax.get_title() for ax in fig.axes]
-    assert any(t.startswith("applied correction [mm]") for t in titles)
-    assert "expected multipath bias [mm]" in titles and "what was done per pixel" in titles
-    maps = [ax for ax in fig.axes if ax.images]
-    assert len(maps) == 6
-    assert all(ax.get_xlabel() == "azimuth [deg]" and ax.get_ylabel() == "elevation [deg]" for ax in maps)
-    left, right, bottom, top = maps[0].images[0].get_extent()
-    assert left == pytest.approx(np.degrees(-0.2), abs=0.5) and right == pytest.approx(np.degrees(0.2), abs=0.5)
-    assert {round(bottom), round(top)} == {round(np.degrees(0.15)), round(np.degrees(-0.15))}
-    applied = applied_correction_mm(scan, correction)
-    corrected = correction.flags == Flag.CORRECTED
-    assert np.isnan(applied[~corrected]).all() and np.isfinite(applied[corrected]).any()
-    np.testing.assert_allclose(applied[corrected], 1e3 * (correction.depth - scan.depth[-1])[corrected], rtol=1e-6)
+def test_output_level__one_closed_set_from_most_to_least():
+    assert OUTPUT_LEVELS == ("full", "light", "data") == tuple(OutputLevel)
 
 
-def test_maps_figure__without_grid_pixel_indices_with_reference_the_error_maps(model_dir, archived):
-    from mpi_lidar import correct_scan, load_model
+@pytest.mark.parametrize("level", OUTPUT_LEVELS)
+def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, model_dir, board_store, tmp_path):
+    outcome = process_scan(board_store, model_dir, tmp_path, CorrectionOptions(), outputs=level)
+    assert outcome.status == "corrected", outcome.reason
+    target = Path(outcome.output)
+    assert _listing(target) == FILES[level]
+    data = json.loads((target / "metrics.json").read_text())
+    assert data["outputs"] == {"level": level, "files": sorted(FILES[level])}
+    assert data["counts"]["corrected"] == outcome.counts["corrected"] > 0 and data["metrics"] == outcome.metrics
+    if level != "data":
+        report = (target / "report.md").read_text()
+        assert f"Outputs (level {level}): " + ", ".join(sorted(FILES[level])) in report
+        assert all(f"]({name})" in report for name in FILES[level] if name.endswith(".png"))
 
-    flat = replace(archived[0], azimuth_rad=None, elevation_rad=None)
-    pixelwise = load_model(model_dir)
-    fig = maps_figure(flat, correct_scan(flat, pixelwise, CorrectionOptions(gate="all")))
-    maps = [ax for ax in fig.axes if ax.images]
-    assert all(ax.get_xlabel() == "column [pixel]" and ax.get_ylabel() == "row [pixel]" for ax in maps)
-    assert not any("skipped" in t.get_text() for ax in fig.axes for t in ax.texts)
-    reference = two_path_scan("referenced")
-    fig = maps_figure(reference, correct_scan(reference, pixelwise, CorrectionOptions(gate="all")))
-    titles = [ax.get_title() for ax in fig.axes]
-    assert {"raw error [mm]", "corrected error [mm]"} <= set(titles)
-    assert any(t.startswith("applied correction [mm]") for t in titles)
+
+def test_thumbnail__written_at_level_light_with_its_legend(model_dir, board_store, tmp_path):
+    outcome = process_scan(board_store, model_dir, tmp_path, CorrectionOptions(), outputs="light")
+    image = matplotlib.image.imread(Path(outcome.output) / "thumbnail.png")
+    assert image.shape[1] == 2 * 56 + 4 and image.shape[0] == 40  # small scans are shown at full size
+    report = (Path(outcome.output) / "report.md").read_text()
+    assert "Thumbnail: corrected depth (left" in report and FLAG_COLOURS[0] in report
 
 
-def test_point_cloud_view_3d__decimated_to_the_limit():
-    rng = np.random.default_rng(0)
-    points = rng.normal(size=(300, 300, 3)) + np.array([0.0, 0.0, 3.0])
-    points[0, :5] = np.nan
-    markup = point_cloud_view_3d(points, points + 0.01, rng.normal(size=(300, 300)), limit=VIEW_3D_POINTS // 4)
-    assert markup.lstrip().startswith("<div") and "<html" not in markup and "Plotly.newPlot" in markup
-    assert f"{VIEW_3D_POINTS // 4:,} of each" in markup
-    assert len(markup) < 1_000_000
+def test_output_level__is_no_part_of_the_hash_a_higher_level_is_kept_a_lower_one_completed(
+        model_dir, board_store, tmp_path):
+    options = CorrectionOptions()
+    assert DEFAULT_OUTPUTS == "light"
+    first = process_scan(board_store, model_dir, tmp_path, options, outputs="light")
+    assert first.status == "corrected"
+    again = process_scan(board_store, model_dir, tmp_path, options, outputs="data")
+    assert again.status == "skipped" and again.counts == first.counts, "light holds everything data writes"
+    more = process_scan(board_store, model_dir, tmp_path, options, outputs="full")
+    assert more.status == "corrected" and _listing(Path(more.output)) == FILES["full"]
+    assert process_scan(board_store, model_dir, tmp_path, options, outputs="light").status == "skipped"
+    assert covers(None, "full") and covers("full", "data") and not covers("data", "light")
+
+
+def test_output_level__scan_without_geometry_at_full_says_point_clouds_were_skipped(model_dir, tmp_path):
+    scan = render(cornered_board(height=24, width=32), Config(), np.random.default_rng(1))
+    store = write_scan(replace(scan, azimuth_rad=None, elevation_rad=None), tmp_path / "flat.scan.zarr")
+    pixelwise = tiny_model(tmp_path / "model", geometric=False)
+    outcome = process_scan(store, pixelwise, tmp_path / "out", CorrectionOptions(), outputs="full")
+    assert "no scan geometry: point clouds and views skipped" in outcome.notes
+    assert _listing(Path(outcome.output)) == FILES["full"] - GEOMETRY_FILES
+    light = process_scan(store, pixelwise, tmp_path / "light", CorrectionOptions(), outputs="light")
+    assert not any("point clouds" in note for note in light.notes), "light never writes point clouds"
+
+
+def test_output_level__unknown_level_is_one_clear_error(model_dir, board_store, tmp_path):
+    from mpi_lidar.errors import MpiLidarError
+    from mpi_lidar.workflows.correct_archive import correct_archive
+
+    with pytest.raises(MpiLidarError, match="unknown output level 'everything'; choose one of full, light, data"):
+        correct_archive([str(board_store)], model_dir, tmp_path, CorrectionOptions(), outputs="everything")
+    assert not any(tmp_path.iterdir()), "refused before anything is written"
+
+
+# --- no global state -----------------------------------------------------------------------------------------
+
+
+def test_write_scan_outputs__a_users_open_pyplot_figure_survives(model_dir, archived, tmp_path):
+    import matplotlib.pyplot as plt
+
+    mine = plt.figure()
+    try:
+        outcome = process_scan(archived[1], model_dir, tmp_path, CorrectionOptions(gate="all"), outputs="full")
+        assert outcome.status == "corrected", outcome.reason
+        assert plt.fignum_exists(mine.number) and plt.get_fignums() == [mine.number], "no figure closed or left"
+    finally:
+        plt.close(mine)
+
+
+def test_import__reporting_leaves_the_matplotlib_backend_alone():
+    code = ("import matplotlib; matplotlib.use('svg'); before = matplotlib.get_backend(); "
+            "import mpi_lidar.reporting.report, mpi_lidar.reporting.scan_outputs, mpi_lidar.reporting.table2, "
+            "mpi_lidar.reporting.tuning_report, mpi_lidar.workflows.correct_archive; "
+            "assert matplotlib.get_backend() == before == 'svg', matplotlib.get_backend(); "
+            "import sys; assert 'matplotlib.pyplot' not in sys.modules, 'pyplot imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

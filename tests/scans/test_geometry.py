@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, validity_flags
-from mpi_lidar.correction.calibration import PlaneModelInputs
-from mpi_lidar.correction.gates import geometry_gate
+from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, analyse_geometry, validity_flags
+from mpi_lidar.correction.footprint import PlaneModelInputs
 from mpi_lidar.scans.geometry import (
     DEFAULT_FOOTPRINT_AREA_M2,
     _pair_coupling,
@@ -14,6 +13,7 @@ from mpi_lidar.scans.geometry import (
     fit_block_planes,
     multipath_potential,
     point_cloud,
+    surface_normals,
 )
 from mpi_lidar.scans.scan import grid_rays
 from mpi_lidar.simulation.scenes import (
@@ -122,9 +122,9 @@ def test_multipath_potential__corner_grows_towards_the_edge_and_agrees_with_the_
 
 def equivalent_rho_aba_of(scan) -> np.ndarray:
     """The geometry gate's estimate of the equivalent rho_ABA of every pixel (H, W) at the default footprint."""
-    gate = geometry_gate(CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2))
-    gate.scan_candidates(scan, valid_depth(scan).ravel())
-    rho_aba, _ = gate.model_inputs(scan).pixels(np.arange(scan.shape[0] * scan.shape[1]), valid_depth(scan).ravel())
+    options = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
+    scene = analyse_geometry(scan, valid_depth(scan).ravel(), options, SensorConfig(), with_model_inputs=True)
+    rho_aba, _ = scene.model_inputs.pixels(np.arange(scan.shape[0] * scan.shape[1]), valid_depth(scan).ravel())
     return rho_aba.reshape(scan.shape)
 
 
@@ -163,10 +163,10 @@ def test_plane_model_inputs__follow_the_renderer_from_the_edge_outwards(angle_de
     truth: dict[str, np.ndarray] = {}
     scan = render(corner(angle_deg, 2.0, 0.8, height=48, width=96), Config(), np.random.default_rng(2),
                   truth_out=truth)
-    gate = geometry_gate(CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2))
     depth = valid_depth(scan).ravel()
-    gate.scan_candidates(scan, depth)
-    rho_aba, d_ab = gate.model_inputs(scan).pixels(np.arange(depth.size), depth)
+    options = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
+    scene = analyse_geometry(scan, depth, options, SensorConfig(), with_model_inputs=True)
+    rho_aba, d_ab = scene.model_inputs.pixels(np.arange(depth.size), depth)
     where = (truth["coupling"] > 0.005) & (truth["coupling"] < 0.9)
     true = truth["rho_aba"]
     edges = np.quantile(true[where], [0.25, 0.5, 0.75, 0.9])
@@ -180,10 +180,9 @@ def test_plane_model_inputs__follow_the_renderer_from_the_edge_outwards(angle_de
 def test_plane_model_inputs__without_a_plane_give_the_blocks_estimate():
     """A pixel on no flat surface (here: every pixel, with no plane given) keeps the blocks' estimate."""
     scan = render(corner(90.0, 2.0, 0.8, height=48, width=96), Config(), np.random.default_rng(2))
-    gate = geometry_gate(CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2))
     depth = valid_depth(scan).ravel()
-    gate.scan_candidates(scan, depth)
-    inputs = gate.model_inputs(scan)
+    inputs = analyse_geometry(scan, depth, CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2),
+                              SensorConfig(), with_model_inputs=True).model_inputs
     pixels = np.arange(depth.size)
     blocks_only = PlaneModelInputs(inputs.fallback)
     for found, expected in zip(blocks_only.pixels(pixels, depth), inputs.fallback.pixels(pixels), strict=True):
@@ -250,3 +249,12 @@ def test_fit_block_planes__ignores_a_depth_edge_inside_the_block():
     np.testing.assert_allclose(normals[0, 0], [0.0, 0.0, -1.0], atol=1e-9)
     assert usable[0, 0] and keep[0, 0].sum() == 48 and rms[0, 0] < 1e-9
     assert centres[0, 0, 2] == pytest.approx(2.0, abs=1e-12)
+
+
+def test_surface_normals__plane_gives_its_normal_towards_the_scanner():
+    az, el = np.linspace(-0.3, 0.3, 20), np.linspace(-0.2, 0.2, 15)
+    rays = grid_rays(az, el)
+    normal = np.array([0.3, 0.0, -1.0]) / np.linalg.norm([0.3, 0.0, -1.0])
+    depth = 2.0 / -(rays @ normal)  # plane n . p = -2
+    normals = surface_normals(point_cloud(depth, rays))
+    np.testing.assert_allclose(normals[2:-2, 2:-2], np.broadcast_to(normal, normals[2:-2, 2:-2].shape), atol=1e-9)

@@ -46,6 +46,18 @@ def two_worker_client():
             yield client
 
 
+# A slow fidelity, so that a kill lands while chunks are still being written: 12 chunks of 100 rows.
+KILLED_RUN = {"samples": 1_200, "chunk_rows": 100, "fidelity": "waveform"}
+
+
+@pytest.fixture(scope="module")
+def waveform_reference(tmp_path_factory) -> Path:
+    """The uninterrupted in-process store of KILLED_RUN, shared by the tests that kill a run part-way."""
+    path = tmp_path_factory.mktemp("waveform") / "reference.zarr"
+    generate(path, small_config(**KILLED_RUN))
+    return path
+
+
 @pytest.fixture(scope="module")
 def reference_store(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("reference") / "in_process.zarr"
@@ -92,10 +104,8 @@ def test_generate__unmarked_chunk_with_garbage_is_rewritten(tmp_path, reference_
     assert_same_bytes(path, reference_store)
 
 
-def test_generate__worker_killed_mid_run_completes_identically(tmp_path):
-    config = small_config(samples=2_400, chunk_rows=200, fidelity="waveform")
-    reference = tmp_path / "reference.zarr"
-    generate(reference, config)
+def test_generate__worker_killed_mid_run_completes_identically(tmp_path, waveform_reference):
+    config = small_config(**KILLED_RUN)
     path = tmp_path / "killed.zarr"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         with Client(cluster) as client:
@@ -111,14 +121,14 @@ def test_generate__worker_killed_mid_run_completes_identically(tmp_path):
     assert killed.is_set()
     assert report.chunks_written == 12
     assert dataset.is_complete(path)
-    assert_same_bytes(path, reference)
+    assert_same_bytes(path, waveform_reference)
 
 
-def test_simulate_cli__killed_process_rerun_matches_uninterrupted(tmp_path):
-    args = ["--samples", "3000", "--chunk-rows", "250", "--fidelity", "waveform", "--workers", "0", "--seed", "3"]
+def test_simulate_cli__killed_process_rerun_matches_uninterrupted(tmp_path, waveform_reference):
+    args = ["--samples", str(KILLED_RUN["samples"]), "--chunk-rows", str(KILLED_RUN["chunk_rows"]),
+            "--fidelity", str(KILLED_RUN["fidelity"]), "--workers", "0", "--seed", "7"]
     command = [sys.executable, "-m", "mpi_lidar.cli", "simulate"]
-    reference, killed = tmp_path / "reference.zarr", tmp_path / "killed.zarr"
-    subprocess.run([*command, "--out", str(reference), *args], check=True, capture_output=True)
+    killed = tmp_path / "killed.zarr"
     process = subprocess.Popen([*command, "--out", str(killed), *args], stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60
@@ -129,7 +139,7 @@ def test_simulate_cli__killed_process_rerun_matches_uninterrupted(tmp_path):
     done = zarr.open_group(str(killed), mode="r")["chunk_done"][:]
     assert 0 < done.sum() < done.size, "the kill should land part-way through"
     subprocess.run([*command, "--out", str(killed), *args], check=True, capture_output=True)
-    assert_same_bytes(killed, reference)
+    assert_same_bytes(killed, waveform_reference)  # the command's rerun equals the uninterrupted run
 
 
 def _some_chunks_done(path: Path) -> bool:

@@ -5,7 +5,8 @@ import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.physics.transport import two_path_phase_bias
-from mpi_lidar.scans.scan import grid_rays, read_scan, write_scan
+from mpi_lidar.scans.scan import grid_rays
+from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation.scenes import (
     DEFAULT_FOOTPRINT_RADIUS_M,
     Cylinder,

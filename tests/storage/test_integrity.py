@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config
-from mpi_lidar.scans.scan import read_scan, write_scan
+from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.integrity import IntegrityError, array_fingerprints, fingerprint
 from mpi_lidar.workflows.verify import verify_store

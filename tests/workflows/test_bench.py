@@ -76,7 +76,7 @@ def test_simulate__independent_streams_and_reproducible():
     assert np.intersect1d(a.target, b.target).size == 0
     low, high = CONFIG.prior.d_as_m
     assert a.target.min() >= low and a.target.max() <= high
-    # raw 31.25 MHz MAE of the default prior is ~9.8 mm (docs/benchmarks.md); 2,000 rows: a few % scatter
+    # raw 31.25 MHz MAE of the default prior is ~9.8 mm (docs/results/sensor.md); 2,000 rows: a few % scatter
     assert 1e3 * mae(top_depth(CONFIG.frequencies_hz)(a.raw), a.target) == pytest.approx(9.8, rel=0.12)
 
 

@@ -15,8 +15,10 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, correct_scan
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
-from mpi_lidar.reporting.scan_report import batch_report, scan_metrics, write_batch_report
-from mpi_lidar.scans.scan import Scan, read_scan, write_scan
+from mpi_lidar.reporting.batch_report import batch_report, write_batch_report
+from mpi_lidar.reporting.metrics import scan_metrics
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation.scenes import flat_wall, render
 from mpi_lidar.workflows.correct_archive import (
     correct_archive,

@@ -12,8 +12,8 @@ from click.testing import CliRunner
 
 from mpi_lidar.cli import cli
 from mpi_lidar.correction import CorrectionOptions
-from mpi_lidar.reporting.scan_report import DEFAULT_OUTPUTS, OUTPUT_LEVELS
-from mpi_lidar.scans.scan import write_scan
+from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS
+from mpi_lidar.scans.store import write_scan
 from mpi_lidar.workflows import correct_archive as archive_module
 from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.model_factory import tiny_model

@@ -1,0 +1,166 @@
+"""The scene-geometry stage: what the scan's own geometry says about multipath, worked out once per scan.
+
+A scan passes validity -> scene geometry -> model -> outputs. This stage takes the highest-frequency depth of the
+usable pixels and, where the scan has rays: fits the facing blocks (:func:`mpi_lidar.scans.geometry.facing_blocks`),
+measures the scan's own receiver footprint where ``footprint_area_m2`` is "auto"
+(:func:`mpi_lidar.correction.footprint.estimate_footprint`), the expected multipath bias of every pixel at that
+footprint, and, for a geometric model, its per-pixel inputs. Gates (:mod:`mpi_lidar.correction.gates`) decide
+from the result, :class:`SceneGeometry`; ``mpi-lidar calibrate`` and the benchmarks use the same functions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import cast
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mpi_lidar.config import SensorConfig
+from mpi_lidar.correction.footprint import (
+    FootprintEstimate,
+    PlaneModelInputs,
+    SurfaceLabels,
+    block_albedo,
+    estimate_footprint,
+    plane_model_inputs,
+    surface_labels,
+)
+from mpi_lidar.correction.options import AUTO, CorrectionOptions, GateName
+from mpi_lidar.scans import geometry
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.threads import on_cores
+
+NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
+NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (rho_ABA, d_AB), so every valid "
+                           "pixel keeps its raw depth")
+
+
+@dataclass(frozen=True)
+class SceneGeometry:
+    """What the scene-geometry stage found in one scan (:func:`analyse_geometry`).
+
+    Every field but ``notes`` is None for a scan without geometry (no rays or scan grid).
+
+    Attributes
+    ----------
+    blocks : geometry.FacingBlocks | None
+        The scan's blocks, their planes and facing pairs.
+    surfaces : SurfaceLabels | None
+        The blocks' connected and flat surfaces, where the footprint fit or the model's inputs needed them (and
+        some blocks face each other).
+    footprint : FootprintEstimate | None
+        The scan's own footprint estimate where ``footprint_area_m2`` is "auto"; None where it was given.
+    footprint_m2 : float
+        The footprint A_fp the potential, the bias map and the model's inputs are for: the given one, the
+        scan's own estimate where significant, else 0 (no multipath). [m^2]
+    potential : geometry.BlockPotential | None
+        The expected multipath per block at ``footprint_m2`` (pixels interpolate it).
+    bias_m : NDArray[np.float32] | None
+        Expected multipath bias per pixel (H, W) at ``footprint_m2``. [m]
+    reaches_min_bias : NDArray[np.bool_] | None
+        Bool (H*W,): where ``bias_m`` reaches ``CorrectionOptions.min_multipath_bias_m``.
+    uncalibrated : NDArray[np.bool_] | None
+        Bool (H*W,), only where the scan's own estimate is not significant: the pixels whose bias could reach
+        ``min_multipath_bias_m`` at the estimate's upper bound (they are left as measured).
+    model_inputs : PlaneModelInputs | None
+        A geometric model's per-pixel inputs (rho_ABA, d_AB) at ``footprint_m2``; None unless asked for.
+    notes : tuple[str, ...]
+        What a report must say of the scene (a scan without geometry under the geometry gate or a geometric model).
+    """
+
+    blocks: geometry.FacingBlocks | None = None
+    surfaces: SurfaceLabels | None = None
+    footprint: FootprintEstimate | None = None
+    footprint_m2: float = 0.0
+    potential: geometry.BlockPotential | None = None
+    bias_m: NDArray[np.float32] | None = None
+    reaches_min_bias: NDArray[np.bool_] | None = None
+    uncalibrated: NDArray[np.bool_] | None = None
+    model_inputs: PlaneModelInputs | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def has_geometry(self) -> bool:
+        """Whether the scan had rays, so that its geometry could be analysed."""
+        return self.blocks is not None
+
+
+def scene_blocks(scan: Scan, usable_depth: NDArray, options: CorrectionOptions) -> geometry.FacingBlocks | None:
+    """The scan's facing blocks from the highest-frequency depth of its usable pixels ``usable_depth`` (H*W,) [m]
+    (NaN elsewhere), in tiles of ``options.tile_pixels``; None for a scan without geometry."""
+    rays = scan.ray_rows()
+    if rays is None:
+        return None
+    return geometry.facing_blocks(usable_depth.reshape(scan.shape), rays, block_m=options.geometry_block_m,
+                                  max_range_m=options.partner_range_m, band_pixels=options.tile_pixels)
+
+
+def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, sensor: SensorConfig, *,
+                     with_model_inputs: bool = False) -> SceneGeometry:
+    """The scene-geometry stage of one scan.
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan (its maps may stay in the store).
+    usable_depth : NDArray
+        Highest-frequency depth (H*W,) of the usable pixels, NaN elsewhere (:func:`validity.usable_depth`). [m]
+        Read only here: the caller may overwrite it afterwards.
+    options : CorrectionOptions
+        Block size, partner range, footprint ("auto": the scan's own), the bias threshold and the tile size.
+    sensor : SensorConfig
+        The sensor (noise model, Gamma_R) the footprint fit needs.
+    with_model_inputs : bool
+        Also work out a geometric model's per-pixel inputs (:attr:`SceneGeometry.model_inputs`).
+
+    Returns
+    -------
+    SceneGeometry
+        What the scan's geometry says; for a scan without geometry, only its notes.
+    """
+    blocks = scene_blocks(scan, usable_depth, options)
+    if blocks is None:
+        if with_model_inputs:
+            return SceneGeometry(notes=(NO_GEOMETRY_INPUTS_NOTE,))
+        return SceneGeometry(notes=(NO_GEOMETRY_NOTE,) if options.gate == GateName.GEOMETRY else ())
+    auto = options.footprint_area_m2 == AUTO
+    surfaces = surface_labels(blocks) if blocks.pairs.a.size and (auto or with_model_inputs) else None
+    estimate, uncalibrated, measured_albedo = None, None, None
+    if not auto:
+        # Validated options hold a number here; no float() of it, so a bad value fails where it is used.
+        footprint_m2 = cast(float, options.footprint_area_m2)
+        potential = blocks.block_potential(footprint_m2)
+    else:
+        measured_albedo = block_albedo(scan, blocks, sensor, options.tile_pixels)
+        estimate = estimate_footprint(scan, blocks, np.isfinite(usable_depth), sensor,
+                                      measured_albedo=measured_albedo, surfaces=surfaces)
+        if estimate.significant:
+            footprint_m2 = estimate.area_m2
+        else:
+            upper = blocks.block_potential(min(estimate.upper_m2(), 1.0))
+            uncalibrated = _reaches_min_bias(upper, options)
+            footprint_m2 = 0.0
+        potential = blocks.block_potential(footprint_m2)
+    bias_m = np.empty(scan.shape, dtype=np.float32)
+    reaches = _reaches_min_bias(potential, options, bias_m)
+    inputs = None
+    if with_model_inputs:
+        inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels)
+    return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated, inputs)
+
+
+def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOptions,
+                      bias_out: NDArray | None = None) -> NDArray[np.bool_]:
+    """Where the bias reaches ``options.min_multipath_bias_m`` (H*W,), a band of rows at a time; the bias [m] goes
+    into ``bias_out`` (H, W) where given."""
+    reaches = np.empty(potential.blocks.shape, dtype=bool)
+
+    def band(rows: slice) -> None:
+        bias = potential.bias_rows(rows)
+        reaches[rows] = bias >= options.min_multipath_bias_m
+        if bias_out is not None:
+            bias_out[rows] = bias
+
+    on_cores(band, potential.blocks.bands(options.tile_pixels))
+    return reaches.ravel()

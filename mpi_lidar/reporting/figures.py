@@ -1,0 +1,238 @@
+"""Figures of a corrected scan: the maps, the point-cloud views, the interactive 3-D view and the thumbnail.
+
+Every figure is a :class:`matplotlib.figure.Figure` of its own, drawn without pyplot: nothing of pyplot's
+global state (its backend, its open figures) is touched, and ``Figure.savefig`` renders with the Agg canvas.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+import matplotlib.image
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+
+from mpi_lidar.correction import Correction, Flag
+from mpi_lidar.reporting.metrics import applied_correction_mm
+from mpi_lidar.scans.scan import Scan
+
+FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea"]
+THUMBNAIL_PX = 512  # longest side of thumbnail.png [px]
+THUMBNAIL_GAP_PX = 4
+VIEW_3D_POINTS = 20_000  # most points per cloud in the interactive 3-D view of report.html
+PLOTLY_JS = "plotly.min.js"
+VIEW_3D_FALLBACK = "interactive 3-D view: open report.html"
+
+
+def grid_axes(scan: Scan) -> tuple[tuple[float, float, float, float] | None, str, str]:
+    """``extent`` of ``imshow`` and the axis labels of a map of the scan grid: azimuth and elevation [deg]
+    where the scan has an azimuth/elevation grid, pixel indices otherwise (extent None)."""
+    h, w = scan.shape
+    az, el = scan.azimuth_rad, scan.elevation_rad
+    if az is None or el is None or np.size(az) != w or np.size(el) != h:
+        return None, "column [pixel]", "row [pixel]"
+    az, el = np.degrees(np.asarray(az, dtype=np.float64)), np.degrees(np.asarray(el, dtype=np.float64))
+    half_az = 0.5 * (az[-1] - az[0]) / (w - 1) if w > 1 else 0.05
+    half_el = 0.5 * (el[-1] - el[0]) / (h - 1) if h > 1 else 0.05
+    # imshow draws row 0 at the top: the top edge is the first row's elevation.
+    extent = (float(az[0] - half_az), float(az[-1] + half_az), float(el[-1] + half_el), float(el[0] - half_el))
+    return extent, "azimuth [deg]", "elevation [deg]"
+
+
+def maps_figure(scan: Scan, correction: Correction) -> Figure:
+    """Raw and corrected depth, amplitude, what correction did and the flag map; with a reference depth also
+    the error maps before and after (Fig. 7/8 b-f).
+
+    Without a reference (every archived scan) the second row shows the applied correction (corrected minus
+    raw depth, where corrected), the geometry gate's expected multipath bias and the flags; with one, the
+    applied correction joins the first row and the error maps the second. Axes in degrees of azimuth and
+    elevation where the scan has that grid, pixel indices otherwise.
+    """
+    reference_depth = scan.reference_depth
+    reference = reference_depth is not None
+    columns = 4 if reference else 3
+    fig = Figure(figsize=(4.4 * columns, 7.5))
+    axes = fig.subplots(2, columns, squeeze=False)
+    grid = grid_axes(scan)
+    label = f"{scan.frequencies_hz[-1] / 1e6:g} MHz"
+    finite = scan.depth[-1][np.isfinite(correction.depth)]
+    limits = np.quantile(finite, [0.01, 0.99]) if finite.size else (0.0, 1.0)
+    _image(axes[0, 0], scan.depth[-1], f"raw depth {label} [m]", "viridis", limits, grid)
+    _image(axes[0, 1], correction.depth, "corrected depth [m]", "viridis", limits, grid)
+    _image(axes[0, 2], scan.amplitude[-1], f"amplitude {label} [V$^2$]", "magma", None, grid)
+    applied = applied_correction_mm(scan, correction)
+    shown = np.abs(applied[np.isfinite(applied)])
+    span = max(float(np.quantile(shown, 0.99)), 1e-3) if shown.size else 1.0
+    _image(axes[0, 3] if reference else axes[1, 0], applied,
+           f"applied correction [mm]\n({shown.size:,} pixels corrected)", "RdBu_r", (-span, span), grid)
+    if reference_depth is not None:
+        raw_error = 1e3 * (scan.depth[-1] - reference_depth)
+        corrected_error = 1e3 * (correction.depth - reference_depth)
+        valid = np.isfinite(corrected_error)
+        span = float(np.quantile(np.abs(raw_error[valid]), 0.99)) if valid.any() else 1.0
+        raw_error[~valid] = np.nan
+        _image(axes[1, 0], raw_error, "raw error [mm]", "RdBu_r", (-span, span), grid)
+        _image(axes[1, 1], corrected_error, "corrected error [mm]", "RdBu_r", (-span, span), grid)
+    bias_ax = axes[1, 2] if reference else axes[1, 1]
+    if correction.multipath_bias_m is not None:
+        bias = 1e3 * np.asarray(correction.multipath_bias_m, dtype=np.float64)
+        finite_bias = bias[np.isfinite(bias)]
+        top = max(float(np.quantile(finite_bias, 0.99)), 1e-3) if finite_bias.size else 1.0
+        _image(bias_ax, bias, "expected multipath bias [mm]", "cividis", (0.0, top), grid)
+    else:
+        bias_ax.text(0.5, 0.5, "expected multipath bias:\ncomputed by the geometry gate only", ha="center",
+                     va="center")
+        bias_ax.set_axis_off()
+    flag_ax = axes[1, -1]
+    flag_image = flag_ax.imshow(correction.flags, cmap=ListedColormap(FLAG_COLOURS), vmin=-0.5,
+                                vmax=len(Flag) - 0.5, interpolation="nearest", extent=grid[0])
+    bar = fig.colorbar(flag_image, ax=flag_ax, ticks=range(len(Flag)))
+    bar.ax.set_yticklabels([f.name.lower().replace("_", " ") for f in Flag])
+    flag_ax.set_title("what was done per pixel")
+    flag_ax.set_xlabel(grid[1])
+    flag_ax.set_ylabel(grid[2])
+    fig.suptitle(f"scan {scan.name}")
+    fig.tight_layout()
+    return fig
+
+
+def _image(ax: Axes, values: np.ndarray, title: str, cmap: str, limits,
+           grid: tuple[tuple[float, float, float, float] | None, str, str]) -> None:
+    shown = ax.imshow(values, cmap=cmap, vmin=None if limits is None else limits[0],
+                      vmax=None if limits is None else limits[1], interpolation="nearest", extent=grid[0])
+    ax.figure.colorbar(shown, ax=ax)
+    ax.set_title(title)
+    ax.set_xlabel(grid[1])
+    ax.set_ylabel(grid[2])
+
+
+POINT_CLOUD_BINS = 400  # pixels per axis of a rasterized view: a million points cost what a thousand do
+
+
+def point_cloud_figure(raw_points: np.ndarray, corrected_points: np.ndarray) -> Figure:
+    """Top and side views of the raw and corrected point clouds (Fig. 9), rasterized.
+
+    Each view is a 2-D histogram of the points, coloured by the mean of the coordinate it hides, so drawing
+    costs the same for a thousand points as for ten million, and both columns share their extents.
+    """
+    finite = [p.reshape(-1, 3)[np.isfinite(p.reshape(-1, 3)).all(axis=1)] for p in (raw_points, corrected_points)]
+    views = (("top view", 0, 2, 1, "x [m]", "z (forward) [m]"), ("side view", 2, 1, 0, "z (forward) [m]", "y (up) [m]"))
+    fig = Figure(figsize=(11, 8))
+    axes = fig.subplots(2, 2, squeeze=False)
+    for row, (title, u, v, colour, xlabel, ylabel) in enumerate(views):
+        extent = _view_extent(finite, u, v)
+        hidden = np.concatenate([c[:, colour] for c in finite])
+        low, high = np.quantile(hidden, [0.01, 0.99]) if hidden.size else (0.0, 1.0)
+        for column, (label, points) in enumerate(zip(("raw", "corrected"), finite, strict=True)):
+            ax = axes[row, column]
+            image = _mean_raster(points[:, u], points[:, v], points[:, colour], extent)
+            shown = ax.imshow(image, origin="lower", extent=extent, cmap="viridis", interpolation="nearest",
+                              aspect="equal", vmin=low, vmax=high)
+            fig.colorbar(shown, ax=ax, label=f"{'xyz'[colour]} [m] (mean per cell)")
+            ax.set_title(f"{label}: {title} ({points.shape[0]:,} points)")
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(ylabel)
+    fig.tight_layout()
+    return fig
+
+
+def _view_extent(clouds: list[np.ndarray], u: int, v: int) -> tuple[float, float, float, float]:
+    both = np.concatenate([c[:, [u, v]] for c in clouds]) if any(c.size for c in clouds) else np.zeros((1, 2))
+    low, high = both.min(axis=0), both.max(axis=0)
+    pad = np.maximum(1e-3, 0.02 * (high - low))
+    return (float(low[0] - pad[0]), float(high[0] + pad[0]), float(low[1] - pad[1]), float(high[1] + pad[1]))
+
+
+def _mean_raster(u: np.ndarray, v: np.ndarray, value: np.ndarray, extent: tuple[float, float, float, float],
+                 bins: int = POINT_CLOUD_BINS) -> np.ndarray:
+    """Mean of ``value`` per cell of a bins x bins grid over ``extent`` (rows along v); NaN where empty."""
+    column = np.clip(((u - extent[0]) / (extent[1] - extent[0]) * bins).astype(np.int64), 0, bins - 1)
+    row = np.clip(((v - extent[2]) / (extent[3] - extent[2]) * bins).astype(np.int64), 0, bins - 1)
+    cell = row * bins + column
+    count = np.bincount(cell, minlength=bins * bins)
+    total = np.bincount(cell, weights=value, minlength=bins * bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan).reshape(bins, bins)
+
+
+def point_cloud_view_3d(raw_points: np.ndarray, corrected_points: np.ndarray, correction_mm: np.ndarray,
+                        limit: int = VIEW_3D_POINTS) -> str:
+    """An interactive plotly scatter3d of the raw and corrected points (grid (H, W, 3) [m]), both coloured by
+    the applied correction [mm], as a ``<div>`` and its script (plotly.js itself not included: the page loads
+    :data:`PLOTLY_JS`). At most ``limit`` points per cloud, evenly spread over the finite ones."""
+    import plotly.graph_objects as go
+
+    keep = np.flatnonzero(np.isfinite(raw_points.reshape(-1, 3)).all(axis=1)
+                          & np.isfinite(corrected_points.reshape(-1, 3)).all(axis=1))
+    if keep.size > limit:
+        keep = keep[np.linspace(0, keep.size - 1, limit).round().astype(np.int64)]
+    colour = np.nan_to_num(np.asarray(correction_mm, dtype=np.float32).reshape(-1)[keep], nan=0.0)
+    span = max(float(np.quantile(np.abs(colour), 0.99)), 1e-3) if colour.size else 1.0
+    fig = go.Figure()
+    for name, points, size, opacity in (("raw", raw_points, 1.5, 0.45), ("corrected", corrected_points, 2.0, 1.0)):
+        xyz = points.reshape(-1, 3)[keep].astype(np.float32)
+        # plotly's z is up: x right, our z (forward) into plotly's y, our y (up) into plotly's z
+        fig.add_trace(go.Scatter3d(x=xyz[:, 0], y=xyz[:, 2], z=xyz[:, 1], mode="markers", name=f"{name} points",
+                                   marker={"size": size, "opacity": opacity, "color": colour,
+                                           "coloraxis": "coloraxis"}))
+    fig.update_layout(
+        title=f"raw and corrected points ({keep.size:,} of each), coloured by the applied correction",
+        coloraxis={"colorscale": "RdBu_r", "cmin": -span, "cmax": span,
+                   "colorbar": {"title": {"text": "correction [mm]"}}},
+        scene={"xaxis_title": "x [m]", "yaxis_title": "z (forward) [m]", "zaxis_title": "y (up) [m]",
+               "aspectmode": "data"},
+        legend={"x": 0.0, "y": 1.0}, margin={"l": 0, "r": 0, "t": 40, "b": 0}, autosize=True)
+    return fig.to_html(include_plotlyjs=False, full_html=False, default_width="100%", default_height="600px",
+                       config={"responsive": True, "displaylogo": False})
+
+
+def write_plotly_js(directory: Path) -> Path:
+    """plotly.js of the installed plotly package into ``directory`` (reports are read offline: no CDN)."""
+    from importlib import resources
+
+    source = resources.files("plotly") / "package_data" / PLOTLY_JS
+    if source.is_file():
+        data = source.read_bytes()
+    else:  # pragma: no cover - a plotly that keeps its bundle elsewhere
+        from plotly.offline import get_plotlyjs
+
+        data = get_plotlyjs().encode("utf-8")
+    target = directory / PLOTLY_JS
+    target.write_bytes(data)
+    return target
+
+
+def thumbnail_image(correction: Correction, limit: int = THUMBNAIL_PX) -> tuple[np.ndarray, tuple[float, float]]:
+    """RGB image (h, w, 3) uint8, at most ``limit`` pixels on its longest side: the corrected depth (left,
+    viridis between its 1 and 99 % quantiles, invalid pixels white) and the flags (right, :data:`FLAG_COLOURS`),
+    every ``step``-th pixel of each. Returns the image and the depth range of the colours [m]."""
+    h, w = correction.flags.shape
+    panel = max(1, (limit - THUMBNAIL_GAP_PX) // 2)
+    step = max(1, -(-h // limit), -(-w // panel))
+    depth, flags = correction.depth[::step, ::step], correction.flags[::step, ::step]
+    finite = depth[np.isfinite(depth)]
+    low, high = (float(v) for v in np.quantile(finite, [0.01, 0.99])) if finite.size else (0.0, 1.0)
+    scaled = np.clip((np.nan_to_num(depth, nan=low) - low) / max(high - low, 1e-9), 0.0, 1.0)
+    left = matplotlib.colormaps["viridis"](scaled, bytes=True)[..., :3]
+    left[~np.isfinite(depth)] = 255
+    palette = np.array([[int(c[i:i + 2], 16) for i in (1, 3, 5)] for c in FLAG_COLOURS], dtype=np.uint8)
+    right = palette[np.minimum(flags, len(FLAG_COLOURS) - 1)]
+    ph, pw = flags.shape
+    image = np.full((ph, 2 * pw + THUMBNAIL_GAP_PX, 3), 255, dtype=np.uint8)
+    image[:, :pw], image[:, pw + THUMBNAIL_GAP_PX:] = left, right
+    return image, (low, high)
+
+
+def thumbnail_legend(depth_limits: tuple[float, float]) -> str:
+    flags = ", ".join(f"{flag.name.lower().replace('_', ' ')} {colour}" for flag, colour in zip(Flag, FLAG_COLOURS,
+                                                                                                  strict=True))
+    return (f"Thumbnail: corrected depth (left; viridis from {depth_limits[0]:.3f} to {depth_limits[1]:.3f} m, "
+            f"invalid pixels white) and what was done per pixel (right; {flags}).")
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """An RGB image (h, w, 3) uint8 as a PNG, without drawing a figure."""
+    matplotlib.image.imsave(path, image, format="png")

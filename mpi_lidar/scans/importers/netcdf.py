@@ -1,0 +1,138 @@
+"""NetCDF (3 or 4) and HDF5 files, read through xarray."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mpi_lidar.scans.importers.base import (
+    SCAN_VARIABLES,
+    ScanImporter,
+    check_variables,
+    import_arrays,
+    stored_frequencies,
+)
+from mpi_lidar.scans.scan import Scan, ScanError
+from mpi_lidar.scans.store import check_memory_budget
+
+if TYPE_CHECKING:
+    import xarray as xr
+
+# Units a NetCDF/HDF5 variable may declare (its ``units`` attribute), as factors to the store's unit; a
+# variable without ``units`` is taken to be in the store's unit already.
+_METRES = {"m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "cm": 1e-2, "mm": 1e-3, "km": 1e3}
+_RADIANS = {"rad": 1.0, "radian": 1.0, "radians": 1.0, "deg": np.pi / 180, "degree": np.pi / 180,
+            "degrees": np.pi / 180}
+_HERTZ = {"hz": 1.0, "khz": 1e3, "mhz": 1e6, "ghz": 1e9}
+UNITS = {"depth": ("m", _METRES), "reference_depth": ("m", _METRES), "azimuth_rad": ("rad", _RADIANS),
+         "elevation_rad": ("rad", _RADIANS), "frequencies_hz": ("Hz", _HERTZ)}
+_HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+_NETCDF3_MAGIC = b"CDF"
+
+
+class NetcdfImporter(ScanImporter):
+    """NetCDF and HDF5 files (:func:`load_netcdf`)."""
+
+    suffixes: ClassVar[tuple[str, ...]] = (".nc", ".h5", ".hdf5")
+
+    def load(self, path: Path, frequencies_hz: tuple[float, ...] | None = None,
+             variables: Mapping[str, str] | None = None) -> Scan:
+        return load_netcdf(path, frequencies_hz, variables)
+
+
+def load_netcdf(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
+                variables: Mapping[str, str] | None = None) -> Scan:
+    """Import a NetCDF (3 or 4) or HDF5 file through xarray: its variables named as in the scan store, or
+    mapped by ``variables`` (``{"depth": "range_m", "amplitude": "intensity"}``); other variables are ignored.
+
+    The frequencies come from ``frequencies_hz``, else the variable ``frequencies_hz`` (or ``frequency_hz``),
+    else the global attribute ``frequencies_hz``. CF decoding applies (``_FillValue`` becomes NaN,
+    ``scale_factor``), and a ``units`` attribute is converted (mm, cm or km to m, degrees to rad, kHz, MHz
+    or GHz to Hz; other units are refused). Each variable's dtype and declared size are checked against the
+    memory budget before anything is read.
+    """
+    import xarray as xr
+
+    path = Path(path)
+    variables = check_variables(variables)
+    hdf5 = _is_hdf5(path)
+    try:
+        if hdf5:  # plain HDF5 datasets have no dimension names
+            ds = xr.open_dataset(path, engine="h5netcdf", decode_times=False, decode_timedelta=False, cache=False,
+                                 phony_dims="access")
+        else:
+            ds = xr.open_dataset(path, engine="scipy", decode_times=False, decode_timedelta=False, cache=False)
+    except Exception as exc:  # h5netcdf, h5py and scipy raise many types for foreign or damaged files
+        raise ScanError(f"{path} is not a readable NetCDF/HDF5 file ({_reason(exc)})") from None
+    with ds:
+        missing = sorted(f"{name}={v}" for name, v in variables.items() if v not in ds.variables)
+        if missing:
+            raise ScanError(f"{path} has no variable for --var {', '.join(missing)}; it holds "
+                            f"{sorted(map(str, ds.variables))}")
+        chosen = {name: variables.get(name, name) for name in SCAN_VARIABLES
+                  if variables.get(name, name) in ds.variables}
+        if "frequencies_hz" not in chosen and "frequency_hz" in ds.variables:
+            chosen["frequencies_hz"] = "frequency_hz"
+        _check_variable_sizes(path, ds, chosen)
+        try:
+            arrays = {name: _in_store_units(path, name, ds[v].attrs.get("units"), ds[v].values)
+                      for name, v in chosen.items()}
+        except ScanError:
+            raise
+        except Exception as exc:  # a damaged chunk or a failing filter while reading
+            raise ScanError(f"{path} cannot be read ({_reason(exc)})") from None
+        stored = arrays.pop("frequencies_hz", None)
+        if stored is None and "frequencies_hz" in ds.attrs:
+            stored = np.atleast_1d(np.asarray(ds.attrs["frequencies_hz"]))
+    if frequencies_hz is not None:
+        freqs: tuple[float, ...] | NDArray = frequencies_hz
+    elif stored is not None:
+        freqs = stored_frequencies(path, stored)
+    else:
+        raise ScanError(f"{path} holds no frequencies_hz variable or attribute; pass --frequencies")
+    return import_arrays(path.stem, tuple(float(f) for f in freqs), arrays, source=str(path))
+
+
+def _reason(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+def _is_hdf5(path: Path) -> bool:
+    """Whether the file is NetCDF-4/HDF5 (read with h5netcdf) rather than NetCDF-3 (scipy), from its first bytes."""
+    try:
+        with path.open("rb") as stream:
+            magic = stream.read(len(_HDF5_MAGIC))
+    except OSError as exc:
+        raise ScanError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if magic == _HDF5_MAGIC:
+        return True
+    if magic.startswith(_NETCDF3_MAGIC):
+        return False
+    raise ScanError(f"{path} is neither NetCDF nor HDF5 (it does not start with their signature)")
+
+
+def _check_variable_sizes(path: Path, ds: xr.Dataset, chosen: Mapping[str, str]) -> None:
+    """Numbers and booleans only, within the memory budget of a scan, before any variable is read."""
+    for name, variable in chosen.items():
+        if ds[variable].dtype.kind not in "biuf":
+            raise ScanError(f"{path}: variable {variable!r} ({name}) has dtype {ds[variable].dtype}; only numbers "
+                            "and booleans can be imported")
+    check_memory_budget(path, [(f"variable {v!r}", ds[v].shape, ds[v].dtype) for v in chosen.values()])
+
+
+def _in_store_units(path: Path, name: str, units: object, values: NDArray) -> NDArray:
+    """``values`` converted from their declared ``units`` to the unit of the scan store (see :data:`UNITS`)."""
+    if name not in UNITS or units is None:
+        return values
+    unit, factors = UNITS[name]
+    factor = factors.get(str(units).strip().lower())
+    if factor is None:
+        raise ScanError(f"{path}: {name} has units {units!r}; give it in {unit} or one of "
+                        f"{', '.join(sorted(factors))}")
+    return values if factor == 1.0 else values * factor
+

@@ -1,0 +1,190 @@
+"""Every array of the project's stores, declared once: its dimensions, dtype, units and meaning.
+
+One :class:`Variable` per array and store (after sgkit's ``variables.py`` and its ``ArrayLikeSpec``). The
+declarations drive what the stores write and check:
+
+- the scan store (``*.scan.zarr``, :mod:`mpi_lidar.scans.store`): dimension names and the ``units`` and
+  ``long_name`` attributes of every array, and the checks of a scan's shapes and dtypes
+  (:func:`mpi_lidar.scans.scan.validate`);
+- the corrected store (``corrected.zarr``): the same attributes, through
+  :func:`mpi_lidar.scans.store.write_described_arrays`;
+- the dataset store (``*.zarr`` of ``mpi-lidar simulate``): its arrays' dimensions, dtypes and attributes;
+- the reference page ``docs/reference/stores.md`` (:func:`reference_markdown`).
+
+``kind`` is what a reader accepts (a numpy dtype kind: ``f`` floating point, ``b`` boolean, ``i`` signed and
+``u`` unsigned integer), ``dtype`` what the project writes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import DTypeLike
+
+
+class Store(StrEnum):
+    """The stores the project writes."""
+
+    SCAN = "scan"
+    CORRECTED = "corrected"
+    DATASET = "dataset"
+
+
+# Dimensions of the same size in every store: the four taps of a measurement, a ray's three coordinates.
+FIXED_SIZES = {"tap": 4, "xyz": 3}
+# How a dtype kind reads in an error line and on the reference page.
+KIND_NAMES = {"f": "floating point", "b": "boolean", "i": "integer", "u": "unsigned integer"}
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One array of one store.
+
+    Attributes
+    ----------
+    name : The array's name in the store.
+    store : The store that holds it.
+    dims : Dimension names (written as the array's ``dimension_names``).
+    kind : The dtype kind a reader accepts (see :data:`KIND_NAMES`).
+    dtype : The dtype the project writes (``"as given"`` where it keeps the importer's floating dtype).
+    units : UDUNITS units (written as ``units``; ``1`` for none).
+    long_name : What it is, in a few words (written as ``long_name``).
+    required : Whether every store of its kind holds it.
+    coordinate : Whether it labels a dimension for xarray (no reader takes data from it).
+    note : More on its meaning, for the reference page.
+    """
+
+    name: str
+    store: Store
+    dims: tuple[str, ...]
+    kind: str
+    dtype: str
+    units: str
+    long_name: str
+    required: bool = False
+    coordinate: bool = False
+    note: str = ""
+
+    def accepts(self, dtype: DTypeLike) -> bool:
+        """Whether a reader takes an array of ``dtype`` for this variable."""
+        return np.dtype(dtype).kind == self.kind
+
+    def dtype_problem(self, dtype: DTypeLike) -> str | None:
+        """The one-line problem of an array of ``dtype`` for this variable, or None if it is accepted."""
+        if self.accepts(dtype):
+            return None
+        return f"{self.name} must be {KIND_NAMES[self.kind]}, got {np.dtype(dtype)}"
+
+    def shape(self, sizes: Mapping[str, int]) -> tuple[int, ...]:
+        """The shape the variable has in a store whose dimensions have ``sizes``."""
+        return tuple(sizes[dim] for dim in self.dims)
+
+
+_SCAN_NOTE = "Stores with taps only are read by demodulating them (depth and amplitude are then computed)."
+
+VARIABLES: tuple[Variable, ...] = (
+    # --- the scan store ---
+    Variable("depth", Store.SCAN, ("frequency", "y", "x"), "f", "float32", "m", "measured range along the ray",
+             required=True, note="NaN where nothing was measured. " + _SCAN_NOTE),
+    Variable("amplitude", Store.SCAN, ("frequency", "y", "x"), "f", "float32", "V^2", "measured amplitude",
+             required=True, note="Not negative. " + _SCAN_NOTE),
+    Variable("azimuth_rad", Store.SCAN, ("x",), "f", "as given", "rad", "azimuth of the pixel column",
+             note="With elevation_rad, the scan grid; a coordinate of x."),
+    Variable("elevation_rad", Store.SCAN, ("y",), "f", "as given", "rad", "elevation of the pixel row",
+             note="With azimuth_rad, the scan grid; a coordinate of y."),
+    Variable("ray_directions", Store.SCAN, ("y", "x", "xyz"), "f", "as given", "1",
+             "unit ray direction (x right, y up, z forward)", note="Instead of a scan grid."),
+    Variable("reference_depth", Store.SCAN, ("y", "x"), "f", "as given", "m", "reference range along the ray",
+             note="For evaluation only."),
+    Variable("reference_mask", Store.SCAN, ("y", "x"), "b", "bool", "1",
+             "reference region mask (1 where the reference holds)", note="For evaluation only."),
+    Variable("taps", Store.SCAN, ("frequency", "tap", "y", "x"), "f", "float32", "V^2", "demodulation taps",
+             note="The raw four-tap measurements the maps are demodulated from."),
+    Variable("frequency_hz", Store.SCAN, ("frequency",), "f", "float64", "Hz", "modulation frequency",
+             coordinate=True, note="Equal to the root attribute frequencies_hz, which readers use."),
+    Variable("y", Store.SCAN, ("y",), "i", "int64", "1", "pixel row", coordinate=True,
+             note="Written where the scan has no elevation_rad."),
+    Variable("x", Store.SCAN, ("x",), "i", "int64", "1", "pixel column", coordinate=True,
+             note="Written where the scan has no azimuth_rad."),
+    # --- the corrected store ---
+    Variable("corrected_depth", Store.CORRECTED, ("y", "x"), "f", "float32", "m", "corrected range along the ray",
+             required=True, note="NaN where the pixel is invalid."),
+    Variable("flags", Store.CORRECTED, ("y", "x"), "u", "uint8", "1", "what was done to the pixel",
+             required=True, note="CF flag_values and flag_meanings name the codes (corrected, left as measured...)."),
+    Variable("multipath_bias_m", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
+             "expected multipath bias (geometry gate)", note="Written by the geometry gate only."),
+    Variable("azimuth_rad", Store.CORRECTED, ("x",), "f", "as given", "rad", "azimuth of the pixel column",
+             coordinate=True, note="The scan's, where it has a scan grid."),
+    Variable("elevation_rad", Store.CORRECTED, ("y",), "f", "as given", "rad", "elevation of the pixel row",
+             coordinate=True, note="The scan's, where it has a scan grid."),
+    Variable("y", Store.CORRECTED, ("y",), "i", "int64", "1", "pixel row", coordinate=True,
+             note="Written where the scan has no elevation_rad."),
+    Variable("x", Store.CORRECTED, ("x",), "i", "int64", "1", "pixel column", coordinate=True,
+             note="Written where the scan has no azimuth_rad."),
+    # --- the dataset store ---
+    Variable("features", Store.DATASET, ("sample", "feature"), "f", "float32",
+             "m (depth columns), V^2 (amplitude columns)", "measured depth then amplitude per modulation frequency",
+             required=True, note="Its columns are named in the attribute columns."),
+    Variable("target", Store.DATASET, ("sample",), "f", "float64", "m", "true distance d_AS to the surface",
+             required=True),
+    Variable("theta", Store.DATASET, ("sample", "parameter"), "f", "float64", "m (d_as_m, d_ab_m), 1 (reflectances)",
+             "scene parameters", required=True, note="Its columns are named in the attribute columns."),
+    Variable("split", Store.DATASET, ("sample",), "u", "uint8", "1", "train (0) or test (1) row", required=True),
+    Variable("chunk_done", Store.DATASET, ("chunk",), "u", "uint8", "1", "chunk completion mark", required=True,
+             note="1 once the chunk's rows and fingerprints are written."),
+    Variable("chunk_sha256", Store.DATASET, ("chunk", "array", "byte"), "u", "uint8", "1",
+             "SHA-256 of each data array's rows of the chunk", note="Absent in stores written before fingerprints."),
+)
+
+
+def variables(store: Store) -> dict[str, Variable]:
+    """The variables of one store by name, in declaration order."""
+    return {v.name: v for v in VARIABLES if v.store == store}
+
+
+def attributes(store: Store) -> dict[str, tuple[str, str]]:
+    """``(units, long_name)`` of every variable of a store, as its writer describes the arrays."""
+    return {v.name: (v.units, v.long_name) for v in VARIABLES if v.store == store}
+
+
+SCAN = variables(Store.SCAN)
+CORRECTED = variables(Store.CORRECTED)
+DATASET = variables(Store.DATASET)
+
+_TITLES = {
+    Store.SCAN: "Scan store (`*.scan.zarr`, schema `mpi-lidar/scan@1`)",
+    Store.CORRECTED: "Corrected store (`corrected.zarr`, one per corrected scan)",
+    Store.DATASET: "Dataset store (`mpi-lidar simulate --out`, schema `mpi-lidar/dataset@1`)",
+}
+REGENERATE = ".venv/bin/python -c 'from mpi_lidar.storage import variables as v; v.write_reference()'"
+REFERENCE_PAGE = "docs/reference/stores.md"
+
+
+def reference_markdown() -> str:
+    """The reference page of the stores' arrays (``docs/reference/stores.md``), from :data:`VARIABLES`."""
+    lines = ["# Store arrays", "",
+             f"Generated from `mpi_lidar/storage/variables.py`; regenerate with `{REGENERATE}`.", "",
+             "Every store is Zarr v3 with consolidated metadata; every array carries `units` and `long_name`",
+             "and its dimension names, so `xarray.open_zarr` opens it. Kind is what a reader accepts:",
+             ", ".join(f"`{kind}` {name}" for kind, name in KIND_NAMES.items()) + "."]
+    for store in Store:
+        lines += ["", f"## {_TITLES[store]}", "",
+                  "| array | dimensions | kind | dtype | units | required | meaning |",
+                  "|---|---|---|---|---|---|---|"]
+        for v in variables(store).values():
+            role = "coordinate" if v.coordinate else "yes" if v.required else "no"
+            meaning = v.long_name + (f". {v.note}" if v.note else "")
+            lines.append(f"| `{v.name}` | ({', '.join(v.dims)}) | `{v.kind}` | {v.dtype} | {v.units} | {role} "
+                         f"| {meaning} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_reference(root: str = ".") -> None:
+    """Write :func:`reference_markdown` to ``docs/reference/stores.md`` under ``root``."""
+    page = Path(root) / REFERENCE_PAGE
+    page.parent.mkdir(parents=True, exist_ok=True)
+    page.write_text(reference_markdown())

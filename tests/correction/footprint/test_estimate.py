@@ -1,0 +1,445 @@
+"""The footprint estimate (mpi_lidar.correction.footprint): against the renderer's true footprint, and what
+correction and calibration do with it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import zarr
+
+from mpi_lidar.config import Config
+from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction.footprint import (
+    EstimateMethod,
+    FootprintEstimate,
+    _fit,
+    block_albedo,
+    estimate_footprint,
+    pool_estimates,
+    surface_labels,
+)
+from mpi_lidar.correction.footprint._albedo import light_free_albedo, surface_albedo
+from mpi_lidar.correction.footprint._coupling import PlaneCoupling
+from mpi_lidar.correction.footprint._estimate import evenly_chosen
+from mpi_lidar.correction.footprint._fit import FootprintFit
+from mpi_lidar.correction.profile import SensorProfile, read_profile, write_profile
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.scans.geometry import facing_blocks
+from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render, room_corner
+from mpi_lidar.workflows.calibrate import calibrate_scans, scan_footprint
+from tests.cli_runner import assert_one_error_line, call_main
+from tests.model_factory import tiny_model
+
+
+@pytest.fixture(scope="module")
+def tiny_geometric_model_dir(tmp_path_factory):
+    return tiny_model(tmp_path_factory.mktemp("calibration") / "model", geometric=True)
+
+
+@pytest.fixture(scope="module")
+def tiny_geometric_model(tiny_geometric_model_dir):
+    return load_model(tiny_geometric_model_dir)
+
+
+def rendered(scene, footprint_m2: float, seed: int = 1, noise: float = 1.0):
+    """A render whose true receiver footprint is ``footprint_m2`` (A_fp = gain pi r^2)."""
+    config = Config().replace(simulator={"noise_scale": noise})
+    gain = footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
+    return render(scene, config, np.random.default_rng(seed), coupling_gain=gain)
+
+
+def estimate(scan, reference: bool = False) -> FootprintEstimate:
+    valid = np.isfinite(scan.depth[-1]).ravel()
+    blocks = facing_blocks(np.where(valid.reshape(scan.shape), scan.depth[-1], np.nan), scan.rays())
+    return estimate_footprint(scan, blocks, valid, Config().sensor, reference=reference)
+
+
+@pytest.mark.parametrize("true_m2", [0.004, 0.041])
+def test_estimate__against_a_reference_depth_finds_the_renders_footprint(true_m2):
+    # The renderer's own footprint is the independent truth; against the exact reference depth only the
+    # scan's geometry (3 cm planes, the field of view) separates the model from the render.
+    found = estimate(rendered(corner(90.0, 2.0, 0.8), true_m2), reference=True)
+    assert found.significant and found.method == "reference"
+    assert found.area_m2 == pytest.approx(true_m2, rel=0.25)
+
+
+def test_estimate__from_the_scans_own_surfaces_at_a_small_footprint():
+    found = estimate(rendered(corner(90.0, 2.0, 0.8), 0.002))
+    assert found.significant and found.surfaces >= 2 and found.pixels > 5000
+    assert 1 / 1.5 <= found.area_m2 / 0.002 <= 1.5
+
+
+def test_estimate__three_surfaces_of_a_room_corner_measure_the_footprint():
+    # Two walls and the floor face each other along three edges: every one is a partner of the other two.
+    found = estimate(rendered(room_corner(), 0.041))
+    assert found.significant and found.surfaces >= 3
+    assert 1 / 1.5 <= found.area_m2 / 0.041 <= 1.5
+
+
+def test_estimate__a_flat_wall_measures_nothing_usable():
+    found = estimate(rendered(flat_wall(0.0), 0.041))
+    assert not found.significant
+
+
+def strip_corner_problem(depth: np.ndarray | None, true_m2: float, noise_m: float) -> FootprintFit:
+    """The fit of a 90-degree corner 2 m away seen as two strips 10 cm high and 2-30 cm from the edge, each
+    pixel's coupling kappa = 0.13 / (pi^2 a^2) at the distance a from the edge; ``depth`` None: noiseless
+    at ``true_m2``."""
+    freqs = np.array(Config().frequencies_hz)
+    metres_per_rad = Config().sensor.speed_of_light_m_per_s / (4 * np.pi * freqs)
+    along_edge, up = np.meshgrid(np.linspace(0.02, 0.3, 40), np.linspace(-0.05, 0.05, 5), indexing="ij")
+    a = np.tile(along_edge.ravel(), 2)
+    side = np.repeat([-1.0, 1.0], along_edge.size)
+    points = np.column_stack([side * a * np.sqrt(0.5), np.tile(up.ravel(), 2), 2.0 - a * np.sqrt(0.5)])
+    true_range = np.linalg.norm(points, axis=1)
+    kappa = 0.13 / (np.pi**2 * a**2)
+    phasor = 0.5 * kappa[:, None] * np.exp(1j * a[:, None] * np.sqrt(2) / metres_per_rad[None])
+    sigma = np.full((a.size, freqs.size), noise_m)
+    arguments = (sigma, phasor, kappa, metres_per_rad, np.ones_like(sigma), points / true_range[:, None], side, None)
+    if depth is None:
+        depth = true_range[:, None] + FootprintFit(np.zeros_like(sigma), *arguments).bias(true_m2)[0]
+    return FootprintFit(depth, *arguments)
+
+
+def test_estimate__statistical_sigma_matches_the_scatter_over_noise_draws(monkeypatch):
+    # Each strip's plane rests on its far pixels (the anchors) and reaches the edge by extrapolation, so the
+    # anchors' noise moves the estimate more than the fit rows' own noise: sigma must hold both (Monte Carlo).
+    monkeypatch.setattr(_fit, "DEPTH_SYSTEMATIC_SHARE", 0.0)
+    rng = np.random.default_rng(0)
+    clean = strip_corner_problem(None, 0.02, 0.002).depth
+    found = [strip_corner_problem(clean + rng.normal(0.0, 0.002, clean.shape), 0.02, 0.002)
+             .solve(EstimateMethod.PLANES, with_amplitude=False, start_m2=0.02) for _ in range(300)]
+    estimates = np.array([f.area_m2 for f in found])
+    assert np.median([f.sigma_m2 for f in found]) == pytest.approx(estimates.std(), rel=0.2)
+    assert estimates.mean() == pytest.approx(0.02, rel=0.1)
+
+
+def test_estimate__a_surface_whose_anchors_lie_along_a_line_is_left_out():
+    # One row of pixels fixes no plane: it could turn about the row and put any bias on the surface's other
+    # pixels (on a rendered 60-degree corner such a strip made sigma 2 m^2). The row's 60 anchors are 40 % of
+    # its 150 pixels, so the corner keeps its own anchors.
+    clean = strip_corner_problem(None, 0.02, 0.002)
+    alone = strip_corner_problem(clean.depth + np.random.default_rng(1).normal(0.0, 0.002, clean.depth.shape),
+                                 0.02, 0.002)
+    row = np.column_stack([np.linspace(-0.3, 0.3, 150), np.full(150, 0.12), np.full(150, 2.2)])
+    row_kappa = np.where(np.arange(150) < 60, 1e-4, 5.0)
+    row_phasor = 0.5 * row_kappa[:, None] * np.exp(0.1j * np.arange(1, 5))[None]
+    both = FootprintFit(
+        np.concatenate([alone.depth, np.linalg.norm(row, axis=1)[:, None] + np.zeros((1, 4))]),
+        np.concatenate([alone.sigma, np.full((150, 4), 0.002)]), np.concatenate([alone.phasor, row_phasor]),
+        np.concatenate([alone.coupling, row_kappa]), alone.metres_per_rad, np.ones((alone.depth.shape[0] + 150, 4)),
+        np.concatenate([alone.rays, row / np.linalg.norm(row, axis=1, keepdims=True)]),
+        np.concatenate([alone.surface, np.full(150, 2)]), None)
+    expected, found = (p.solve(EstimateMethod.PLANES, with_amplitude=False, start_m2=0.02) for p in (alone, both))
+    assert found.surfaces == 2
+    assert found.area_m2 == pytest.approx(expected.area_m2, rel=1e-6)
+    assert found.sigma_m2 == pytest.approx(expected.sigma_m2, rel=1e-6)
+
+
+def lit_strip_corner(true_m2: float, light_m2: float, noise_m: float, seed: int) -> FootprintFit:
+    """:func:`strip_corner_problem` with noisy depth at ``true_m2`` and a Lambertian amplitude (albedo 0.6)
+    that holds the multipath gain of ``light_m2``, with the noise the depth's implies (sigma_log =
+    sigma_depth / metres per radian)."""
+    rng = np.random.default_rng(seed)
+    clean = strip_corner_problem(None, true_m2, noise_m)
+    ranges = 1.0 / np.einsum("ni,ni->n", clean.rays, np.where(clean.surface[:, None] == 0, [-0.5, 0, 0.5],
+                                                                 [0.5, 0, 0.5]))
+    direct = 0.6 / (np.sqrt(0.5) * ranges**3)  # rho cos_i / t^2, cos_i = 1 / (t |u|) with |u| = sqrt(1/2)
+    gain = clean.bias(light_m2)[2]
+    amplitude = direct[:, None] * gain * np.exp(rng.normal(0.0, 1.0, gain.shape) * clean.sigma_log)
+    return FootprintFit(clean.depth + rng.normal(0.0, noise_m, clean.depth.shape), clean.sigma,
+                                clean.phasor, clean.coupling, clean.metres_per_rad, amplitude, clean.rays,
+                                np.where(clean.surface == 0, -1.0, 1.0), None)
+
+
+def test_estimate__the_amplitude_joins_the_depth_by_their_relative_uncertainties():
+    # Depth and light both hold 0.02 m^2 and Gaussian noise: the joined estimate lies between the two and is
+    # surer than the depth's alone.
+    problem = lit_strip_corner(0.02, 0.02, 0.002, seed=3)
+    depth = problem.solve(EstimateMethod.PLANES, with_amplitude=False, start_m2=0.02)
+    joined = problem.solve(EstimateMethod.PLANES, start_m2=0.02)
+    light = problem.with_fixed_planes._fit_amplitude(EstimateMethod.PLANES, start_m2=0.02)
+    assert light.area_m2 == pytest.approx(0.02, rel=0.05) and joined.area_m2 == pytest.approx(0.02, rel=0.1)
+    low, high = sorted([depth.area_m2, light.area_m2])
+    assert low < joined.area_m2 < high
+    assert joined.sigma_m2 / joined.area_m2 < depth.sigma_m2 / depth.area_m2
+    assert joined.significant
+
+
+def test_estimate__an_amplitude_that_shows_no_multipath_makes_the_depths_estimate_not_significant():
+    # The depth says 0.02 m^2, the light says a tenth of it: the model does not describe this scan.
+    problem = lit_strip_corner(0.02, 0.002, 0.001, seed=3)
+    depth = problem.solve(EstimateMethod.PLANES, with_amplitude=False, start_m2=0.02)
+    found = problem.solve(EstimateMethod.PLANES, start_m2=0.02)
+    assert depth.significant and not found.significant
+    assert found.area_m2 == depth.area_m2 and found.sigma_m2 >= found.area_m2
+
+
+def test_estimate__strong_multipath_on_a_near_corner_is_read_within_1_5x():
+    # At 0.1 m^2 the multipath bends the boards far from the edge, and the planes the depth is measured
+    # against take up part of the bias: the depth alone reads about half the truth here. The amplitude's
+    # gain, measured against each board's own albedo, does not.
+    found = estimate(rendered(corner(90.0, 1.4, 0.9), 0.1, seed=0))
+    assert found.significant
+    assert 1 / 1.5 <= found.area_m2 / 0.1 <= 1.5
+
+
+def board_albedos(scene, true_m2: float) -> tuple[list[float], list[float], list[float]]:
+    """Per board of a rendered corner: its light-free albedo at the true footprint, and the albedo of its
+    measured amplitude over its far blocks chosen by the model's coupling and by the visible block pairs'."""
+    scan = rendered(scene, true_m2, seed=0)
+    depth = scan.depth[-1]
+    blocks = facing_blocks(np.where(np.isfinite(depth), depth, np.nan), scan.rays())
+    surfaces = surface_labels(blocks)
+    components = surfaces.components
+    plane = PlaneCoupling(scan, blocks, surfaces, Config().sensor)
+    measured = block_albedo(scan, blocks, Config().sensor)
+    pair_kappa = np.bincount(blocks.index[blocks.pairs.a], blocks.pairs.kappa(1.0), minlength=blocks.usable.size)
+    found = (light_free_albedo(plane, measured, components, true_m2),
+             surface_albedo(measured, components, plane.coupling_at_blocks),
+             surface_albedo(measured, components, pair_kappa))
+    boards = [np.flatnonzero(components == c)[0] for c in np.unique(components[components >= 0])
+              if (components == c).sum() > 20]
+    return tuple([float(albedo[b]) for b in boards] for albedo in found)
+
+
+def test_light_free_albedo__strong_multipath_is_taken_off_the_boards_amplitude():
+    # At 0.1 m^2 the partners add a tenth to the light of a near corner's boards even far from the edge; an
+    # albedo that keeps it overstates the partners' product and reads the footprint low.
+    light_free, measured, _ = board_albedos(corner(90.0, 1.4, 0.9), 0.1)
+    assert len(light_free) == 2
+    for free, raw in zip(light_free, measured, strict=True):
+        assert raw > 1.07 * 0.9
+        assert abs(free - 0.9) < 0.6 * (raw - 0.9)
+
+
+def test_light_free_albedo__far_blocks_are_those_the_model_couples_least():
+    # Along a horizontal edge the row of blocks next to it has no facing block pairs (too close), yet the most
+    # coupling and bent normals: taken as far blocks they read one board 5 % dark and, less the gain the
+    # model gives them, 16 % dark at a footprint that adds almost no light.
+    light_free, measured, by_pairs = board_albedos(
+        corner(100.0, 1.45, 0.65, board_m=0.45, half_height_m=0.5, roll_deg=90), 0.004)
+    assert len(light_free) == 2
+    assert min(by_pairs) < 0.95 * 0.65
+    assert all(abs(albedo / 0.65 - 1) < 0.03 for albedo in light_free + measured)
+
+
+@pytest.mark.parametrize(("shape", "share", "count"), [((50, 70), 0.3, 100), ((3, 5), 0.5, 2), ((400, 300), 0.01, 1000),
+                                                  ((40, 30), 0.9, 10_000), ((10, 10), 0.0, 5), ((100, 100), 1.0, 37)])
+def test_fit_pixels__row_by_row_stride_picks_what_the_flat_stride_picks(shape, share, count):
+    mask = np.random.default_rng(1).random(shape) < share
+    every = np.flatnonzero(mask)
+    expected = every[np.linspace(0, every.size - 1, count).astype(np.intp)] if every.size > count else every
+    np.testing.assert_array_equal(evenly_chosen(mask, count), expected)
+
+
+def test_pool__is_the_inverse_variance_mean():
+    a, b = FootprintEstimate(0.01, 0.001, 100, 2), FootprintEstimate(0.02, 0.002, 300, 2)
+    pooled = pool_estimates([a, b, FootprintEstimate(float("nan"), float("inf"), 0, 0)])
+    weights = np.array([1e6, 0.25e6])
+    assert pooled.area_m2 == pytest.approx((weights * [0.01, 0.02]).sum() / weights.sum())
+    assert pooled.sigma_m2 == pytest.approx(weights.sum() ** -0.5)
+    assert pooled.scans == 3 and pooled.pixels == 400
+
+
+def test_correct__auto_on_a_flat_wall_keeps_every_raw_depth(tiny_geometric_model):
+    scan = rendered(flat_wall(20.0), 0.041)
+    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto"))
+    valid = correction.flags != Flag.NOT_FINITE
+    assert np.array_equal(correction.depth[valid], scan.depth[-1][valid])
+    assert correction.counts()["corrected"] == 0
+
+
+def test_correct__an_estimate_that_is_not_significant_leaves_its_pixels_as_measured(tiny_geometric_model):
+    # A dark corner (albedo 0.1) at high noise: the multipath is too weak to measure the footprint on.
+    scan = rendered(corner(90.0, 2.0, 0.1), 0.041, noise=3.0)
+    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto",
+                                                                           min_multipath_bias_m=1e-4))
+    assert correction.calibration is not None and not correction.calibration.significant
+    assert correction.counts()["corrected"] == 0 and correction.counts()["uncalibrated"] > 0
+    left = np.isin(correction.flags, [Flag.UNCALIBRATED, Flag.NO_MULTIPATH])
+    assert np.array_equal(correction.depth[left], scan.depth[-1][left])
+    assert any("not significant" in note and "uncalibrated" in note for note in correction.notes)
+
+
+def test_correct__a_significant_estimate_is_used_and_reported(tiny_geometric_model):
+    scan = rendered(corner(90.0, 2.0, 0.8), 0.02)
+    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto"))
+    assert correction.calibration.significant and correction.counts()["corrected"] > 0
+    given = correct_scan(scan, tiny_geometric_model,
+                         CorrectionOptions(footprint_area_m2=correction.calibration.area_m2))
+    assert np.array_equal(given.depth, correction.depth, equal_nan=True)  # auto is the number it found
+
+
+def test_options__footprint_accepts_auto_or_a_positive_number():
+    assert CorrectionOptions.from_cli(footprint_area_m2="AUTO").self_calibrating
+    assert CorrectionOptions.from_cli(footprint_area_m2="0.02").footprint_area_m2 == 0.02
+    assert CorrectionOptions().self_calibrating
+    for bad in ("wide", "-1", "0"):
+        with pytest.raises(MpiLidarError, match="footprint_area_m2"):
+            CorrectionOptions.from_cli(footprint_area_m2=bad)
+
+
+def test_profile__round_trip_and_no_overwrite(tmp_path):
+    pooled = FootprintEstimate(0.02, 0.001, 900, 2, (EstimateMethod.REFERENCE,), 3)
+    profile = SensorProfile.from_estimate(pooled, ["a", "b"], saturation_amplitude_v2=0.5, min_amplitude_sigmas=4.0)
+    path = write_profile(profile, tmp_path / "sensor.toml")
+    assert read_profile(path) == profile
+    with pytest.raises(MpiLidarError, match="already exists"):
+        write_profile(profile, path)
+    assert read_profile(path) == profile
+
+
+@pytest.mark.parametrize("text, fragment", [("footprint_area_m2 = \n", "not valid TOML"),
+                                            ("footprint_area_m2 = -1.0\n", "invalid"),
+                                            ("footprint = 0.02\n", "invalid")])
+def test_profile__bad_files_are_one_line_errors(tmp_path, monkeypatch, capsys, text, fragment):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    scan = tmp_path / "none.scan.zarr"
+    code, _, stderr = call_main(monkeypatch, capsys, "correct", str(scan), "--model", str(tmp_path), "--out",
+                                str(tmp_path / "out"), "--sensor", str(bad))
+    assert code == 2 and fragment in stderr and str(bad) in stderr
+    assert_one_error_line(stderr)
+    assert not (tmp_path / "out").exists()
+
+
+def test_calibrate__pools_scans_writes_a_profile_that_correct_records(tmp_path, tiny_geometric_model_dir,
+                                                                      monkeypatch, capsys):
+    from mpi_lidar.scans.store import write_scan
+
+    for seed in (1, 2):
+        write_scan(rendered(corner(90.0, 2.0, 0.8), 0.02, seed=seed), tmp_path / "scans" / f"c{seed}.scan.zarr")
+    profile, results = calibrate_scans([str(tmp_path / "scans")], tmp_path / "sensor.toml")
+    assert len(results) == 2 and all(r.estimate.method == "reference" for r in results)
+    assert profile.footprint_area_m2 == pytest.approx(0.02, rel=0.3)
+    assert read_profile(tmp_path / "sensor.toml").footprint_area_m2 == profile.footprint_area_m2
+    code, _, stderr = call_main(monkeypatch, capsys, "correct", str(tmp_path / "scans" / "c1.scan.zarr"), "--model",
+                                str(tiny_geometric_model_dir), "--out", str(tmp_path / "out"), "--sensor",
+                                str(tmp_path / "sensor.toml"), "--workers", "0")
+    assert code == 0, stderr
+    attrs = zarr.open_group(str(tmp_path / "out" / "c1" / "corrected.zarr"), mode="r").attrs
+    assert attrs["options"]["footprint_area_m2"] == profile.footprint_area_m2
+    assert attrs["options"]["sensor_profile_sha256"] == profile.record()["sha256"]
+
+
+def test_calibrate__refuses_scans_without_facing_surfaces(tmp_path, monkeypatch, capsys):
+    from mpi_lidar.scans.store import write_scan
+
+    write_scan(rendered(flat_wall(0.0), 0.041), tmp_path / "wall.scan.zarr")
+    code, _, stderr = call_main(monkeypatch, capsys, "calibrate", str(tmp_path / "wall.scan.zarr"), "--out",
+                                str(tmp_path / "sensor.toml"), "--no-reference")
+    assert code == 2 and "no significant footprint" in stderr
+    assert_one_error_line(stderr)
+    assert not (tmp_path / "sensor.toml").exists()
+
+
+def test_scan_footprint__a_scan_without_geometry_measures_nothing():
+    from dataclasses import replace
+
+    scan = replace(rendered(corner(90.0, 2.0, 0.8), 0.02), azimuth_rad=None, elevation_rad=None)
+    assert not np.isfinite(scan_footprint(scan, CorrectionOptions(), Config().sensor).area_m2)
+
+
+def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(tiny_geometric_model_dir):
+    from benchmarks.calibration import run
+
+    rows = run(str(tiny_geometric_model_dir), quick=True)
+    assert len(rows) == 4 and {row["true_m2"] for row in rows} == {0.002, 0.041}
+    for row in rows:
+        assert row["auto_mm"] <= row["raw_mm"] + 0.05  # auto never does harm on these
+    wall = [row for row in rows if not row["corner"]]
+    assert all(row["auto_mm"] == row["raw_mm"] for row in wall)
+    from benchmarks.calibration import HEADER, format_row
+
+    assert {len(line.strip("|").split("|")) for line in [*HEADER.splitlines(), format_row(rows[0])]} == {13}
+    # The rendered multipath removed exactly leaves the noise: at the strong footprint the edge comes down to
+    # about the weak footprint's raw edge (the same corner with almost no multipath).
+    weak, strong = (row for row in rows if row["corner"])
+    assert strong["edge_removed_mm"] < 0.7 * strong["edge_raw_mm"]
+    assert strong["edge_removed_mm"] == pytest.approx(weak["edge_raw_mm"], rel=0.25)
+
+
+def test_calibration_benchmark__a_chosen_scene_keeps_its_seed_and_an_unknown_one_is_refused(tmp_path):
+    from benchmarks.calibration import chosen_cases, scene_cases
+
+    whole = scene_cases(quick=False)
+    chosen = chosen_cases(False, False, False, ("multi-object", "cylinder"))
+    assert [label for _, (label, _, _) in chosen] == ["cylinder", "multi-object (Fig. 8)"]
+    assert [index for index, _ in chosen] == [len(whole) - 2, len(whole) - 1]  # their seeds in the whole run
+    with pytest.raises(ValueError, match="no scene of the set is named like 'tower'"):
+        chosen_cases(False, False, False, ("tower",))
+    result = subprocess.run([sys.executable, "-m", "benchmarks.calibration", "--model", str(tmp_path),
+                             "--scene", "tower"], capture_output=True, text=True, check=False)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1].startswith("benchmarks.calibration: no scene of the set")
+
+
+def test_calibration_benchmark__the_edge_region_follows_a_rolled_edge():
+    from benchmarks.scenes import edge_line, edge_line_region
+
+    upright = render(corner(90.0, 2.0, 0.8, height=24, width=32), Config(), np.random.default_rng(0))
+    # The vertical edge: the pixels within 20 cm of the line x = 0, z = 2 m.
+    upright_points = upright.reference_depth[..., None] * upright.rays()
+    np.testing.assert_array_equal(edge_line_region(upright, edge_line(2.0)),
+                                  np.hypot(upright_points[..., 0], upright_points[..., 2] - 2.0) <= 0.2)
+    rolled = render(corner(90.0, 2.0, 0.8, height=24, width=32, roll_deg=90.0), Config(), np.random.default_rng(0))
+    near = edge_line_region(rolled, edge_line(2.0, roll_deg=90.0))
+    points = rolled.reference_depth[..., None] * rolled.rays()
+    np.testing.assert_array_equal(near, np.hypot(points[..., 1], points[..., 2] - 2.0) <= 0.2)
+    assert near.any() and not near.all()
+
+
+def test_calibration_benchmark__several_surfaces_edges_lie_where_two_surfaces_meet():
+    from benchmarks.calibration import SEVERAL_SURFACES
+
+    for label, factory, edges in SEVERAL_SURFACES:
+        planes = [(np.asarray(r.centre), np.cross(r.half_u, r.half_v) / np.linalg.norm(np.cross(r.half_u, r.half_v)))
+                  for r in factory().surfaces]
+        for point, direction in edges:
+            for along in (0.0, 0.3):
+                x = point + along * direction
+                on = [abs(normal @ (x - centre)) < 1e-9 for centre, normal in planes]
+                assert sum(on) >= 2, f"{label}: an edge point on {sum(on)} surface planes"
+
+
+def test_calibration_diagnosis__the_surfaces_beyond_the_view_carry_the_strong_multipath():
+    from benchmarks.calibration_diagnosis import diagnose
+
+    weak, strong = (diagnose(60, 2.4, 0.9, true_m2, seed=1, max_pixels=2_000) for true_m2 in (0.016, 0.1))
+    for found, true_m2 in ((weak, 0.016), (strong, 0.1)):
+        # Independent of the scan's blocks and planes: the exact surfaces against the reference depth.
+        assert 1 / 1.5 <= found["exact, reference"].area_m2 / true_m2 <= 1.5
+    assert 1 / 1.5 <= weak["shipped"].area_m2 / 0.016 <= 1.5, "weak multipath: the scan's own planes measure it"
+    # Planes fitted to a narrow view, with partners only where the view sees them, take up the multipath.
+    assert strong["exact, planes"].area_m2 < strong["exact, reference"].area_m2 / 2
+    assert strong["shipped"].area_m2 > 0.1 / 1.5, "the partners continued beyond the view give it back"
+
+
+def test_correction_diagnosis__bins_the_edge_by_true_bias_on_the_true_surface(tiny_geometric_model):
+    from benchmarks.correction_diagnosis import HEADER, diagnose, diagnosis_cases, format_row
+
+    (label, scene, edges), = diagnosis_cases(quick=True)
+    rows = diagnose(label, scene, edges, tiny_geometric_model, seed=0)
+    assert len(rows) == 5 and sum(row["pixels"] for row in rows) > 500
+    means = [row["bias_mm"] for row in rows]
+    assert means == sorted(means) and means[-1] > 5.0
+    for row in rows:
+        # Each board of a 60-degree corner seen along its bisector meets the beam at 60 degrees.
+        assert row["cos_i"] == pytest.approx(np.cos(np.deg2rad(60.0)), abs=0.08)
+        assert all(np.isfinite(row[key]).all() for key in ("rho_aba", "d_ab_m", "taken_off_mm", "exact_inputs_mm"))
+        assert format_row(row).count("|") == HEADER.splitlines()[0].count("|")
+
+
+def test_correction_diagnosis__a_scene_left_as_measured_gives_no_bins(tiny_geometric_model):
+    from benchmarks.correction_diagnosis import diagnose
+    from benchmarks.scenes import edge_line
+
+    # A corner far weaker than the gate's threshold: no pixel near its edge is corrected.
+    rows = diagnose("weak corner", corner(120.0, 2.0, 0.2, height=24, width=32), (edge_line(2.0),),
+                    tiny_geometric_model, seed=0, true_m2=1e-5)
+    assert rows == []

@@ -1,0 +1,51 @@
+"""Which point-cloud files a scan's outputs hold, by output level and as asked, and their fields."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import pytest
+
+from mpi_lidar.cli import correct as correct_command
+from mpi_lidar.correction import CorrectionOptions
+from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.reporting.figures import PLOTLY_JS
+from mpi_lidar.reporting.point_cloud_files import FULL_POINT_CLOUDS, POINT_CLOUD_FILES, point_cloud_formats
+from mpi_lidar.scans.pointcloud import POINT_CLOUD_FORMATS, PointCloudFormat
+from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
+
+FIELDS = {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2", "row", "column"}
+
+
+def test_point_cloud_format__one_closed_set():
+    assert POINT_CLOUD_FORMATS == ("las", "laz", "ply") == tuple(PointCloudFormat)
+    assert set(POINT_CLOUD_FILES) == set(PointCloudFormat) and FULL_POINT_CLOUDS == ("ply", "las")
+    option = next(p for p in correct_command.params if p.name == "point_clouds")
+    assert tuple(option.type.choices) == POINT_CLOUD_FORMATS, "the command line offers every format"
+
+
+def test_light__no_point_clouds_unless_asked(model_dir, archived, tmp_path):
+    light = process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"), outputs="light")
+    names = {p.name for p in Path(light.output).iterdir()}
+    assert not names & {"raw.ply", "corrected.ply", "corrected.las", "corrected.laz", PLOTLY_JS}
+    outcomes = correct_archive([str(archived[1])], model_dir, tmp_path / "asked", CorrectionOptions(gate="all"),
+                               outputs="light", point_clouds=("laz",))
+    names = {p.name for p in Path(outcomes[0].output).iterdir()}
+    assert "corrected.laz" in names and not names & {"raw.ply", "corrected.ply", "corrected.las", PLOTLY_JS}
+    assert set(laspy.read(Path(outcomes[0].output) / "corrected.laz").point_format.extra_dimension_names) >= FIELDS
+    # the light outputs exist, but without the PLY files asked for now: corrected again to add them
+    again = process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"), outputs="light",
+                         point_clouds=("ply",))
+    assert again.status == "corrected" and (Path(again.output) / "corrected.ply").is_file()
+    assert process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"),
+                        outputs="light", point_clouds=("ply",)).status == "skipped"
+
+
+def test_point_cloud_formats__default_by_level_and_unknown_refused(model_dir, archived, tmp_path):
+    assert point_cloud_formats("full") == ("ply", "las") and point_cloud_formats("light") == ()
+    assert point_cloud_formats("data", ["laz", "ply", "laz"]) == ("ply", "laz")
+    assert point_cloud_formats("full", ()) == ()
+    with pytest.raises(MpiLidarError, match="unknown point cloud format 'xyz'"):
+        correct_archive([str(archived[1])], model_dir, tmp_path / "out", CorrectionOptions(), point_clouds=["xyz"])
+    assert not (tmp_path / "out").exists(), "refused before anything is written"

@@ -1,0 +1,100 @@
+"""The importer registry and the batch import (mpi_lidar.scans.importers), through the CLI too."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpi_lidar.scans.importers import IMPORT_SUFFIXES, IMPORTERS, find_scan_files, importer_for, plan_import
+from mpi_lidar.scans.importers.base import ScanImporter
+from mpi_lidar.scans.scan import ScanError
+from mpi_lidar.scans.store import read_scan
+from tests.cli_runner import assert_one_error_line, call_main
+from tests.scan_factory import two_path_scan
+from tests.scans.importers.files import FREQS, MAPPING, save_npz, tool_dataset
+
+
+def test_importers__one_per_format_each_suffix_once(tmp_path):
+    assert IMPORT_SUFFIXES == (".npz", ".nc", ".h5", ".hdf5")
+    assert all(isinstance(importer, ScanImporter) for importer in IMPORTERS)
+    assert importer_for(tmp_path / "A.NPZ") is IMPORTERS[0] and importer_for(tmp_path / "a.hdf5") is IMPORTERS[1]
+    assert importer_for(tmp_path / "a.txt") is None
+    with pytest.raises(ScanError, match=r"cannot import \.txt; give \.npz, \.nc, \.h5, \.hdf5"):
+        from mpi_lidar.scans.importers import load_scan_file
+
+        load_scan_file(tmp_path / "a.txt", FREQS)
+
+def test_find_and_plan__directories_globs_and_clashes(tmp_path):
+    day = tmp_path / "day"
+    day.mkdir()
+    for name in ("a", "b"):
+        save_npz(day / f"{name}.npz", name)
+    (day / "notes.txt").write_text("not a scan")
+    (day / ".hidden.npz").write_bytes(b"")
+    files = find_scan_files([day, str(day / "*.npz"), day / "a.npz"])
+    assert [p.name for p in files] == ["a.npz", "b.npz"]
+    plan = plan_import(files, tmp_path / "out")
+    assert [t.name for _, t in plan] == ["a.scan.zarr", "b.scan.zarr"]
+    with pytest.raises(ScanError, match="matches no"):
+        find_scan_files([str(day / "*.nc")])
+    with pytest.raises(ScanError, match="does not exist"):
+        find_scan_files([tmp_path / "missing.npz"])
+    save_npz(tmp_path / "a.npz", "a")
+    with pytest.raises(ScanError, match="would both be written"):
+        plan_import([day / "a.npz", tmp_path / "a.npz"], tmp_path / "out")
+    with pytest.raises(ScanError, match="is one scan store"):
+        plan_import(files, tmp_path / "x.scan.zarr")
+
+
+def test_import_scan_cli__a_day_of_frames_in_one_call(tmp_path, monkeypatch, capsys):
+    day = tmp_path / "day"
+    day.mkdir()
+    save_npz(day / "f1.npz", "f1", seed=1)
+    save_npz(day / "f2.npz", "f2", seed=2)
+    tool_dataset(two_path_scan("f3", height=6, width=5, seed=3)).to_netcdf(day / "f3.nc", engine="h5netcdf")
+    args = [f"--var={k}={v}" for k, v in MAPPING.items()]
+    # The .npz files do not hold the mapped names, so they go in a call of their own.
+    code, out, err = call_main(monkeypatch, capsys, "import-scan", day / "f3.nc", "--out", tmp_path / "out", *args)
+    assert code == 0, err
+    code, out2, err = call_main(monkeypatch, capsys, "import-scan", str(day / "f*.npz"), "--out", tmp_path / "out")
+    assert code == 0, err
+    lines = (out + out2).strip().splitlines()
+    assert len(lines) == 3 and all("written to" in line for line in lines)
+    stores = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert stores == ["f1.scan.zarr", "f2.scan.zarr", "f3.scan.zarr"]
+    for store in stores:
+        scan = read_scan(tmp_path / "out" / store)
+        assert scan.shape == (6, 5) and scan.has_geometry and scan.name == store.removesuffix(".scan.zarr")
+
+
+def test_import_scan_cli__one_bad_file_writes_nothing(tmp_path, monkeypatch, capsys):
+    day = tmp_path / "day"
+    day.mkdir()
+    save_npz(day / "a.npz", "a")
+    np.savez(day / "b.npz", depth=np.ones((4, 6, 5), np.float32), frequencies_hz=np.asarray(FREQS))
+    save_npz(day / "c.npz", "c")
+    code, out, err = call_main(monkeypatch, capsys, "import-scan", day, "--out", tmp_path / "out")
+    assert code == 2 and out == ""
+    assert_one_error_line(err, "b.npz")
+    assert not (tmp_path / "out").exists()
+
+
+def test_import_scan_cli__single_store_and_user_errors(tmp_path, monkeypatch, capsys):
+    save_npz(tmp_path / "one.npz", "one")
+    code, out, _ = call_main(monkeypatch, capsys, "import-scan", tmp_path / "one.npz", "--out",
+                             tmp_path / "x.scan.zarr")
+    assert code == 0 and out.startswith("scan one: 6 x 5 pixels at 4 frequencies written to")
+    assert read_scan(tmp_path / "x.scan.zarr").name == "one"
+    save_npz(tmp_path / "two.npz", "two")
+    for args, fragment in [
+        ([tmp_path / "one.npz", "--out", tmp_path / "x.scan.zarr"], "already exists"),
+        ([tmp_path / "one.npz", tmp_path / "two.npz", "--out", tmp_path / "y.scan.zarr"], "is one scan store"),
+        ([tmp_path / "one.npz", "--out", tmp_path / "z.scan.zarr", "--var", "depth"], "NAME=VARIABLE"),
+        ([tmp_path / "one.npz", "--out", tmp_path / "z.scan.zarr", "--var", "colour=c"], "not scan arrays"),
+        ([tmp_path / "one.npz", "--out", tmp_path / "z.scan.zarr", "--frequencies", "a,b"], "--frequencies"),
+        ([tmp_path / "nothing*.nc", "--out", tmp_path / "dir"], "matches no"),
+    ]:
+        code, out, err = call_main(monkeypatch, capsys, "import-scan", *args)
+        assert code == 2 and out == "", args
+        assert_one_error_line(err, fragment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.npz", "two.npz", "x.scan.zarr"]

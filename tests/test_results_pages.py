@@ -1,0 +1,47 @@
+"""benchmarks.results: a benchmark's run replaces its page's latest-run block and keeps the rest of the page."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks.results import BEGIN, END, PAGES, latest_block, with_latest
+
+PAGE = "# Results: x\n\n**Regenerate:** `cmd`\n\n## Earlier, 2026-11-20\n\n| a |\n|---|\n| 1 |\n"
+
+
+def test_with_latest__a_page_without_the_block_gets_it_after_its_first_paragraph():
+    page = with_latest(PAGE, latest_block("python -m b", "| new |"))
+    assert page.index("**Regenerate:**") < page.index(BEGIN) < page.index("| new |") < page.index(END)
+    assert page.index(END) < page.index("## Earlier, 2026-11-20") and page.endswith("| 1 |\n")
+
+
+def test_with_latest__a_second_run_replaces_the_first_and_keeps_the_rest():
+    once = with_latest(PAGE, latest_block("python -m b", "| first |"))
+    twice = with_latest(once, latest_block("python -m b", "| second |"))
+    assert "| first |" not in twice and twice.count(BEGIN) == 1 and "| second |" in twice
+    assert twice.replace(latest_block("python -m b", "| second |"), "") == once.replace(
+        latest_block("python -m b", "| first |"), "")
+
+
+def test_pages__every_page_has_its_file_and_its_benchmark_module():
+    docs = Path(__file__).resolve().parent.parent / "docs" / "results"
+    for page, module in PAGES.items():
+        assert (docs / f"{page}.md").is_file(), page
+        assert (Path(__file__).resolve().parent.parent / (module.replace(".", "/") + ".py")).is_file(), module
+
+
+@pytest.mark.integration
+def test_results_command__runs_the_benchmark_and_a_failure_leaves_the_page(tmp_path):
+    (tmp_path / "sensor.md").write_text(PAGE)
+    run = [sys.executable, "-m", "benchmarks.results", "sensor", "--docs", str(tmp_path), "--"]
+    done = subprocess.run([*run, "--rows", "2000"], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    page = (tmp_path / "sensor.md").read_text()
+    assert "python -m benchmarks.sensor --rows 2000" in page and "samples/s" in page and "## Earlier" in page
+    failed = subprocess.run([*run, "--rows", "not-a-number"], capture_output=True, text=True, check=False)
+    assert failed.returncode != 0 and "unchanged" in failed.stderr
+    assert (tmp_path / "sensor.md").read_text() == page
