@@ -36,12 +36,13 @@ def test_pages__every_page_has_its_file_and_its_benchmark_module():
 
 @pytest.mark.integration
 def test_results_command__runs_the_benchmark_and_a_failure_leaves_the_page(tmp_path):
-    (tmp_path / "sensor.md").write_text(PAGE)
-    run = [sys.executable, "-m", "benchmarks.results", "sensor", "--docs", str(tmp_path), "--"]
-    done = subprocess.run([*run, "--rows", "2000"], capture_output=True, text=True, check=False)
+    (tmp_path / "limits.md").write_text(PAGE)
+    run = [sys.executable, "-m", "benchmarks.results", "limits", "--docs", str(tmp_path), "--"]
+    small = ["--n-test", "20", "--pool", "100", "--scales", "1"]
+    done = subprocess.run([*run, *small], capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr
-    page = (tmp_path / "sensor.md").read_text()
-    assert "python -m benchmarks.sensor --rows 2000" in page and "samples/s" in page and "## Earlier" in page
-    failed = subprocess.run([*run, "--rows", "not-a-number"], capture_output=True, text=True, check=False)
+    page = (tmp_path / "limits.md").read_text()
+    assert f"python -m benchmarks.limits {' '.join(small)}" in page and "|---" in page and "## Earlier" in page
+    failed = subprocess.run([*run, "--n-test", "not-a-number"], capture_output=True, text=True, check=False)
     assert failed.returncode != 0 and "unchanged" in failed.stderr
-    assert (tmp_path / "sensor.md").read_text() == page
+    assert (tmp_path / "limits.md").read_text() == page

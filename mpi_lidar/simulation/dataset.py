@@ -35,6 +35,7 @@ from mpi_lidar.scans.store import consolidate
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
 from mpi_lidar.storage.integrity import FINGERPRINT_BYTES, check_fingerprint, fingerprint, read_chunk
+from mpi_lidar.storage.variables import DATASET
 
 if TYPE_CHECKING:
     import dask.array as da
@@ -42,14 +43,10 @@ if TYPE_CHECKING:
 SCHEMA = "mpi-lidar/dataset@1"
 SPLIT_CODES = {"train": 0, "test": 1}
 DATA_ARRAYS = ("features", "target", "theta", "split")
-# What xarray shows of each array (CF ``units`` and ``long_name``); the columns are named in ``columns``.
-ARRAY_DESCRIPTIONS = {
-    "features": {"units": "m (depth columns), V^2 (amplitude columns)",
-                 "long_name": "measured depth then amplitude per modulation frequency"},
-    "target": {"units": "m", "long_name": "true distance d_AS to the surface"},
-    "theta": {"units": "m (d_as_m, d_ab_m), 1 (reflectances)", "long_name": "scene parameters"},
-    "split": {"units": "1", "long_name": "train (0) or test (1) row"},
-}
+# What xarray shows of each array (CF ``units`` and ``long_name``), as the store-variable registry declares it;
+# the columns are named in ``columns``.
+ARRAY_DESCRIPTIONS = {name: {"units": DATASET[name].units, "long_name": DATASET[name].long_name}
+                      for name in DATA_ARRAYS}
 ARRAYS = (*DATA_ARRAYS, "chunk_done", "chunk_sha256")
 # Stream of the seed tree reserved for summary statistics, apart from the chunk streams (seed, i).
 SUMMARY_STREAM = (1, 0)
@@ -153,26 +150,22 @@ def _build_layout(path: Path, config: Config) -> None:
     n, rows, width = plan.samples, plan.chunk_rows, 2 * len(config.frequencies_hz)
     compressors = [BloscCodec(cname="zstd", clevel=3, shuffle="shuffle")]
     group = zarr.open_group(store=str(path), mode="w-")
-    specs = {
-        "features": ((n, width), (rows, width), "float32", ("sample", "feature")),
-        "target": ((n,), (rows,), "float64", ("sample",)),
-        "theta": ((n, len(THETA_NAMES)), (rows, len(THETA_NAMES)), "float64", ("sample", "parameter")),
-        "split": ((n,), (rows,), "uint8", ("sample",)),
-    }
-    for name, (shape, chunks, dtype, dims) in specs.items():
-        group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, compressors=compressors,
-                           fill_value=0, dimension_names=dims)
+    shapes = {"features": (n, width), "target": (n,), "theta": (n, len(THETA_NAMES)), "split": (n,)}
+    for name, shape in shapes.items():
+        declared = DATASET[name]
+        group.create_array(name, shape=shape, chunks=(rows, *shape[1:]), dtype=declared.dtype,
+                           compressors=compressors, fill_value=0, dimension_names=declared.dims)
     group["features"].attrs["columns"] = raw_feature_names(config.frequencies_hz)
     group["theta"].attrs["columns"] = list(THETA_NAMES)
     for name, described in ARRAY_DESCRIPTIONS.items():
         group[name].attrs.update(described)
     group["split"].attrs.update({"flag_values": list(SPLIT_CODES.values()), "flag_meanings": " ".join(SPLIT_CODES)})
-    group.create_array("chunk_done", shape=(plan.chunks,), chunks=(1,), dtype="uint8", fill_value=0,
-                       dimension_names=("chunk",))
+    group.create_array("chunk_done", shape=(plan.chunks,), chunks=(1,), dtype=DATASET["chunk_done"].dtype,
+                       fill_value=0, dimension_names=DATASET["chunk_done"].dims)
     # One row of fingerprints per chunk, written with its completion mark (mpi_lidar.storage.integrity).
     group.create_array("chunk_sha256", shape=(plan.chunks, len(DATA_ARRAYS), FINGERPRINT_BYTES),
-                       chunks=(1, len(DATA_ARRAYS), FINGERPRINT_BYTES), dtype="uint8", fill_value=0,
-                       dimension_names=("chunk", "array", "byte"))
+                       chunks=(1, len(DATA_ARRAYS), FINGERPRINT_BYTES), dtype=DATASET["chunk_sha256"].dtype,
+                       fill_value=0, dimension_names=DATASET["chunk_sha256"].dims)
     group.attrs.update(_root_attributes(config))
     consolidate(path)  # for xarray; this package's readers read each array's own metadata
 

@@ -20,6 +20,10 @@ from mpi_lidar.simulation.scenes import corner, flat_wall, render
 from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
 from tests.scan_factory import two_path_scan
 
+# The command line's output level: what these tests read (corrected.zarr, metrics.json, report.md); the figures
+# and point clouds of "full" are tests/reporting's.
+LIGHT = "light"
+
 
 @pytest.fixture(scope="module")
 def archive(tmp_path_factory):
@@ -82,17 +86,17 @@ def test_correct_scan__other_frequencies_are_refused(small_model):
 
 
 def test_correct_archive__rerun_skips_finished_scans_and_redoes_missing(archive, small_model, tmp_path):
-    first = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions())
+    first = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions(), outputs=LIGHT)
     assert [o.status for o in first] == ["unchanged"] * 3, "a tilted plane: the geometry gate corrects nothing"
     stamp = (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns
     import shutil
 
     shutil.rmtree(tmp_path / "b")  # as if the batch had been interrupted before scan b
-    second = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions())
+    second = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions(), outputs=LIGHT)
     assert [o.status for o in second] == ["skipped", "unchanged", "skipped"]
     assert (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns == stamp
     other_gate = correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path,
-                                 CorrectionOptions(gate="consistency"))
+                                 CorrectionOptions(gate="consistency"), outputs=LIGHT)
     assert other_gate[0].status == "corrected", "other options are another correction"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "no staging directories left"
 
@@ -104,15 +108,16 @@ def test_correct_archive__leftovers_of_a_killed_batch_are_removed_and_nothing_el
     kept = [tmp_path / ".user-notes", tmp_path / ".a.writing-not-hex"]
     for path in kept:
         path.mkdir()
-    correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path, CorrectionOptions(gate="all"))
+    correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path, CorrectionOptions(gate="all"),
+                    outputs=LIGHT)
     assert not any(path.exists() for path in leftovers)
     assert all(path.is_dir() for path in kept)
 
 
 def test_correct_archive__dask_and_in_process_agree(archive, small_model, tmp_path, cluster_client):
     outcomes = correct_archive([str(archive / "*.scan.zarr")], small_model, tmp_path / "dask", CorrectionOptions(),
-                               client=cluster_client)
-    local = correct_archive([str(archive)], small_model, tmp_path / "local", CorrectionOptions())
+                               client=cluster_client, outputs=LIGHT)
+    local = correct_archive([str(archive)], small_model, tmp_path / "local", CorrectionOptions(), outputs=LIGHT)
     assert [o.status for o in outcomes] == ["unchanged"] * 3
     for name in ("a", "b", "c"):
         on_dask = zarr.open_group(str(tmp_path / "dask" / name / "corrected.zarr"), mode="r")["corrected_depth"][:]
@@ -130,7 +135,7 @@ def test_process_scan__bad_scans_fail_alone_with_a_reason(tmp_path, small_model,
     write_scan(replace(escaping, name="fine"), group_path)
     zarr.open_group(str(group_path), mode="r+").attrs["name"] = "../escape"
     outcomes = correct_archive([str(bad), str(group_path), str(archive / "a.scan.zarr")], small_model,
-                               tmp_path / "out", CorrectionOptions())
+                               tmp_path / "out", CorrectionOptions(), outputs=LIGHT)
     by_name = {o.source: o for o in outcomes}
     assert by_name[str(bad)].status == "failed" and "not a readable Zarr store" in by_name[str(bad)].reason
     escaped = by_name[str(group_path)]
@@ -210,7 +215,8 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model
     assert correction.notes == (NO_GEOMETRY_NOTE,)
     assert (correction.flags == Flag.CORRECTED).all() and correction.multipath_bias_m is None
     write_scan(scan, tmp_path / "nogeo.scan.zarr")
-    outcome = process_scan(tmp_path / "nogeo.scan.zarr", small_model, tmp_path / "out", CorrectionOptions())
+    outcome = process_scan(tmp_path / "nogeo.scan.zarr", small_model, tmp_path / "out", CorrectionOptions(),
+                           outputs=LIGHT)
     assert outcome.status == "corrected" and NO_GEOMETRY_NOTE in outcome.notes
     assert NO_GEOMETRY_NOTE in (tmp_path / "out" / "nogeo" / "report.md").read_text()
     stored = zarr.open_group(str(tmp_path / "out" / "nogeo" / "corrected.zarr"), mode="r")

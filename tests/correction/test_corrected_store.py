@@ -2,36 +2,16 @@
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import replace
 
-import matplotlib
 import numpy as np
-import xarray as xr
 import zarr
 
 from mpi_lidar.correction import Correction, CorrectionOptions, Flag
 from mpi_lidar.correction.corrected_store import write_corrected_store
 from mpi_lidar.workflows.verify import verify_store
 from tests.scan_factory import two_path_scan
-
-matplotlib.use("Agg")
-
-
-def open_strictly(path) -> xr.Dataset:
-    """The store in xarray, every warning an error (unconsolidated metadata, decoding, ...), values loaded."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        return xr.open_zarr(path).load()
-
-
-def plot_strictly(array: xr.DataArray) -> None:
-    import matplotlib.pyplot as plt
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        array.plot()
-    plt.close("all")
+from tests.xarray_checks import open_strictly, plot_strictly
 
 
 def _correction(scan, bias: bool = True) -> Correction:

@@ -21,8 +21,8 @@ from prefect.client.schemas.filters import (
 )
 from prefect.client.schemas.objects import Artifact, FlowRun, TaskRun
 
-SAMPLES = 4000
-CHUNK_ROWS = 1000
+SAMPLES = 2000
+CHUNK_ROWS = 500
 CHUNKS = SAMPLES // CHUNK_ROWS
 SEED = 20260101
 
@@ -30,7 +30,7 @@ T = TypeVar("T")
 
 
 def write_config(path: Path, seed: int = SEED) -> Path:
-    """A TOML file for a 4-chunk dataset of a few thousand rows."""
+    """A TOML file for a 4-chunk dataset of two thousand rows."""
     path.write_text(f"[dataset]\nsamples = {SAMPLES}\nchunk_rows = {CHUNK_ROWS}\nseed = {seed}\n")
     return path
 

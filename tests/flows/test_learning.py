@@ -8,14 +8,23 @@ import pytest
 from flows.evaluate import EVALUATION_ARTIFACT_KEY, TABLE2_ARTIFACT_KEY, evaluate_flow, table2_flow
 from flows.train import CARD_ARTIFACT_KEY, train_flow
 from flows.tune import TUNING_ARTIFACT_KEY, tune_flow
+from mpi_lidar.learning import tune
+from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.learning.model import load_model
+from mpi_lidar.simulation.dataset import dataset_info
+from tests.fast_trials import TUNE_ROWS, queue_fast_trials
 from tests.flows.helpers import artifacts
 
 
 @pytest.fixture(scope="module")
 def tuned(small_dataset, tmp_path_factory, dask_scheduler):
     storage = f"sqlite:///{tmp_path_factory.mktemp('study') / 'optuna.db'}"
-    state = tune_flow(data=str(small_dataset), storage=storage, study="flows", trials=3, tune_rows=1_500,
+    # The study the flow makes (same settings, so the flow loads it), with one queued trial per trial to run.
+    spec = FeatureSpec(dataset_info(small_dataset).frequencies_hz, DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE,
+                       DEFAULT_GEOMETRIC)
+    study = tune.open_study(storage, "flows", tune.TuneSettings(str(small_dataset), spec, tune_rows=TUNE_ROWS))
+    queue_fast_trials(study, 3)
+    state = tune_flow(data=str(small_dataset), storage=storage, study="flows", trials=3, tune_rows=TUNE_ROWS,
                       scheduler=dask_scheduler, report_dir=str(tmp_path_factory.mktemp("tuning") / "report"),
                       return_state=True)
     return storage, state

@@ -50,7 +50,12 @@ def healthy(api_url: str) -> bool:
 
 @pytest.fixture(scope="module")
 def prefect_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path]]:
-    """``prefect server start`` on 127.0.0.1 with its own PREFECT_HOME (SQLite); yields its API URL and home."""
+    """``prefect server start`` on 127.0.0.1 with its own PREFECT_HOME (SQLite); yields its API URL and home.
+
+    The API alone (``--no-services``): the run is triggered through it and the served runner polls it for the
+    run, so none of the background services (schedules expanded into runs, late runs, event triggers) take
+    part, and they would take the two cores from the run.
+    """
     import subprocess
 
     home = tmp_path_factory.mktemp("prefect-home")
@@ -58,7 +63,7 @@ def prefect_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[s
     api_url = f"http://127.0.0.1:{port}/api"
     log = home / "server.log"
     process = subprocess.Popen(
-        [str(BIN / "prefect"), "server", "start", "--host", "127.0.0.1", "--port", str(port)],
+        [str(BIN / "prefect"), "server", "start", "--host", "127.0.0.1", "--port", str(port), "--no-services"],
         stdout=log.open("w"), stderr=subprocess.STDOUT, env=prefect_env(home, api_url), cwd=REPO,
         start_new_session=True)
     try:

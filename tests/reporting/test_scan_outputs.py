@@ -28,11 +28,39 @@ FIELDS = {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitud
 
 
 @pytest.fixture(scope="module")
-def full_outputs(model_dir, archived, tmp_path_factory) -> Path:
-    outcome = process_scan(archived[1], model_dir, tmp_path_factory.mktemp("out"), CorrectionOptions(gate="all"),
-                           outputs="full")
+def full_run(model_dir, archived, tmp_path_factory):
+    """The archived scan's full outputs, written while a user's pyplot figure is open: the outcome, the user's
+    figure number, whether it was still open afterwards and the numbers of every figure open then."""
+    import matplotlib.pyplot as plt
+
+    mine = plt.figure()
+    try:
+        outcome = process_scan(archived[1], model_dir, tmp_path_factory.mktemp("out"), CorrectionOptions(gate="all"),
+                               outputs="full")
+        return outcome, mine.number, plt.fignum_exists(mine.number), plt.get_fignums()
+    finally:
+        plt.close(mine)
+
+
+@pytest.fixture(scope="module")
+def full_outputs(full_run) -> Path:
+    outcome = full_run[0]
     assert outcome.status == "corrected", outcome.reason
     return Path(outcome.output)
+
+
+@pytest.fixture(scope="module")
+def level_outputs(model_dir, board_store, tmp_path_factory):
+    """The board's outputs at a level (written once per level, each into a directory of its own)."""
+    outcomes = {}
+
+    def written(level: str):
+        if level not in outcomes:
+            outcomes[level] = process_scan(board_store, model_dir, tmp_path_factory.mktemp(level), CorrectionOptions(),
+                                           outputs=level)
+        return outcomes[level]
+
+    return written
 
 
 def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full_outputs, archived):
@@ -83,8 +111,8 @@ def test_output_level__one_closed_set_from_most_to_least():
 
 
 @pytest.mark.parametrize("level", OUTPUT_LEVELS)
-def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, model_dir, board_store, tmp_path):
-    outcome = process_scan(board_store, model_dir, tmp_path, CorrectionOptions(), outputs=level)
+def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, level_outputs):
+    outcome = level_outputs(level)
     assert outcome.status == "corrected", outcome.reason
     target = Path(outcome.output)
     assert _listing(target) == FILES[level]
@@ -97,8 +125,8 @@ def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, m
         assert all(f"]({name})" in report for name in FILES[level] if name.endswith(".png"))
 
 
-def test_thumbnail__written_at_level_light_with_its_legend(model_dir, board_store, tmp_path):
-    outcome = process_scan(board_store, model_dir, tmp_path, CorrectionOptions(), outputs="light")
+def test_thumbnail__written_at_level_light_with_its_legend(level_outputs):
+    outcome = level_outputs("light")
     image = matplotlib.image.imread(Path(outcome.output) / "thumbnail.png")
     assert image.shape[1] == 2 * 56 + 4 and image.shape[0] == 40  # small scans are shown at full size
     report = (Path(outcome.output) / "report.md").read_text()
@@ -142,16 +170,10 @@ def test_output_level__unknown_level_is_one_clear_error(model_dir, board_store, 
 # --- no global state -----------------------------------------------------------------------------------------
 
 
-def test_write_scan_outputs__a_users_open_pyplot_figure_survives(model_dir, archived, tmp_path):
-    import matplotlib.pyplot as plt
-
-    mine = plt.figure()
-    try:
-        outcome = process_scan(archived[1], model_dir, tmp_path, CorrectionOptions(gate="all"), outputs="full")
-        assert outcome.status == "corrected", outcome.reason
-        assert plt.fignum_exists(mine.number) and plt.get_fignums() == [mine.number], "no figure closed or left"
-    finally:
-        plt.close(mine)
+def test_write_scan_outputs__a_users_open_pyplot_figure_survives(full_run):
+    outcome, mine, survived, open_after = full_run  # full outputs written while the user's figure was open
+    assert outcome.status == "corrected", outcome.reason
+    assert survived and open_after == [mine], "no figure closed or left"
 
 
 def test_import__reporting_leaves_the_matplotlib_backend_alone():

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -15,7 +17,7 @@ from mpi_lidar.scans.geometry import (
     point_cloud,
     surface_normals,
 )
-from mpi_lidar.scans.scan import grid_rays
+from mpi_lidar.scans.scan import Scan, grid_rays
 from mpi_lidar.simulation.scenes import (
     Rectangle,
     Scene,
@@ -24,7 +26,6 @@ from mpi_lidar.simulation.scenes import (
     cylinder_scene,
     first_hits,
     flat_wall,
-    light_transport,
     render,
     sphere_scene,
 )
@@ -106,9 +107,9 @@ def test_multipath_potential__corner_matches_the_half_plane_closed_form():
 
 def test_multipath_potential__corner_grows_towards_the_edge_and_agrees_with_the_renderer():
     scene = corner(90.0, 2.0, 0.8, height=32, width=128)
-    truth: dict[str, np.ndarray] = {}
-    light_transport(scene, Config(), 0.012, 0.02, 90.0, coupling_out=truth)
-    scan = render(scene, Config(), np.random.default_rng(5))
+    truth: dict[str, np.ndarray] = {}  # the render's own light transport
+    scan = render(scene, Config(), np.random.default_rng(5), footprint_radius_m=0.012, patch_spacing_m=0.02,
+                  coupling_gain=90.0, truth_out=truth)
     potential = multipath_potential(valid_depth(scan), scan.rays())
     row = potential.coupling[16]
     right = row[64:]
@@ -132,7 +133,7 @@ def board_medians(left: float, right: float) -> list[float]:
     """The estimated equivalent rho_ABA on each board of a 90-degree corner seen 15 degrees off its bisector
     (each board at its own incidence), median over the pixels with a true coupling of 0.01-0.9; each board's
     median estimate / true lies within 0.65-1.4."""
-    scene = corner(90.0, 2.0, left, yaw_deg=15.0, albedo_right=right)
+    scene = corner(90.0, 2.0, left, height=64, width=96, yaw_deg=15.0, albedo_right=right)
     truth: dict[str, np.ndarray] = {}
     scan = render(scene, Config(), np.random.default_rng(6), truth_out=truth)
     estimate = equivalent_rho_aba_of(scan)
@@ -155,14 +156,24 @@ def test_equivalent_rho_aba__follows_the_renderer_and_the_partner_albedo():
     assert (dark_right[0] / dark_right[1]) / (same[0] / same[1]) == pytest.approx(0.25 / 0.9, rel=0.25)
 
 
+@functools.cache
+def rendered_corner(angle_deg: float) -> tuple[Scan, dict[str, np.ndarray]]:
+    """A corner 48 x 96 and the render's truth, rendered once for the tests that share it (read-only)."""
+    truth: dict[str, np.ndarray] = {}
+    scan = render(corner(angle_deg, 2.0, 0.8, height=48, width=96), Config(), np.random.default_rng(2),
+                  truth_out=truth)
+    for value in [*vars(scan).values(), *truth.values()]:
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return scan, truth
+
+
 @pytest.mark.parametrize("angle_deg", [90.0, 120.0])
 def test_plane_model_inputs__follow_the_renderer_from_the_edge_outwards(angle_deg):
     """Per pixel from the partner planes, the equivalent rho_ABA stays within 0.85-1.45x of the renderer's in
     every quantile of it, up to the edge itself (the blocks' estimate read 0.08x there on the 120-degree
     corner and 1.6x a few centimetres out on the right-angled one), and d_AB within 1.5 cm."""
-    truth: dict[str, np.ndarray] = {}
-    scan = render(corner(angle_deg, 2.0, 0.8, height=48, width=96), Config(), np.random.default_rng(2),
-                  truth_out=truth)
+    scan, truth = rendered_corner(angle_deg)
     depth = valid_depth(scan).ravel()
     options = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
     scene = analyse_geometry(scan, depth, options, SensorConfig(), with_model_inputs=True)
@@ -179,7 +190,7 @@ def test_plane_model_inputs__follow_the_renderer_from_the_edge_outwards(angle_de
 
 def test_plane_model_inputs__without_a_plane_give_the_blocks_estimate():
     """A pixel on no flat surface (here: every pixel, with no plane given) keeps the blocks' estimate."""
-    scan = render(corner(90.0, 2.0, 0.8, height=48, width=96), Config(), np.random.default_rng(2))
+    scan, _ = rendered_corner(90.0)
     depth = valid_depth(scan).ravel()
     inputs = analyse_geometry(scan, depth, CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2),
                               SensorConfig(), with_model_inputs=True).model_inputs

@@ -4,13 +4,10 @@ from __future__ import annotations
 
 import json
 import shutil
-import warnings
 from dataclasses import replace
 
-import matplotlib
 import numpy as np
 import pytest
-import xarray as xr
 import zarr
 
 from mpi_lidar.config import Config
@@ -20,8 +17,7 @@ from mpi_lidar.scans.store import SCAN_SCHEMA, read_scan, store_fingerprints, wr
 from mpi_lidar.storage.variables import SCAN
 from mpi_lidar.workflows.verify import verify_store
 from tests.scan_factory import two_path_scan
-
-matplotlib.use("Agg")
+from tests.xarray_checks import open_strictly, plot_strictly
 
 FREQS = Config().frequencies_hz
 
@@ -79,22 +75,6 @@ def test_read_scan__foreign_and_truncated_stores_are_refused(tmp_path):
     shutil.rmtree(path / "amplitude")
     with pytest.raises(ScanError, match=r"neither depth\+amplitude nor taps|truncated|damaged"):
         read_scan(path)
-
-
-def open_strictly(path) -> xr.Dataset:
-    """The store in xarray, every warning an error (unconsolidated metadata, decoding, ...), values loaded."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        return xr.open_zarr(path).load()
-
-
-def plot_strictly(array: xr.DataArray) -> None:
-    import matplotlib.pyplot as plt
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        array.plot()
-    plt.close("all")
 
 
 def test_scan_store__xarray_sees_coordinates_and_units(tmp_path):

@@ -34,8 +34,13 @@ def tall_store(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return load_model(tiny_model(tmp_path_factory.mktemp("model") / "model", geometric=True))
+def model_dir(tmp_path_factory) -> Path:
+    return tiny_model(tmp_path_factory.mktemp("model") / "model", geometric=True)
+
+
+@pytest.fixture(scope="module")
+def model(model_dir):
+    return load_model(model_dir)
 
 
 def test_stored_map__slices_pixels_and_bytes_are_those_of_the_array(tall_store):
@@ -62,11 +67,30 @@ def test_stored_map__ray_directions_stay_in_the_store_and_give_the_same_rays(tmp
     assert stored.content_sha256() == scan.content_sha256()
 
 
+def tiled(footprint: float | str) -> CorrectionOptions:
+    """Tiles of seven rows and a remainder: they straddle the store's chunk boundary at row 512."""
+    return CorrectionOptions(footprint_area_m2=footprint, tile_pixels=7 * 160 + 13)
+
+
+@pytest.fixture(scope="module")
+def in_memory(tall_store, model):
+    """The tall scan read into memory and its correction with :func:`tiled` options, once per footprint."""
+    corrections = {}
+
+    def corrected(footprint: float | str):
+        if footprint not in corrections:
+            scan = read_scan(tall_store)
+            corrections[footprint] = scan, correct_scan(scan, model, tiled(footprint))
+        return corrections[footprint]
+
+    return corrected
+
+
 @pytest.mark.parametrize("footprint", ["auto", 0.041])
-def test_correct_scan__stored_maps_correct_to_the_last_bit_as_in_memory(tall_store, model, footprint):
-    memory, stored = read_scan(tall_store), read_scan(tall_store, stored_above_bytes=0)
-    options = CorrectionOptions(footprint_area_m2=footprint, tile_pixels=7 * 160 + 13)
-    expected, found = correct_scan(memory, model, options), correct_scan(stored, model, options)
+def test_correct_scan__stored_maps_correct_to_the_last_bit_as_in_memory(tall_store, model, in_memory, footprint):
+    stored = read_scan(tall_store, stored_above_bytes=0)
+    memory, expected = in_memory(footprint)
+    found = correct_scan(stored, model, tiled(footprint))
     counts = expected.counts()
     assert counts["corrected"] + counts["uncalibrated"] > 0, "the gate's decisions must be part of the comparison"
     assert found.depth.tobytes() == expected.depth.tobytes() and found.flags.tobytes() == expected.flags.tobytes()
@@ -75,9 +99,8 @@ def test_correct_scan__stored_maps_correct_to_the_last_bit_as_in_memory(tall_sto
     assert scan_metrics(stored, found) == scan_metrics(memory, expected)
 
 
-def test_scan_metrics__banded_sums_match_the_whole_map_within_rounding(tall_store, model):
-    scan = read_scan(tall_store)
-    correction = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=0.041))
+def test_scan_metrics__banded_sums_match_the_whole_map_within_rounding(in_memory):
+    scan, correction = in_memory(0.041)  # tiled: the same bits as at once (tests/correction/test_tiling.py)
     metrics = scan_metrics(scan, correction)["whole map"]
     where = np.isfinite(scan.reference_depth) & np.isfinite(correction.depth)
     error = correction.depth[where].astype(np.float64) - scan.reference_depth[where]
@@ -114,9 +137,7 @@ def test_read_scan__stored_maps_are_validated_like_arrays_in_memory(tmp_path):
 
 
 def test_process_scan__a_scan_above_the_threshold_is_read_from_its_store_with_the_same_outputs(
-        tall_store, model, tmp_path, monkeypatch):
-    model_dir = Path(tmp_path / "model")
-    tiny_model(model_dir, geometric=True)
+        tall_store, model_dir, tmp_path, monkeypatch):
     options = CorrectionOptions(footprint_area_m2=0.041)
     in_memory = correct_archive.process_scan(tall_store, model_dir, tmp_path / "memory", options, outputs="data")
     opened = []

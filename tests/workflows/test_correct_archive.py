@@ -31,6 +31,9 @@ from tests.cli_runner import call_main
 from tests.scan_factory import two_path_scan
 
 ALL = CorrectionOptions(gate="all")  # every valid pixel corrected: a two-path scan ends 'corrected'
+# The command line's output level: what these tests read (corrected.zarr, metrics.json, report.md and .html);
+# the figures and point clouds of "full" are tests/reporting's.
+LIGHT = "light"
 
 
 def saturated(scan: Scan, share: float, options: CorrectionOptions) -> Scan:
@@ -52,12 +55,13 @@ def test_correct_archive__same_named_scans_in_day_folders_both_survive(small_mod
     for seed, day in enumerate(("day1", "day2")):
         write_scan(two_path_scan("frame", seed=seed), archive / day / "frame.scan.zarr")
     out = tmp_path / "out"
-    outcomes = correct_archive([str(archive / "*" / "*.scan.zarr")], small_model, out, ALL)
+    outcomes = correct_archive([str(archive / "*" / "*.scan.zarr")], small_model, out, ALL, outputs=LIGHT)
     assert [(o.name, o.status, o.output) for o in outcomes] == [
         ("frame", "corrected", str(out / "day1" / "frame")), ("frame", "corrected", str(out / "day2" / "frame"))]
     first, second = corrected_depth(out / "day1" / "frame"), corrected_depth(out / "day2" / "frame")
     assert not np.array_equal(first, second), "each day keeps its own result"
-    alone = correct_archive([str(archive / "day2" / "frame.scan.zarr")], small_model, tmp_path / "alone", ALL)
+    alone = correct_archive([str(archive / "day2" / "frame.scan.zarr")], small_model, tmp_path / "alone", ALL,
+                            outputs=LIGHT)
     assert alone[0].output == str(tmp_path / "alone" / "frame"), "a single scan keeps its store's name"
     np.testing.assert_array_equal(corrected_depth(tmp_path / "alone" / "frame"), second)
     summary = batch_report(outcomes, 1.0).markdown()
@@ -97,13 +101,13 @@ def test_correct_archive__scan_named_summary_and_the_summary_both_survive(small_
     write_scan(two_path_scan("summary"), archive / "summary.scan.zarr")
     write_scan(two_path_scan("other", seed=1), archive / "other.scan.zarr")
     out = tmp_path / "out"
-    outcomes = correct_archive([str(archive)], small_model, out, ALL)
+    outcomes = correct_archive([str(archive)], small_model, out, ALL, outputs=LIGHT)
     write_batch_report(outcomes, 1.0, out)
     assert sorted(p.name for p in out.iterdir()) == ["other", "summary", "summary.scan"]
     assert (out / "summary" / "report.md").read_text().startswith("# Batch correction")
     assert (out / "summary.scan" / "report.md").read_text().startswith("# Correction of summary")
     assert json.loads((out / "summary.scan" / "metrics.json").read_text())["scan"] == "summary"
-    again = correct_archive([str(archive)], small_model, out, ALL)
+    again = correct_archive([str(archive)], small_model, out, ALL, outputs=LIGHT)
     assert [o.status for o in again] == ["skipped", "skipped"], "found again where it was written"
     write_batch_report(again, 1.0, out)
     assert (out / "summary.scan" / "corrected.zarr").is_dir()
@@ -122,7 +126,7 @@ def test_process_scan__name_with_trailing_newline_fails_that_scan_alone(small_mo
     zarr.open_group(str(bad), mode="r+").attrs["name"] = "frame\n"
     write_scan(two_path_scan("good"), archive / "good.scan.zarr")
     out = tmp_path / "out"
-    by_source = {o.source: o for o in correct_archive([str(archive)], small_model, out, ALL)}
+    by_source = {o.source: o for o in correct_archive([str(archive)], small_model, out, ALL, outputs=LIGHT)}
     failed = by_source[str(bad)]
     assert failed.status == "failed" and "not a safe directory name" in failed.reason and "\n" not in failed.reason
     assert by_source[str(archive / "good.scan.zarr")].status == "corrected"
@@ -138,7 +142,7 @@ def test_correct_archive__rerun_keeps_the_numbers_in_the_summary(small_model, tm
         write_scan(replace(two_path_scan(name, seed=seed), azimuth_rad=None, elevation_rad=None),
                    archive / f"{name}.scan.zarr")
     out = tmp_path / "out"
-    first = correct_archive([str(archive)], small_model, out, ALL)
+    first = correct_archive([str(archive)], small_model, out, ALL)  # full: its no-geometry note on point clouds
     second = correct_archive([str(archive)], small_model, out, ALL)
     assert [o.status for o in first] == ["corrected"] * 2 and [o.status for o in second] == ["skipped"] * 2
     for before, after in zip(first, second, strict=True):
@@ -161,9 +165,9 @@ def test_correct_archive__rerun_keeps_the_numbers_in_the_summary(small_model, tm
 def test_correct_archive__damaged_metrics_json_is_corrected_again(small_model, tmp_path):
     write_scan(two_path_scan("a"), tmp_path / "a.scan.zarr")
     out = tmp_path / "out"
-    correct_archive([str(tmp_path / "a.scan.zarr")], small_model, out, ALL)
+    correct_archive([str(tmp_path / "a.scan.zarr")], small_model, out, ALL, outputs=LIGHT)
     (out / "a" / "metrics.json").write_text("{not json")
-    [again] = correct_archive([str(tmp_path / "a.scan.zarr")], small_model, out, ALL)
+    [again] = correct_archive([str(tmp_path / "a.scan.zarr")], small_model, out, ALL, outputs=LIGHT)
     assert again.status == "corrected" and json.loads((out / "a" / "metrics.json").read_text())["counts"]
 
 
@@ -173,7 +177,8 @@ def test_correct_archive__damaged_metrics_json_is_corrected_again(small_model, t
 def test_process_scan__flat_scan_is_unchanged(small_model, tmp_path):
     write_scan(render(flat_wall(20.0, height=24, width=32), Config(), np.random.default_rng(1)),
                tmp_path / "wall.scan.zarr")
-    outcome = process_scan(tmp_path / "wall.scan.zarr", small_model, tmp_path / "out", CorrectionOptions())
+    outcome = process_scan(tmp_path / "wall.scan.zarr", small_model, tmp_path / "out", CorrectionOptions(),
+                           outputs=LIGHT)
     assert outcome.status == ScanStatus.UNCHANGED and outcome.counts["corrected"] == 0
     assert outcome.counts["no_multipath"] > 0 and outcome.metrics["whole map"]["pixels"] > 0
     assert (tmp_path / "out" / "wall" / "report.html").is_file(), "valid outputs are still written"
@@ -182,7 +187,7 @@ def test_process_scan__flat_scan_is_unchanged(small_model, tmp_path):
 
 def test_process_scan__mostly_saturated_scan_is_degraded(small_model, tmp_path):
     write_scan(saturated(two_path_scan("hot"), 0.62, ALL), tmp_path / "hot.scan.zarr")
-    outcome = process_scan(tmp_path / "hot.scan.zarr", small_model, tmp_path / "out", ALL)
+    outcome = process_scan(tmp_path / "hot.scan.zarr", small_model, tmp_path / "out", ALL, outputs=LIGHT)
     share = outcome.counts["saturated"] / sum(outcome.counts.values())
     assert 0.55 < share < 0.7 and outcome.counts["corrected"] > 0
     assert outcome.status == ScanStatus.DEGRADED
@@ -190,7 +195,7 @@ def test_process_scan__mostly_saturated_scan_is_degraded(small_model, tmp_path):
     assert "| hot | degraded |" in batch_report([outcome], 1.0).markdown()
     lenient = ALL.model_copy(update={"max_invalid_share": 0.8})
     assert lenient.sha256() == ALL.sha256(), "the threshold never changes a pixel, so not the identity"
-    again = process_scan(tmp_path / "hot.scan.zarr", small_model, tmp_path / "out", lenient)
+    again = process_scan(tmp_path / "hot.scan.zarr", small_model, tmp_path / "out", lenient, outputs=LIGHT)
     assert again.status == "skipped" and again.kept_status == "corrected", "re-classified, not re-corrected"
 
 
@@ -243,7 +248,8 @@ def test_process_scan__unexpected_exception_type_fails_that_scan_alone(small_mod
     # and numpy raises a TypeError (UFuncTypeError) deep inside the gate: not a library error, nor an
     # OSError, ValueError or KeyError.
     options = CorrectionOptions.model_construct(**{**CorrectionOptions().model_dump(), "footprint_area_m2": "wide"})
-    outcomes = {o.name: o for o in correct_archive([str(archive)], small_model, tmp_path / "out", options)}
+    outcomes = {o.name: o for o in correct_archive([str(archive)], small_model, tmp_path / "out", options,
+                                                              outputs=LIGHT)}
     broken = outcomes["geometry.scan.zarr"]
     assert broken.status == "failed" and re.fullmatch(r"UFuncTypeError: ufunc 'multiply' .+", broken.reason)
     assert outcomes["plain"].status == "corrected" and (tmp_path / "out" / "plain" / "report.html").is_file()
