@@ -7,7 +7,8 @@ scan's outputs atomically, and turns a bad scan into a 'failed' outcome with its
 :class:`flows.runtime.PrefectExecutor`, so each scan is a run of :data:`correct_scan_task`. This flow adds
 the tasks, the batch summary and the artifacts of it and of every scan's metrics. A scan already corrected
 with the same model and options is skipped (its numbers read back from its outputs). The flow ends Failed
-when any scan failed, or has a status named in ``fail_on`` (degraded, unchanged), after all the others were
+when any scan failed, is unserved (unless ``allow_unserved``), or has a status named in ``fail_on`` (degraded,
+unchanged), after all the others were
 corrected and the summary was written, so nothing is lost and nothing failed silently.
 """
 
@@ -109,14 +110,15 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "g
                          min_bias_mm: float | None = None, footprint_area_m2: float | str | None = None,
                          sensor: str | None = None,
                          max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
-                         workers: int = 2, scheduler: str | None = None, outputs: Outputs = "light",
+                         allow_unserved: bool = False, workers: int = 2, scheduler: str | None = None,
+                         outputs: Outputs = "light",
                          point_clouds: list[PointCloud] | None = None) -> dict[str, object]:
     """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
 
     The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
     [m^2] or "auto", ``sensor`` (a sensor profile's path) and ``max_invalid_share`` (None keeps the
-    default), ``fail_on`` (statuses that end the flow Failed
-    after the summary is written; failed always does), ``workers`` (0: in the flow's process),
+    default), ``fail_on`` (statuses that end the flow Failed after the summary is written; failed always does,
+    unserved unless ``allow_unserved``), ``workers`` (0: in the flow's process),
     ``scheduler``, ``outputs`` (light: store, metrics, report and thumbnail; data; full) and ``point_clouds``
     (formats written at any level, as ``--point-cloud``; None: ply and las at full, none below). Returns the flow
     run's id, the wall time and each source's status.
@@ -129,7 +131,7 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "g
                                            None if point_clouds is None else tuple(point_clouds))
     result = {"flow_run_id": str(flow_run.id), "wall_s": wall_s,
               "statuses": {o.source: o.status for o in outcomes}}
-    failure = batch_failure(outcomes, fail_on)
+    failure = batch_failure(outcomes, fail_on, allow_unserved)
     if failure:
         raise MpiLidarError(failure)
     return result

@@ -289,7 +289,10 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "share is 'degraded'. (default 0.5)")
 @click.option("--fail-on", "fail_on", type=click.Choice(["degraded", "unchanged", "failed"]), multiple=True,
               help="Exit 1 (after writing the summary) when a scan has this status; repeatable. "
-                   "A failed scan always does.")
+                   "A failed scan always does, and an unserved one unless --allow-unserved.")
+@click.option("--allow-unserved", is_flag=True,
+              help="Exit 0 when the model cannot serve a scan (status unserved: out of its range, amplitudes in "
+                   "another unit, no geometry for a geometric model); its outputs keep the pixels as measured.")
 @click.option("--outputs", type=click.Choice(OUTPUT_LEVELS), default=DEFAULT_OUTPUTS, show_default=True,
               help="What each scan writes: corrected.zarr, metrics.json, report and a small thumbnail (light); "
                    "only corrected.zarr and metrics.json (data); or also maps, error histogram, point-cloud "
@@ -307,7 +310,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
             footprint_area_m2: str | None, sensor: Path | None, max_invalid_share: float | None,
-            fail_on: tuple[str, ...],
+            fail_on: tuple[str, ...], allow_unserved: bool,
             outputs: str, point_clouds: tuple[str, ...], workers: int | None, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
 
@@ -315,8 +318,9 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     Example:
       mpi-lidar correct 'archive/2026-11-*/*.scan.zarr' --model runs/model --out corrected --fail-on degraded
 
-    Each scan ends corrected, unchanged (no pixel corrected), degraded (too many invalid pixels), skipped
-    (already done) or failed. Exit 1 when a scan failed or has a --fail-on status; 2 on a user error.
+    Each scan ends corrected, unchanged (no pixel corrected), degraded (too many invalid pixels), unserved
+    (the model cannot serve it: the reason says which command helps), skipped (already done) or failed. Exit 1
+    when a scan failed, is unserved (unless --allow-unserved) or has a --fail-on status; 2 on a user error.
     """
     import time
 
@@ -350,7 +354,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
                                        outputs=outputs, point_clouds=point_clouds or None)
     summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
     click.echo(summary.joinpath("report.md").read_text())
-    failing = failing_outcomes(outcomes, fail_on)
+    failing = failing_outcomes(outcomes, fail_on, allow_unserved)
     for outcome in failing:
         click.echo(f"error: {failure_line(outcome)}", err=True)
     if failing:

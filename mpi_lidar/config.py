@@ -102,13 +102,16 @@ class PriorConfig(_Frozen):
     ``reciprocal`` (default): surface albedos a, b ~ U(albedo), coupling kappa ~ U(coupling),
     rho_SAS = rho_SAB = rho_BAS = a and rho_ABA = kappa * b. ``independent``: the four BRDF values are
     independent U(rho). ``explicit``: each BRDF value has its own range (rho_sas, rho_sab, rho_aba,
-    rho_bas). All schemes draw d_AS ~ U(d_as_m) and d_AB ~ U(d_ab_m). A share ``no_multipath_fraction``
-    of the rows (drawn independently per row) gets rho_ABA = 0: surfaces with no partner, as most of a
-    real scene is (the paper's prior has multipath in every row: 0).
+    rho_bas). All schemes draw d_AB ~ U(d_ab_m) and d_AS from ``d_as_m`` as ``d_as_distribution`` says:
+    ``uniform`` (default) U(d_as_m), or ``log_uniform``, density 1 / (d ln(high / low)), which puts as many rows
+    in every octave of range (0.5-1, 1-2, 2-4, 4-8 m) so that a wide range is learned at its near and its far
+    end alike. A share ``no_multipath_fraction`` of the rows (drawn independently per row) gets rho_ABA = 0:
+    surfaces with no partner, as most of a real scene is (the paper's prior has multipath in every row: 0).
     """
 
     scheme: Literal["reciprocal", "independent", "explicit"] = "reciprocal"
     d_as_m: Interval = (1.4, 2.4)
+    d_as_distribution: Literal["uniform", "log_uniform"] = "uniform"
     d_ab_m: Interval = (0.0, 0.15)
     albedo: Interval = (0.14, 1.0)
     coupling: Interval = (0.0, 1.0)
@@ -121,11 +124,13 @@ class PriorConfig(_Frozen):
 
     @model_serializer(mode="wrap")
     def _omit_paper_default(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
-        # At 0 (the paper's prior) the field is left out, so configs, dataset stores and model cards made
-        # before it existed keep their hash.
+        # At their defaults (those of the paper's prior) these fields are left out, so configs, dataset stores
+        # and model cards made before they existed keep their hash and their bytes.
         data = handler(self)
         if self.no_multipath_fraction == 0.0:
             data.pop("no_multipath_fraction", None)
+        if self.d_as_distribution == "uniform":
+            data.pop("d_as_distribution", None)
         return data
 
     @field_validator("d_as_m", "d_ab_m", "albedo", "coupling", "rho", "rho_sas", "rho_sab", "rho_aba", "rho_bas")
@@ -139,7 +144,10 @@ class PriorConfig(_Frozen):
     @model_validator(mode="after")
     def _physical_ranges(self) -> PriorConfig:
         if self.d_as_m[0] <= 0:
-            raise ValueError(f"d_as_m must be positive distances, got {list(self.d_as_m)}")
+            # A log-uniform d_AS needs it as much: ln(0) has no value.
+            raise ValueError(f"d_as_m must be positive distances, got {list(self.d_as_m)}"
+                             + (" (a log-uniform d_as_distribution needs low > 0)"
+                                if self.d_as_distribution == "log_uniform" else ""))
         if self.d_ab_m[0] < 0:
             raise ValueError(f"d_ab_m must be non-negative distances, got {list(self.d_ab_m)}")
         for name in ("albedo", "coupling", "rho", "rho_sas", "rho_sab", "rho_aba", "rho_bas"):

@@ -11,15 +11,16 @@ from mpi_lidar.scans.scan import Scan
 
 
 def two_path_scan(name: str, height: int = 24, width: int = 32, multipath: bool = True, seed: int = 0,
-                  config: Config | None = None) -> Scan:
-    """A tilted wall at ~2 m whose left half has multipath (d_AB growing to the right), with geometry."""
+                  config: Config | None = None, near_m: float = 2.0, albedo: float = 0.7) -> Scan:
+    """A tilted wall from ``near_m`` to 10 cm farther whose left half has multipath (d_AB growing to the
+    right), with geometry; every reflection has the ``albedo``."""
     config = config or Config()
-    depth_true = 2.0 + 0.1 * np.linspace(0, 1, width)[None, :].repeat(height, 0)
+    depth_true = near_m + 0.1 * np.linspace(0, 1, width)[None, :].repeat(height, 0)
     theta = np.zeros((height * width, 6))
     theta[:, 0] = depth_true.ravel()
     theta[:, 1] = np.tile(np.linspace(0.0, 0.15, width), height)
-    theta[:, 2:] = 0.7
-    theta[:, 4] = 0.7 * multipath * (np.tile(np.arange(width), height) < width // 2)
+    theta[:, 2:] = albedo
+    theta[:, 4] = albedo * multipath * (np.tile(np.arange(width), height) < width // 2)
     taps = make_sensor(config).taps(theta, np.random.default_rng(seed))
     depth, amplitude = depth_and_amplitude(taps, config.frequencies_hz, config.sensor.speed_of_light_m_per_s)
     f = len(config.frequencies_hz)

@@ -21,8 +21,9 @@ if TYPE_CHECKING:  # the names for type checkers; at run time __getattr__ import
         Flag,
         GateName,
         ScanStatus,
+        UnservedReason,
     )
-    from mpi_lidar.correction.outcome import ScanOutcome
+    from mpi_lidar.correction.outcome import ScanOutcome, Unserved
     from mpi_lidar.correction.scene import NO_GEOMETRY_INPUTS_NOTE, NO_GEOMETRY_NOTE, SceneGeometry, analyse_geometry
     from mpi_lidar.correction.validity import depth_noise_m, noise_floor_v2, quadrature_noise_v2, validity_flags
 
@@ -30,8 +31,8 @@ _MODULES = {
     "mpi_lidar.correction.correct": ("Correction", "correct_scan", "in_model_range"),
     "mpi_lidar.correction.gates": ("ConsistencyGate", "CorrectAll", "Gate", "GeometryGate", "make_gate"),
     "mpi_lidar.correction.options": ("CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "CorrectionOptions", "Flag",
-                                     "GateName", "ScanStatus"),
-    "mpi_lidar.correction.outcome": ("ScanOutcome",),
+                                     "GateName", "ScanStatus", "UnservedReason"),
+    "mpi_lidar.correction.outcome": ("ScanOutcome", "Unserved"),
     "mpi_lidar.correction.scene": ("NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "SceneGeometry", "analyse_geometry"),
     "mpi_lidar.correction.validity": ("depth_noise_m", "noise_floor_v2", "quadrature_noise_v2", "validity_flags"),
 }
@@ -40,7 +41,8 @@ _EXPORTS = {name: module for module, names in _MODULES.items() for name in names
 __all__ = [
     "CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "ConsistencyGate",
     "CorrectAll", "Correction", "CorrectionOptions", "Flag", "Gate", "GateName", "GeometryGate", "ScanOutcome",
-    "ScanStatus", "SceneGeometry", "analyse_geometry", "correct_scan", "depth_noise_m", "in_model_range",
+    "ScanStatus", "SceneGeometry", "Unserved", "UnservedReason", "analyse_geometry", "correct_scan",
+    "depth_noise_m", "in_model_range",
     "make_gate", "noise_floor_v2", "quadrature_noise_v2", "validity_flags",
 ]
 

@@ -30,7 +30,8 @@ from numpy.typing import NDArray
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
 from mpi_lidar.correction.gates import Gate, make_gate
-from mpi_lidar.correction.options import CorrectionOptions, Flag
+from mpi_lidar.correction.options import CorrectionOptions, Flag, UnservedReason
+from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
 from mpi_lidar.correction.validity import usable_depth_of, validity_flags
 from mpi_lidar.learning.features import geometry_inputs
@@ -41,6 +42,9 @@ from mpi_lidar.threads import on_cores_by_rows
 # Rows of a tile's per-pixel work (validity, the model's inputs) that one thread takes at least: NumPy
 # releases the GIL in its loops, so a tile's rows are split among the cores, each row computed as alone.
 PARALLEL_MIN_ROWS = 16_384
+# A scene saturates where it is near and bright; amplitudes in a unit larger than the model's saturate nearly
+# everywhere. Above this share of the pixels with a measurement, a scan is unserved for its amplitude units.
+SATURATED_UNITS_SHARE = 0.9
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,7 @@ class Correction:
     notes: tuple[str, ...] = ()
     cpu_s: dict[str, float] = field(default_factory=dict)
     calibration: FootprintEstimate | None = None
+    unserved: Unserved | None = None
 
     def counts(self) -> dict[str, int]:
         found = np.bincount(self.flags.ravel(), minlength=len(Flag))
@@ -102,7 +107,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     sensor = sensor or SensorConfig()
     tiles = row_tiles(*scan.shape, options.tile_pixels)
     with clock("validity"):
-        flags, usable_depth = _validity_pass(scan, model, options, sensor, tiles)
+        flags, usable_depth = _validity_pass(scan, options, sensor, tiles)
     gate_started = time.perf_counter()
     with clock("gate"):
         gate = make_gate(options)
@@ -110,6 +115,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         if gate.uses_geometry or model.geometric:
             scene = analyse_geometry(scan, usable_depth, options, sensor, with_model_inputs=model.geometric)
         notes = _gate(flags, gate, scene)
+        _range_rule(flags, usable_depth, model, options)
     gate_s = time.perf_counter() - gate_started
     inputs = None if scene is None else scene.model_inputs
     bias_m = None if scene is None else scene.bias_m
@@ -121,23 +127,61 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     if predict:
         gate_s, inference_s = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
     h, w = scan.shape
+    unserved = unserved_reason(flags, model, options, served=predict)
     return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
-                      bias_m, notes, clock.seconds, calibration)
+                      bias_m, notes, clock.seconds, calibration, unserved)
 
 
-def _validity_pass(scan: Scan, model: CorrectionModel, options: CorrectionOptions, sensor: SensorConfig,
+def _range_rule(flags: NDArray[np.uint8], usable_depth: NDArray[np.float32], model: CorrectionModel,
+                options: CorrectionOptions) -> None:
+    """OUT_OF_RANGE, in place, for the pixels still to correct after the gate (NOT_NEEDED) whose depth lies
+    outside the model's range (:func:`in_model_range`). After the gate, so that a pixel out of range that
+    needs no correction says so (NO_MULTIPATH), and OUT_OF_RANGE counts only what the model failed to serve."""
+    candidates = np.flatnonzero(flags == Flag.NOT_NEEDED)
+    outside = ~in_model_range(usable_depth[candidates], model, options)
+    flags[candidates[outside]] = Flag.OUT_OF_RANGE
+
+
+def unserved_reason(flags: NDArray[np.uint8], model: CorrectionModel, options: CorrectionOptions,
+                    served: bool = True) -> Unserved | None:
+    """Why ``model`` could not serve a scan of these ``flags`` (H*W,), or None where it could.
+
+    ``served`` False: the model takes geometric inputs and the scan has none. Saturation in more than
+    :data:`SATURATED_UNITS_SHARE` of the measured pixels reads as amplitudes in another unit; no corrected pixel while
+    some pixels that may need correction were out of the model's range, as a range it was not trained for.
+    """
+    counts = np.bincount(flags.ravel(), minlength=len(Flag))
+    measured = max(int(flags.size - counts[Flag.NOT_FINITE]), 1)
+    low, high = model.card.dataset.prior.d_as_m
+    if counts[Flag.SATURATED] / measured > SATURATED_UNITS_SHARE:
+        return Unserved(UnservedReason.AMPLITUDE_UNITS,
+                        f"{100 * counts[Flag.SATURATED] / measured:.0f} % of the pixels read as saturated (above "
+                        f"{options.saturation_amplitude_v2:g} V^2): the amplitudes are likely in another unit; "
+                        "measure the sensor's saturation level and give it in a profile "
+                        "(mpi-lidar correct --sensor sensor.toml)")
+    if not served:
+        return Unserved(UnservedReason.NO_GEOMETRY,
+                        "the model takes geometric inputs and the scan has no geometry: import the scan with its "
+                        "azimuth and elevation (mpi-lidar import-scan), or train a model without them "
+                        "(mpi-lidar train --no-geometric)")
+    if counts[Flag.CORRECTED] == 0 and counts[Flag.OUT_OF_RANGE] > 0:
+        return Unserved(UnservedReason.OUT_OF_RANGE,
+                        f"{counts[Flag.OUT_OF_RANGE]:,} pixels that may need correction lie outside the model's "
+                        f"range ({low:g}-{high:g} m) and none inside it: train a model for the scan's range "
+                        "(mpi-lidar pipeline --config with prior.d_as_m set)")
+    return None
+
+
+def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
                    tiles: list[slice]) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-    """Validity and model range of every pixel, tile by tile: the flags (H*W,) (NOT_NEEDED where valid and in
-    range) and the highest-frequency depth of the usable pixels (H*W,) [m] (NaN elsewhere)."""
-    f = len(scan.frequencies_hz)
+    """Validity of every pixel, tile by tile: the flags (H*W,) (NOT_NEEDED where valid) and the
+    highest-frequency depth of the usable pixels (H*W,) [m] (NaN elsewhere)."""
     flags = np.empty(scan.shape[0] * scan.shape[1], dtype=np.uint8)
     usable_depth = np.empty(flags.size, dtype=np.float32)
     for pixels, raw in _raw_tiles(scan, tiles):
         def check(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
             part = raw[rows]
             part_flags = validity_flags(part, scan.frequencies_hz, options, sensor)
-            top = part[:, f - 1]
-            part_flags[(part_flags == Flag.NOT_NEEDED) & ~in_model_range(top, model, options)] = Flag.OUT_OF_RANGE
             where = slice(start + rows.start, start + rows.stop)
             flags[where] = part_flags
             usable_depth[where] = usable_depth_of(part, part_flags)

@@ -44,14 +44,33 @@ class ScanStatus(StrEnum):
     the geometry gate, every pixel gated out, or a scan without geometry under a geometric model). degraded:
     the share of invalid pixels (not finite, no return, saturated, inconsistent) is above
     ``CorrectionOptions.max_invalid_share``, whether or not pixels were corrected (a sensor with another gain,
-    a fogged window). skipped: already corrected with the same model and options. failed: no outputs.
+    a fogged window). unserved: the model cannot serve the scan (:class:`UnservedReason`): its outputs hold
+    the pixels as measured, and the batch fails unless told otherwise. skipped: already corrected with the
+    same model and options. failed: no outputs.
     """
 
     CORRECTED = "corrected"
     UNCHANGED = "unchanged"
     DEGRADED = "degraded"
+    UNSERVED = "unserved"
     SKIPPED = "skipped"
     FAILED = "failed"
+
+
+class UnservedReason(StrEnum):
+    """Why a model cannot serve a scan (status unserved), as recorded in ``metrics.json`` and the summary.
+
+    out_of_range: every pixel that may need correction lies outside the range the model was trained for;
+    no_geometry: the model takes geometric inputs and the scan has no geometry; amplitude_units: more than
+    90 % of the measured pixels read as saturated, as amplitudes in another unit than the model's do;
+    ambiguous_range: more than ``max_invalid_share`` of the pixels have an ambiguous range (the frequencies'
+    wrap counts could not be told apart).
+    """
+
+    OUT_OF_RANGE = "out_of_range"
+    NO_GEOMETRY = "no_geometry"
+    AMPLITUDE_UNITS = "amplitude_units"
+    AMBIGUOUS_RANGE = "ambiguous_range"
 
 
 STATUS_ONLY_OPTIONS = frozenset({"max_invalid_share"})  # options that never change a pixel: not hashed

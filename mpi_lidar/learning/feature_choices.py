@@ -8,9 +8,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-FeatureSet = Literal["raw", "engineered"]
+FeatureSet = Literal["raw", "engineered", "range_free"]
 TargetMode = Literal["absolute", "residual"]
-FEATURE_SETS: tuple[str, ...] = ("raw", "engineered")
+FEATURE_SETS: tuple[str, ...] = ("raw", "engineered", "range_free")
+# Feature sets with no absolute depth among their inputs: they can only learn a correction (residual target).
+RELATIVE_FEATURE_SETS: tuple[str, ...] = ("range_free",)
 # Engineered features with the residual target: 6.01 mm test MAE at Table I noise against 6.43 mm for the
 # paper's raw inputs and absolute target (200,000 train rows; docs/results/tradeoff.md).
 DEFAULT_FEATURE_SET: FeatureSet = "engineered"

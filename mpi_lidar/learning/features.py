@@ -9,6 +9,16 @@ Feature sets:
   highest-frequency depth, each amplitude over the highest-frequency amplitude, the inverse-variance-weighted
   depth of all frequencies, and the log amplitude of the highest frequency (the signal level, which sets
   the noise).
+- ``range_free``: the engineered columns without anything that carries the absolute range: the depth
+  differences and amplitude ratios to the highest frequency, the weighted depth minus the highest-frequency
+  depth, and the log amplitude of the highest frequency. The multipath bias depends on the A-B distance and
+  the reflectances, not on d_AS (the phase offset and the amplitude ratio of the two paths do not involve it);
+  range enters only through the amplitude (rho / d^2), which sets the noise. A model on these inputs therefore
+  holds at any range whose amplitudes its training rows covered. It needs the residual target.
+
+Depths past the highest frequency's unambiguous range (c / 2f, 4.8 m at 31.25 MHz) are measured wrapped; every
+set but ``raw`` takes differences of depths and needs them unwrapped (each frequency's depth within half its
+unambiguous range of the others) before :meth:`FeatureSpec.transform`.
 
 Target modes:
 - ``absolute``: the true depth d_AS (the paper's target).
@@ -37,6 +47,7 @@ from mpi_lidar.learning.feature_choices import (  # light for the command line; 
     DEFAULT_GEOMETRIC,  # noqa: F401
     DEFAULT_TARGET_MODE,  # noqa: F401
     FEATURE_SETS,
+    RELATIVE_FEATURE_SETS,
     TARGET_MODES,
     FeatureSet,
     TargetMode,
@@ -143,6 +154,9 @@ class FeatureSpec:
             raise MpiLidarError(f"unknown feature set {self.feature_set!r}; choose one of {', '.join(FEATURE_SETS)}")
         if self.target_mode not in TARGET_MODES:
             raise MpiLidarError(f"unknown target mode {self.target_mode!r}; choose one of {', '.join(TARGET_MODES)}")
+        if self.feature_set in RELATIVE_FEATURE_SETS and self.target_mode == "absolute":
+            raise MpiLidarError(f"the {self.feature_set} feature set holds no absolute depth, so it cannot predict one: "
+                                "use target mode 'residual'")
 
     @property
     def n_freq(self) -> int:
@@ -154,13 +168,14 @@ class FeatureSpec:
 
     @property
     def names(self) -> list[str]:
-        names = self.raw_names
-        if self.feature_set == "engineered":
+        names = self.raw_names if self.feature_set != "range_free" else []
+        if self.feature_set != "raw":
             labels = frequency_labels(self.frequencies_hz)
             top = labels[-1]
             names += [f"depth_{x}_minus_{top}" for x in labels[:-1]]
             names += [f"amplitude_{x}_over_{top}" for x in labels[:-1]]
-            names += ["weighted_depth", f"log_amplitude_{top}"]
+            names += ["weighted_depth" if self.feature_set == "engineered" else f"weighted_depth_minus_{top}",
+                      f"log_amplitude_{top}"]
         if self.geometric:
             names += list(GEOMETRIC_NAMES)
         return names
@@ -234,16 +249,13 @@ class FeatureSpec:
             out[:] = raw
             return out
         f = self.n_freq
+        engineered = self.feature_set == "engineered"
         if out is None:
-            out = np.empty((raw.shape[0], 4 * f), dtype=np.float32)
-        out[:, :2 * f] = raw  # rounded to float32 like every column (exact for float32 measurements)
-        top_depth = raw[:, f - 1].astype(np.float64)
-        top_amplitude = np.maximum(raw[:, 2 * f - 1].astype(np.float64), AMPLITUDE_FLOOR_V2)
-        for k in range(f - 1):
-            out[:, 2 * f + k] = raw[:, k].astype(np.float64) - top_depth
-            out[:, 3 * f - 1 + k] = np.maximum(raw[:, f + k].astype(np.float64), AMPLITUDE_FLOOR_V2) / top_amplitude
-        out[:, 4 * f - 2] = weighted_depth(raw, self.frequencies_hz)
-        out[:, 4 * f - 1] = np.log(top_amplitude)
+            out = np.empty((raw.shape[0], 4 * f if engineered else 2 * f), dtype=np.float32)
+        if engineered:
+            out[:, :2 * f] = raw  # rounded to float32 like every column (exact for float32 measurements)
+        _relative_columns(raw, self.frequencies_hz, out[:, 2 * f:] if engineered else out,
+                          weighted_from_top=not engineered)
         return out
 
     @overload
@@ -278,6 +290,25 @@ class FeatureSpec:
         """Corrected depth from a prediction. [m]"""
         return self.reference_depth(raw) + prediction
 
+
+
+def _relative_columns(raw: NDArray, frequencies_hz: tuple[float, ...], out: NDArray[np.float32],
+                      weighted_from_top: bool) -> None:
+    """The columns relative to the highest frequency, written into ``out`` (n, 2F) in the order of the names.
+
+    Depth differences [m] and amplitude ratios [1] to the highest frequency, the weighted depth (absolute, or
+    minus the highest-frequency depth with ``weighted_from_top``) [m], and the log highest amplitude
+    [log V^2]. Each column is worked out in float64 and rounded once into ``out``.
+    """
+    f = len(frequencies_hz)
+    top_depth = raw[:, f - 1].astype(np.float64)
+    top_amplitude = np.maximum(raw[:, 2 * f - 1].astype(np.float64), AMPLITUDE_FLOOR_V2)
+    for k in range(f - 1):
+        out[:, k] = raw[:, k].astype(np.float64) - top_depth
+        out[:, f - 1 + k] = np.maximum(raw[:, f + k].astype(np.float64), AMPLITUDE_FLOOR_V2) / top_amplitude
+    weighted = weighted_depth(raw, frequencies_hz)
+    out[:, 2 * f - 2] = weighted - top_depth if weighted_from_top else weighted
+    out[:, 2 * f - 1] = np.log(top_amplitude)
 
 
 def is_dask_array(values: object) -> TypeIs[da.Array]:

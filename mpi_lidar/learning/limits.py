@@ -31,6 +31,20 @@ The weights p(theta) L(theta) / q(theta) are exact, so the estimates are consist
 the proposal only sets their variance. Each row reports its Kish effective sample size
 (sum w)^2 / sum w^2 over the particles of all stages, which together give the estimates (each stage's
 weights are exact, so they can be pooled).
+
+d_AS prior: uniform over ``d_as_m``, or log-uniform (density 1 / (d ln(high / low)),
+``PriorConfig.d_as_distribution``).
+
+Range and wrapping: a depth is measured as a phase, wrapped to [0, c / 2f) per frequency (4.8 m at 31.25 MHz).
+The likelihood sees the depths only through the phasors exp(i 4 pi f d / c), which do not change when a depth
+moves by a whole c / 2f: it is right for wrapped and unwrapped depths alike. The proposal is not: its centre
+is a single-path range, by default the weighted depth of the row, which is only meaningful once the depths are
+unwrapped. Past 4.8 m give :func:`posterior_estimates` unwrapped depths or the unwrapped range of each row
+(``range_m``). Within 0.5-12 m a wrong wrap count carries no posterior mass at 12.5-31.25 MHz: the four
+phases agree again only 24 m further (c / 2 gcd(f)), and every other shift that locally fits them best within
++-12 m leaves them 2.8 rad off or more (root sum of squares, at +-10.2 m), against a phase noise of at most
+0.25 rad per frequency (12 m, albedo 0.14): a likelihood ratio below e^-60. So :func:`bayes_limit`, which
+knows the truth, unwraps its rows with the true wrap count.
 """
 
 from __future__ import annotations
@@ -43,6 +57,7 @@ from numpy.typing import NDArray
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import weighted_depth
+from mpi_lidar.physics.demod import unambiguous_range
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.simulation.sampling import sample_theta
 
@@ -87,6 +102,7 @@ class LimitResult:
     mae_se_m, rmse_se_m : Monte-Carlo standard errors over the test rows. [m]
     median_ess : median over rows of the effective sample size. [samples]
     raw_mae_m : MAE of the measured depth at the highest frequency, same rows. [m]
+    raw : the measured rows (n, 2F), depths unwrapped with the true wrap count (as measured up to 4.8 m). [m, V^2]
     """
 
     mae_m: float
@@ -138,6 +154,29 @@ def _log_uniform(x: NDArray[np.float64], interval: tuple[float, float]) -> NDArr
     return np.where(inside, -np.log(hi - lo) if hi > lo else 0.0, -np.inf)
 
 
+def log_d_as_density(d_as_m: NDArray[np.float64], prior: PriorConfig) -> NDArray[np.float64]:
+    """Log prior density of d_AS: uniform over ``prior.d_as_m``, or log-uniform, 1 / (d ln(high / low)). [log 1/m]"""
+    d = np.asarray(d_as_m, dtype=np.float64)
+    if prior.d_as_distribution == "uniform":
+        return _log_uniform(d, prior.d_as_m)
+    lo, hi = prior.d_as_m
+    inside = (d >= lo) & (d <= hi)
+    # ln of the clamped value: proposals land outside the support (even below 0), where the density is 0.
+    return np.where(inside, -np.log(np.clip(d, lo, hi)) - np.log(np.log(hi / lo)), -np.inf)
+
+
+def _unwrap_by_truth(depth_m: NDArray[np.float64], true_d_as_m: NDArray[np.float64],
+                     frequencies_hz: NDArray[np.float64], c: float) -> NDArray[np.float64]:
+    """Measured depths (n, F) moved by whole unambiguous ranges c / 2f to within half of one of the true d_AS. [m]
+
+    The wrap count a simulation knows; rows within half a range of the truth (every row of a prior below
+    2.4 m) are returned unchanged, bit for bit.
+    """
+    ambiguity = unambiguous_range(frequencies_hz, c)[None, :]
+    wraps = np.round((true_d_as_m[:, None] - depth_m) / ambiguity)
+    return depth_m + wraps * ambiguity
+
+
 def _full_theta(d_as, d_ab, a, q) -> NDArray[np.float64]:
     return np.stack([d_as, d_ab, a, a, q, a], axis=-1)
 
@@ -167,11 +206,14 @@ class _Posterior:
         depth, amplitude = raw[:, :f], raw[:, f:]
         return amplitude * np.exp(1j * self.omega * depth), depth, amplitude
 
-    def noise_std(self, raw: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Std of one quadrature (n, F) for single-path light of the measured depth and amplitude. [V^2]"""
+    def noise_std(self, raw: NDArray[np.float64], range_m: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """Std of one quadrature (n, F) for single-path light of the measured amplitude at ``range_m``. [V^2]
+
+        ``range_m`` (n,): the single-path range of each row [m]; default the weighted depth of unwrapped rows.
+        """
         f = self.freqs.size
         s = self.config.sensor
-        d = weighted_depth(raw, tuple(self.freqs))
+        d = weighted_depth(raw, tuple(self.freqs)) if range_m is None else range_m
         a = np.clip(raw[:, 2 * f - 1] * d**2 / s.gamma_r_v2, 1e-6, 1.0)
         theta = _full_theta(d, np.zeros_like(d), a, np.zeros_like(d))
         _, cov = self.smooth.quadrature_moments(theta)
@@ -221,7 +263,8 @@ class _Posterior:
         return d, log_a, sd_d, sd_la
 
     # Sampling -------------------------------------------------------------------------------------
-    def estimate(self, raw: NDArray[np.float64], rng: np.random.Generator, pool: int, stages: int):
+    def estimate(self, raw: NDArray[np.float64], rng: np.random.Generator, pool: int, stages: int,
+                 range_m: NDArray[np.float64] | None = None):
         raw = np.asarray(raw, dtype=np.float64)
         f = self.freqs.size
         if raw.ndim != 2 or raw.shape[1] != 2 * f:
@@ -229,21 +272,24 @@ class _Posterior:
         if not (np.isfinite(raw).all() and (raw[:, f:] > 0).all()):
             raise MpiLidarError("posterior estimates need finite measurements with positive amplitudes")
         n = raw.shape[0]
+        centre = weighted_depth(raw, tuple(self.freqs)) if range_m is None else np.asarray(range_m, np.float64)
+        if centre.shape != (n,) or not (np.isfinite(centre).all() and (centre > 0).all()):
+            raise MpiLidarError(f"range_m must hold one finite positive range per row ({n}), got shape {centre.shape}")
         out = [np.empty(n) for _ in range(4)]
         rows_per_block = max(1, BLOCK_THETAS // (pool * 3))
         for start in range(0, n, rows_per_block):
             rows = slice(start, min(n, start + rows_per_block))
-            for dst, src in zip(out, self._estimate_block(raw[rows], rng, pool, stages), strict=True):
+            for dst, src in zip(out, self._estimate_block(raw[rows], centre[rows], rng, pool, stages), strict=True):
                 dst[rows] = src
         return PosteriorEstimates(*out)
 
-    def _estimate_block(self, raw: NDArray, rng: np.random.Generator, pool: int, stages: int):
+    def _estimate_block(self, raw: NDArray, d0: NDArray, rng: np.random.Generator, pool: int, stages: int):
+        """Estimates for the rows ``raw`` whose single-path (unwrapped) range is ``d0`` (n,) [m]."""
         prior = self.prior
         z, _, amplitude = self.measured(raw)
         p_meas, q_meas = z.real, z.imag
-        sigma = self.noise_std(raw)
+        sigma = self.noise_std(raw, d0)
         n = raw.shape[0]
-        d0 = weighted_depth(raw, tuple(self.freqs))
         a0 = np.clip(amplitude[:, -1] * d0**2 / self.config.sensor.gamma_r_v2, 1e-4, 1.0)
         pi0 = prior.no_multipath_fraction
         sizes = [max(64, pool // 4)] * (stages - 1) + [pool]
@@ -269,7 +315,7 @@ class _Posterior:
             log_a = lac + scale_la * t_a
             a = np.exp(log_a)
             log_prop = (_t_logpdf(t_d, NU) - np.log(scale_d) + _t_logpdf(t_a, NU) - np.log(scale_la) - log_a)
-            log_prior = _log_uniform(d_as, prior.d_as_m) + _log_uniform(a, prior.albedo)
+            log_prior = log_d_as_density(d_as, prior) + _log_uniform(a, prior.albedo)
             multi_prior = _log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
             log_prior = log_prior + np.where(multi, multi_prior, 0.0)
             log_w = log_prior - log_prop - np.where(multi, log_pq, 0.0) + log_mix
@@ -369,13 +415,16 @@ def weighted_median(x: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[n
 
 
 def posterior_estimates(raw: NDArray, config: Config, rng: np.random.Generator, pool: int = DEFAULT_POOL,
-                        stages: int = DEFAULT_STAGES) -> PosteriorEstimates:
+                        stages: int = DEFAULT_STAGES, range_m: NDArray | None = None) -> PosteriorEstimates:
     """Posterior median, mean, std of d_AS and the effective sample size for each raw row (n, 2F) [m, V^2].
 
     Uses the exact Gaussian likelihood of the moment-matched sensor of ``config`` (its noise scale included)
-    and the configured (reciprocal) prior; ``pool`` particles per row at the last stage.
+    and the configured (reciprocal) prior; ``pool`` particles per row at the last stage. ``range_m`` (n,): the
+    unwrapped single-path range of each row, where the proposal is centred [m]; default the weighted depth of
+    the rows, whose depths must then be unwrapped. The likelihood takes the depths modulo c / 2f, so wrapped
+    depths with their unwrapped ``range_m`` give the same estimates as unwrapped depths.
     """
-    return _Posterior(config).estimate(np.asarray(raw, dtype=np.float64), rng, pool, stages)
+    return _Posterior(config).estimate(np.asarray(raw, dtype=np.float64), rng, pool, stages, range_m)
 
 
 def bayes_limit(config: Config, n_test: int, rng: np.random.Generator, pool: int = DEFAULT_POOL,
@@ -384,13 +433,17 @@ def bayes_limit(config: Config, n_test: int, rng: np.random.Generator, pool: int
 
     Returns the MAE of the posterior median and the RMSE of the posterior mean, with their Monte-Carlo
     standard errors over the test rows, the median effective sample size and the raw (highest-frequency)
-    MAE of the same rows.
+    MAE of the same rows. Depths past an unambiguous range are unwrapped with the true wrap count first.
     """
     if n_test < 2:
         raise MpiLidarError(f"n_test must be at least 2, got {n_test}")
     _check(config)
     theta = sample_theta(config.prior, n_test, rng)
     depth, amplitude = MomentSensor(config).measure(theta, rng)
+    # The wrap count is taken from the truth: at these frequencies no other count carries posterior mass
+    # within 24 m (module docstring). A real pipeline unwraps the measured depths itself instead.
+    depth = _unwrap_by_truth(depth, theta[:, 0], np.asarray(config.frequencies_hz, dtype=np.float64),
+                             config.sensor.speed_of_light_m_per_s)
     raw = np.hstack([depth, amplitude])
     est = posterior_estimates(raw, config, rng, pool=pool, stages=stages)
     truth = theta[:, 0]

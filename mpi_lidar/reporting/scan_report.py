@@ -32,6 +32,8 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                            + ", ".join(f"{f / 1e6:g}" for f in scan.frequencies_hz) + " MHz. "
                            f"Correction {correction.total_s:.2f} s (gate {correction.gate_s:.2f} s, inference "
                            f"{correction.inference_s:.2f} s).", flags]
+    if correction.unserved is not None:
+        blocks.insert(1, f"Unserved ({correction.unserved.reason}): {correction.unserved.message}.")
     if metrics:
         blocks.append(metrics_table(metrics))
     files = sorted(files if files is not None else ["corrected.zarr", *figures, "metrics.json", "report.html",
@@ -47,4 +49,5 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                         "outputs": {"level": str(outputs), "files": files},
                         "seconds": {"total": correction.total_s, "gate": correction.gate_s,
                                     "inference": correction.inference_s},
-                        **({} if correction.calibration is None else {"footprint": footprint_record(correction)})})
+                        **({} if correction.calibration is None else {"footprint": footprint_record(correction)}),
+                        **({} if correction.unserved is None else {"unserved": correction.unserved.to_dict()})})

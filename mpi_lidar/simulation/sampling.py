@@ -21,20 +21,32 @@ def _uniform(rng: np.random.Generator, interval: tuple[float, float], n: int) ->
     return rng.uniform(interval[0], interval[1], n)
 
 
+def _d_as(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """n direct depths d_AS from ``prior.d_as_m`` as ``prior.d_as_distribution`` says. [m]
+
+    Both take one uniform draw of n values, so a uniform prior draws exactly the numbers it always drew.
+    """
+    if prior.d_as_distribution == "uniform":
+        return _uniform(rng, prior.d_as_m, n)
+    low, high = prior.d_as_m
+    # exp(ln x) may round one ulp past an end; the clip keeps every draw inside the prior's support.
+    return np.clip(np.exp(rng.uniform(np.log(low), np.log(high), n)), low, high)
+
+
 def _reciprocal(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
-    d_as, d_ab = _uniform(rng, prior.d_as_m, n), _uniform(rng, prior.d_ab_m, n)
+    d_as, d_ab = _d_as(prior, n, rng), _uniform(rng, prior.d_ab_m, n)
     albedo_a, albedo_b = _uniform(rng, prior.albedo, n), _uniform(rng, prior.albedo, n)
     coupling = _uniform(rng, prior.coupling, n)
     return np.column_stack([d_as, d_ab, albedo_a, albedo_a, coupling * albedo_b, albedo_a])
 
 
 def _independent(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
-    d_as, d_ab = _uniform(rng, prior.d_as_m, n), _uniform(rng, prior.d_ab_m, n)
+    d_as, d_ab = _d_as(prior, n, rng), _uniform(rng, prior.d_ab_m, n)
     return np.column_stack([d_as, d_ab, *(_uniform(rng, prior.rho, n) for _ in range(4))])
 
 
 def _explicit(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
-    d_as, d_ab = _uniform(rng, prior.d_as_m, n), _uniform(rng, prior.d_ab_m, n)
+    d_as, d_ab = _d_as(prior, n, rng), _uniform(rng, prior.d_ab_m, n)
     rhos = (prior.rho_sas, prior.rho_sab, prior.rho_aba, prior.rho_bas)
     return np.column_stack([d_as, d_ab, *(_uniform(rng, r, n) for r in rhos)])
 
@@ -49,7 +61,8 @@ SCHEMES: dict[str, Callable[[PriorConfig, int, np.random.Generator], NDArray[np.
 def sample_theta(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
     """Draw n scene parameter vectors, shape (n, 6), columns :data:`THETA_NAMES`. [m, m, 1, 1, 1, 1]
 
-    With ``prior.no_multipath_fraction`` > 0 each row independently loses its multipath (rho_ABA = 0)
+    d_AS is uniform or log-uniform over ``prior.d_as_m`` (``prior.d_as_distribution``), drawn first in every
+    scheme. With ``prior.no_multipath_fraction`` > 0 each row independently loses its multipath (rho_ABA = 0)
     with that probability, drawn after the scheme's columns (a fraction of 0 draws nothing more, so the
     paper's prior gives the same rows as before).
     """

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, TypedDict
 import zarr
 
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, correct_scan, make_gate
+from mpi_lidar.correction.options import UnservedReason
 from mpi_lidar.correction.outcome import invalid_share, scan_status
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, CorrectionModel, load_model
@@ -137,6 +138,7 @@ class _Existing(TypedDict):
     counts: dict[str, int]
     metrics: dict[str, dict[str, float]]
     notes: tuple[str, ...]
+    unserved: UnservedReason | None
 
 
 def _existing_results(target: Path) -> _Existing | None:
@@ -153,9 +155,14 @@ def _existing_results(target: Path) -> _Existing | None:
                               for key in ("counts", "metrics", "notes"))
     if not (isinstance(counts, dict) and all(isinstance(n, int) for n in counts.values())):
         return None
+    unserved = data.get("unserved")
+    reason = unserved.get("reason") if isinstance(unserved, dict) else None
+    if unserved is not None and reason not in set(UnservedReason):
+        return None
     return {"counts": {str(k): int(n) for k, n in counts.items()},
             "metrics": metrics if isinstance(metrics, dict) else {},
-            "notes": tuple(str(n) for n in notes) if isinstance(notes, list) else ()}
+            "notes": tuple(str(n) for n in notes) if isinstance(notes, list) else (),
+            "unserved": None if reason is None else UnservedReason(reason)}
 
 
 def _one_line(exc: Exception) -> str:
@@ -249,11 +256,12 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
             (target / name).is_file() for name in point_cloud_files(scan, outputs, point_clouds))
         existing = _existing_results(target) if done else None
         if existing is not None:
-            counts = existing["counts"]
+            counts, unserved = existing["counts"], existing["unserved"]
             return ScanOutcome(source, name, ScanStatus.SKIPPED, "already corrected with this model and options",
                                output=str(target), counts=counts, metrics=existing["metrics"],
                                seconds=time.perf_counter() - started, notes=existing["notes"],
-                               kept_status=scan_status(counts, options.max_invalid_share))
+                               kept_status=scan_status(counts, options.max_invalid_share, unserved),
+                               unserved=unserved)
         correction = correct_scan(scan, model, options)
     else:
         # Nothing there to skip: the scan's identity is hashed on a thread beside the correction (hashlib
@@ -272,8 +280,11 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
                                    options, outputs, point_clouds=point_clouds)
         metrics = metrics if measuring is None else measuring.result()
     counts = correction.counts()
-    return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share), output=str(target),
-                       counts=counts, metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes))
+    unserved = correction.unserved
+    return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share, unserved and unserved.reason),
+                       "" if unserved is None else unserved.message, output=str(target), counts=counts,
+                       metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes),
+                       unserved=unserved and unserved.reason)
 
 # --- a batch ----------------------------------------------------------------------------------------------
 
@@ -340,12 +351,14 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
 
 # --- which outcomes fail a batch --------------------------------------------------------------------------
 
-# The statuses --fail-on / fail_on may name; failed always fails.
+# The statuses --fail-on / fail_on may name; failed always fails, unserved unless allowed.
 FAIL_ON = (ScanStatus.DEGRADED, ScanStatus.UNCHANGED, ScanStatus.FAILED)
 
 
-def failing_outcomes(outcomes: list[ScanOutcome], fail_on: Sequence[str] = ()) -> list[ScanOutcome]:
-    """The outcomes that fail the batch: every failed scan, and those whose status is in ``fail_on``.
+def failing_outcomes(outcomes: list[ScanOutcome], fail_on: Sequence[str] = (),
+                     allow_unserved: bool = False) -> list[ScanOutcome]:
+    """The outcomes that fail the batch: every failed scan, every unserved one unless ``allow_unserved``, and
+    those whose status is in ``fail_on``.
 
     A skipped scan counts with the status its existing outputs earned (:attr:`ScanOutcome.effective_status`),
     so a re-run fails on a degraded scan as the first run did. Other names than :data:`FAIL_ON` are refused.
@@ -354,6 +367,8 @@ def failing_outcomes(outcomes: list[ScanOutcome], fail_on: Sequence[str] = ()) -
     if unknown:
         raise MpiLidarError(f"fail_on takes {', '.join(FAIL_ON)}; not {', '.join(map(repr, unknown))}")
     statuses = {ScanStatus.FAILED, *(ScanStatus(status) for status in fail_on)}
+    if not allow_unserved:
+        statuses.add(ScanStatus.UNSERVED)
     return [o for o in outcomes if o.effective_status in statuses]
 
 
@@ -367,6 +382,9 @@ def _why(outcome: ScanOutcome) -> str:
         why = outcome.reason
     elif outcome.effective_status == ScanStatus.DEGRADED:
         why = f"degraded: {100 * invalid_share(outcome.counts):.1f} % of its pixels are invalid"
+    elif outcome.effective_status == ScanStatus.UNSERVED:
+        why = f"unserved ({outcome.unserved}): {outcome.reason}" if outcome.status != ScanStatus.SKIPPED else (
+            f"unserved ({outcome.unserved})")
     else:
         why = f"{outcome.effective_status}: no pixel was corrected"
     if outcome.status == ScanStatus.SKIPPED:
@@ -374,9 +392,10 @@ def _why(outcome: ScanOutcome) -> str:
     return why
 
 
-def batch_failure(outcomes: list[ScanOutcome], fail_on: Sequence[str] = ()) -> str | None:
+def batch_failure(outcomes: list[ScanOutcome], fail_on: Sequence[str] = (),
+                  allow_unserved: bool = False) -> str | None:
     """One line saying why the batch fails (``2 of 5 scans failed or degraded (...)``), or None if it does not."""
-    bad = failing_outcomes(outcomes, fail_on)
+    bad = failing_outcomes(outcomes, fail_on, allow_unserved)
     if not bad:
         return None
     statuses = " or ".join(dict.fromkeys(str(o.effective_status) for o in bad))

@@ -73,7 +73,7 @@ def test_correct_archive_flow__fail_on_ends_failed_after_the_summary(archive, sm
                                  workers=0, return_state=True)
     assert state.is_failed()
     assert "2 of 2 scans unchanged" in str(state.message) and "north.scan.zarr: unchanged" in str(state.message)
-    assert "0 corrected, 0 unchanged, 0 degraded, 2 already done, 0 failed." in (
+    assert "0 corrected, 0 unchanged, 0 degraded, 0 unserved, 2 already done, 0 failed." in (
         out / "summary" / "report.md").read_text()
     with pytest.raises(Exception, match="fail_on"):
         correct_archive_flow(scans=scans, model=str(small_model), out=str(out), fail_on=["corrected"], workers=0)

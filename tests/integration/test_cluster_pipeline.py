@@ -70,7 +70,7 @@ def test_cli_pipeline__runs_unchanged_on_dask_processes_and_postgresql(
         depth = zarr.open_group(str(output / "corrected.zarr"), mode="r")["corrected_depth"][:]
         assert depth.shape == (96, 128) and np.isfinite(depth).mean() > 0.9
         assert (output / "report.html").is_file() and (output / "corrected.ply").is_file()
-    assert "1 corrected, 1 unchanged, 0 degraded, 0 already done, 0 failed" in (
+    assert "1 corrected, 1 unchanged, 0 degraded, 0 unserved, 0 already done, 0 failed" in (
         out / "summary" / "report.md").read_text()  # the corner is corrected, the flat wall left as measured
     assert not (tmp_path / "optuna.db").exists()
     assert all(PASSWORD not in r.stdout + r.stderr for r in (tuned, trained))

@@ -192,4 +192,6 @@ def test_correct_scan__geometric_model_keeps_raw_depth_without_scan_geometry(mod
     correction = correct_scan(scan, load_model(models[True]), CorrectionOptions())
     assert correction.notes == (NO_GEOMETRY_INPUTS_NOTE,)
     assert correction.counts()["corrected"] == 0
+    assert correction.unserved is not None and correction.unserved.reason == "no_geometry"
+    assert "mpi-lidar import-scan" in correction.unserved.message
     np.testing.assert_array_equal(correction.depth.ravel(), scan.raw_pixels()[:, len(FREQS) - 1].astype(np.float32))

@@ -19,5 +19,5 @@ def test_batch_report__counts_every_status_and_escapes_cells():
                 ScanOutcome("b.scan.zarr", "b", ScanStatus.SKIPPED, reason="already corrected",
                             kept_status=ScanStatus.DEGRADED)]
     report = batch_report(outcomes, 2.0).markdown()
-    assert "2 scans in 2.0 s: 0 corrected, 0 unchanged, 0 degraded, 1 already done, 1 failed." in report
+    assert "2 scans in 2.0 s: 0 corrected, 0 unchanged, 0 degraded, 0 unserved, 1 already done, 1 failed." in report
     assert "bad \\| chunk" in report and "already corrected (degraded)" in report

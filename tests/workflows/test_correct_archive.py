@@ -158,7 +158,7 @@ def test_correct_archive__rerun_keeps_the_numbers_in_the_summary(small_model, tm
 
     assert rows(second) == rows(first) and all(cell for row in rows(second) for cell in row[2:])
     summary = batch_report(second, 1.0).markdown()
-    assert "2 scans in 1.0 s: 0 corrected, 0 unchanged, 0 degraded, 2 already done, 0 failed." in summary
+    assert "2 scans in 1.0 s: 0 corrected, 0 unchanged, 0 degraded, 0 unserved, 2 already done, 0 failed." in summary
     assert "already corrected with this model and options (corrected)" in summary
 
 
@@ -199,6 +199,56 @@ def test_process_scan__mostly_saturated_scan_is_degraded(small_model, tmp_path):
     assert again.status == "skipped" and again.kept_status == "corrected", "re-classified, not re-corrected"
 
 
+def near_end_scan(model_dir: Path, name: str) -> Scan:
+    """A two-path wall at 70 % of the model's nearest trained range: out of its range, multipath in half."""
+    low = load_model(model_dir).card.dataset.prior.d_as_m[0]
+    return two_path_scan(name, near_m=0.7 * low, albedo=0.3)
+
+
+def test_process_scan__scan_out_of_the_models_range_is_unserved_with_its_reason(small_model, tmp_path):
+    write_scan(near_end_scan(small_model, "near"), tmp_path / "near.scan.zarr")
+    outcome = process_scan(tmp_path / "near.scan.zarr", small_model, tmp_path / "out", ALL, outputs=LIGHT)
+    assert outcome.status == ScanStatus.UNSERVED and outcome.unserved == "out_of_range"
+    assert outcome.counts["corrected"] == 0 and outcome.counts["out_of_range"] > 0
+    assert "mpi-lidar pipeline" in outcome.reason
+    recorded = json.loads((tmp_path / "out" / "near" / "metrics.json").read_text())["unserved"]
+    assert recorded["reason"] == "out_of_range" and recorded["message"] == outcome.reason
+    assert "| near | unserved |" in batch_report([outcome], 1.0).markdown()
+    again = process_scan(tmp_path / "near.scan.zarr", small_model, tmp_path / "out", ALL, outputs=LIGHT)
+    assert again.status == "skipped" and again.kept_status == "unserved" and again.unserved == "out_of_range"
+
+
+def test_process_scan__flat_wall_out_of_range_that_needs_nothing_stays_unchanged(small_model, tmp_path):
+    wall = two_path_scan("wall", multipath=False, near_m=0.7 * load_model(small_model).card.dataset.prior.d_as_m[0],
+                         albedo=0.3)
+    write_scan(wall, tmp_path / "flat.scan.zarr")
+    outcome = process_scan(tmp_path / "flat.scan.zarr", small_model, tmp_path / "out", CorrectionOptions(),
+                           outputs=LIGHT)
+    assert outcome.status == ScanStatus.UNCHANGED and outcome.unserved is None
+    assert outcome.counts["out_of_range"] == 0 and outcome.counts["no_multipath"] > 0
+
+
+def test_process_scan__amplitudes_in_another_unit_are_unserved_not_degraded(small_model, tmp_path):
+    scan = two_path_scan("counts")
+    write_scan(replace(scan, amplitude=(scan.amplitude * 4000).astype(np.float32)), tmp_path / "counts.scan.zarr")
+    outcome = process_scan(tmp_path / "counts.scan.zarr", small_model, tmp_path / "out", ALL, outputs=LIGHT)
+    assert outcome.status == ScanStatus.UNSERVED and outcome.unserved == "amplitude_units"
+    assert "--sensor" in outcome.reason
+
+
+def test_correct_cli__unserved_scan_exits_1_unless_allowed(small_model, tmp_path, monkeypatch, capsys):
+    archive = tmp_path / "archive"
+    write_scan(near_end_scan(small_model, "near"), archive / "near.scan.zarr")
+    write_scan(two_path_scan("fine", seed=1), archive / "fine.scan.zarr")
+    arguments = ["correct", archive, "--model", small_model, "--gate", "all", "--workers", "0"]
+    code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "strict")
+    assert code == 1 and "| near | unserved |" in out and "| fine | corrected |" in out
+    assert err.startswith(f"error: scan {archive / 'near.scan.zarr'}: unserved (out_of_range): ")
+    assert len(err.splitlines()) == 1 and "mpi-lidar pipeline" in err
+    code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "lenient", "--allow-unserved")
+    assert code == 0 and err == "" and "1 corrected, 0 unchanged, 0 degraded, 1 unserved" in out
+
+
 def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_model, tmp_path, monkeypatch,
                                                                           capsys):
     archive = tmp_path / "archive"
@@ -208,7 +258,7 @@ def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_m
 
     code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "plain")
     assert code == 0 and err == "" and "| hot | degraded |" in out and "| fine | corrected |" in out
-    assert "2 scans in" in out and "1 corrected, 0 unchanged, 1 degraded, 0 already done, 0 failed." in out
+    assert "2 scans in" in out and "1 corrected, 0 unchanged, 1 degraded, 0 unserved, 0 already done, 0 failed." in out
 
     code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "strict",
                                "--fail-on", "degraded", "--fail-on", "unchanged")
