@@ -393,7 +393,12 @@ def calibrate(scans: tuple[str, ...], out: Path, no_reference: bool) -> None:
 @click.option("--var", "variables", multiple=True, metavar="NAME=VARIABLE",
               help="Read the scan array NAME (depth, amplitude, taps, azimuth_rad, elevation_rad, reference_depth, "
                    "frequencies_hz, ...) from the file's VARIABLE (array of an .npz); repeatable.")
-def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, variables: tuple[str, ...]) -> None:
+@click.option("--depths", type=click.Choice(["wrapped", "unwrapped"]), default="wrapped", show_default=True,
+              help="wrapped: each frequency's depth lies in [0, c/2f), as its phase measures it (correction "
+                   "unwraps them into one range, out to 24 m at 12.5-31.25 MHz); unwrapped: the scanner gives "
+                   "one range per frequency already.")
+def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, variables: tuple[str, ...],
+                depths: str) -> None:
     """Import scans from .npz archives or NetCDF/HDF5 files (.nc, .h5, .hdf5): files, directories or globs.
 
     \b
@@ -406,6 +411,7 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
     the whole import with one error line (exit 2), and nothing is written.
     """
     from mpi_lidar.scans.importers import find_scan_files, import_files, plan_import
+    from mpi_lidar.scans.importers.base import check_frequencies_in_hz
 
     freqs = None
     if frequencies:
@@ -413,6 +419,7 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
             freqs = tuple(float(f) for f in frequencies.split(","))
         except ValueError:
             raise MpiLidarError(f"--frequencies must be comma-separated numbers in Hz, got {frequencies!r}") from None
+        check_frequencies_in_hz(freqs, "--frequencies")  # before any file is read
     mapping = {}
     for item in variables:
         name, sep, variable = item.partition("=")
@@ -427,7 +434,7 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
         click.echo(f"scan {scan.name}: {scan.shape[0]} x {scan.shape[1]} pixels at {len(scan.frequencies_hz)} "
                    f"frequencies written to {target}")
 
-    import_files(plan, freqs, mapping, on_scan=echo)
+    import_files(plan, freqs, mapping, on_scan=echo, depth_wrapped=depths == "wrapped")
 
 
 @cli.command("render-scenes")

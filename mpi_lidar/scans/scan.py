@@ -68,6 +68,10 @@ class Scan:
     reference_mask: NDArray[np.bool_] | None = None
     taps: NDArray[np.float32] | None = None
     scene: dict[str, object] = field(default_factory=dict)
+    # Whether each frequency's depth is wrapped into [0, c / 2f), as a phase measures it (True), or already
+    # unwrapped into one range by the scanner (False). Under the highest frequency's ambiguity distance
+    # (4.8 m at 31.25 MHz) the two are the same.
+    depth_wrapped: bool = True
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -109,8 +113,11 @@ class Scan:
         return not isinstance(self.depth, StoredMap) and not isinstance(self.amplitude, StoredMap)
 
     def content_sha256(self) -> str:
-        """Identity of what correction reads: frequencies, depth and amplitude maps, geometry."""
+        """Identity of what correction reads: frequencies, depth and amplitude maps (and whether the depths are
+        wrapped), geometry."""
         digest = hashlib.sha256(json.dumps([float(f) for f in self.frequencies_hz]).encode())
+        if not self.depth_wrapped:  # the common case leaves the identities of earlier scans as they were
+            digest.update(b"depth unwrapped")
         for array in (self.depth, self.amplitude, self.azimuth_rad, self.elevation_rad, self.ray_directions):
             parts = array.c_order_parts() if isinstance(array, StoredMap) else [] if array is None else [array]
             for part in parts:

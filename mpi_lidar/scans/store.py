@@ -73,7 +73,8 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
                                chunks=dict.fromkeys(maps, (1, min(h, 512), min(w, 512))))
         scene = cast("JSON", scan.scene)  # free metadata that zarr writes as JSON
         group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": [float(f) for f in scan.frequencies_hz],
-                            "name": scan.name, "scene": scene, "chunk_sha256": store_fingerprints(group)})
+                            "name": scan.name, "scene": scene, "depth_wrapped": scan.depth_wrapped,
+                            "chunk_sha256": store_fingerprints(group)})
         consolidate(staging)
     return path
 
@@ -179,9 +180,13 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
                             f"its frequencies_hz attribute {list(frequencies)}; the store was altered")
         name = str(attrs.get("name") or path.name.removesuffix(SCAN_SUFFIX))
         scene = attrs.get("scene") or {}
+        wrapped = attrs.get("depth_wrapped", True)  # absent in scans written before unwrapping: as measured
+        if not isinstance(wrapped, bool):
+            raise ScanError(f"{path}: its depth_wrapped attribute is {wrapped!r}, not true or false; the store was "
+                            "altered")
         if {"depth", "amplitude"} <= members:
             scan = Scan(name=name, frequencies_hz=frequencies, depth=read("depth"), amplitude=read("amplitude"),
-                        taps=optional.get("taps"), scene=scene, **scan_extras(optional))
+                        taps=optional.get("taps"), scene=scene, depth_wrapped=wrapped, **scan_extras(optional))
         elif "taps" in members:
             scan = from_taps(name, frequencies, optional["taps"], c, scene=scene, **scan_extras(optional))
         else:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import glob
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from mpi_lidar.scans.importers.base import SCAN_VARIABLES, ScanImporter, check_variables, import_arrays
@@ -98,8 +99,11 @@ def plan_import(files: Sequence[Path], out: str | Path) -> list[tuple[Path, Path
 
 def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float, ...] | None = None,
                  variables: Mapping[str, str] | None = None,
-                 on_scan: Callable[[Scan, Path], None] | None = None) -> list[Path]:
+                 on_scan: Callable[[Scan, Path], None] | None = None, depth_wrapped: bool = True) -> list[Path]:
     """Import every (source, store) pair of :func:`plan_import`: all or nothing.
+
+    ``depth_wrapped``: whether the files' depths are each frequency's wrapped depth (a phase's, the default)
+    or one range the scanner unwrapped already; the stores record it (:attr:`Scan.depth_wrapped`).
 
     Every file is read and validated before the first store is written, so one bad file refuses the whole
     import with its error and nothing is written. Scans that fit :data:`MAX_SCAN_BYTES` together are kept
@@ -116,6 +120,7 @@ def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float,
     written = []
     for (source, target), kept in zip(plan, loaded, strict=True):
         scan = kept if kept is not None else load_scan_file(source, frequencies_hz, variables)
+        scan = replace(scan, depth_wrapped=depth_wrapped)
         written.append(write_scan(scan, target))
         if on_scan is not None:
             on_scan(scan, target)

@@ -4,7 +4,7 @@ and the building of a validated :class:`~mpi_lidar.scans.scan.Scan` from plain a
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import ClassVar
 
@@ -55,6 +55,7 @@ def import_arrays(
     ``source`` (default ``name``) names where the arrays come from in the error messages, e.g. the file.
     """
     source = source or name
+    check_frequencies_in_hz(frequencies_hz, source)
     known = {"depth", "amplitude", *OPTIONAL_ARRAYS}
     unknown = sorted(set(arrays) - known - {"frequencies_hz"})
     if unknown:
@@ -73,6 +74,21 @@ def import_arrays(
     else:
         raise ScanError(f"{source}: needs arrays 'depth' and 'amplitude' (F, H, W), or 'taps' (F, 4, H, W)")
     return validate(scan, source)
+
+
+# The lowest modulation frequency taken as one [Hz]: an AMCW scanner modulates at MHz; a value below this is
+# a frequency written in MHz or kHz (12.5 for 12.5 MHz), which would unwrap and correct nothing right.
+MIN_MODULATION_HZ = 1e4
+
+
+def check_frequencies_in_hz(frequencies_hz: Sequence[float], source: str) -> None:
+    """Refuse frequencies that are not positive numbers of Hz, or that look like MHz, with one line."""
+    for f in frequencies_hz:
+        if not np.isfinite(f) or f <= 0:
+            raise ScanError(f"{source}: frequency {f!r} is not a positive number of Hz")
+        if f < MIN_MODULATION_HZ:
+            raise ScanError(f"{source}: frequency {f:g} Hz is below {MIN_MODULATION_HZ:g} Hz; frequencies are in Hz "
+                            f"({f:g} MHz is {f * 1e6:g})")
 
 
 def _boolean_mask(name: str, mask: NDArray) -> NDArray[np.bool_]:

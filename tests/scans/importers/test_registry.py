@@ -98,3 +98,29 @@ def test_import_scan_cli__single_store_and_user_errors(tmp_path, monkeypatch, ca
         assert code == 2 and out == "", args
         assert_one_error_line(err, fragment)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.npz", "two.npz", "x.scan.zarr"]
+
+
+def test_import_scan_cli__frequencies_in_mhz_are_refused_before_anything_is_read(tmp_path, monkeypatch, capsys):
+    save_npz(tmp_path / "a.npz", "a")
+    code, out, err = call_main(monkeypatch, capsys, "import-scan", tmp_path / "a.npz",
+                               "--out", tmp_path / "a.scan.zarr", "--frequencies", "12.5,18.75,25,31.25")
+    assert code == 2 and out == ""
+    assert_one_error_line(err, "12.5 MHz is 1.25e+07")
+    assert not (tmp_path / "a.scan.zarr").exists()
+    np.savez(tmp_path / "b.npz", depth=np.ones((4, 6, 5), np.float32), amplitude=np.ones((4, 6, 5), np.float32),
+             frequencies_hz=np.asarray(FREQS) / 1e6)
+    code, out, err = call_main(monkeypatch, capsys, "import-scan", tmp_path / "b.npz",
+                               "--out", tmp_path / "b.scan.zarr")
+    assert code == 2 and "b.npz" in err and "frequencies are in Hz" in err
+
+
+def test_import_scan_cli__depths_wrapped_or_unwrapped_are_recorded(tmp_path, monkeypatch, capsys):
+    save_npz(tmp_path / "a.npz", "a")
+    for depths in ("wrapped", "unwrapped"):
+        store = tmp_path / f"{depths}.scan.zarr"
+        code, _, err = call_main(monkeypatch, capsys, "import-scan", tmp_path / "a.npz", "--out", store,
+                                 "--depths", depths)
+        assert code == 0, err
+        assert read_scan(store).depth_wrapped is (depths == "wrapped")
+    wrapped, unwrapped = (read_scan(tmp_path / f"{d}.scan.zarr") for d in ("wrapped", "unwrapped"))
+    assert wrapped.content_sha256() != unwrapped.content_sha256(), "the convention is part of what correction reads"
