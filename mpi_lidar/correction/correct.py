@@ -33,7 +33,7 @@ from mpi_lidar.correction.gates import Gate, make_gate
 from mpi_lidar.correction.options import CorrectionOptions, Flag, UnservedReason
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
-from mpi_lidar.correction.validity import usable_depth_of, validity_flags
+from mpi_lidar.correction.validity import unwrapped_rows, usable_depth_of, validity_flags
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.scans.scan import Scan
@@ -45,6 +45,8 @@ PARALLEL_MIN_ROWS = 16_384
 # A scene saturates where it is near and bright; amplitudes in a unit larger than the model's saturate nearly
 # everywhere. Above this share of the pixels with a measurement, a scan is unserved for its amplitude units.
 SATURATED_UNITS_SHARE = 0.9
+# Above this share of the pixels with a measurement ambiguous in range, the scan is unserved for it.
+AMBIGUOUS_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,11 @@ class Correction:
     ``notes`` what the report must say;
     ``cpu_s`` the CPU seconds of this process (all threads) per stage: validity, gate, inference (the model's
     features and its prediction) [s]; ``calibration`` the scan's own footprint estimate where the footprint
-    was "auto" and the geometry was analysed (None otherwise).
+    was "auto" and the geometry was analysed (None otherwise); ``unserved`` why the model could not serve the
+    scan (None where it could); ``measured_depth`` (H, W) the highest frequency's depth as measured [m],
+    unwrapped into one range where the scan's depths were wrapped (as measured where the range is ambiguous),
+    which is what correction compares with; ``unwrap_confidence`` (H, W) the unwrapping's confidence [1] (None
+    for a scan whose depths came unwrapped).
     """
 
     depth: NDArray[np.float32]
@@ -69,6 +75,8 @@ class Correction:
     cpu_s: dict[str, float] = field(default_factory=dict)
     calibration: FootprintEstimate | None = None
     unserved: Unserved | None = None
+    measured_depth: NDArray[np.float32] | None = None
+    unwrap_confidence: NDArray[np.float32] | None = None
 
     def counts(self) -> dict[str, int]:
         found = np.bincount(self.flags.ravel(), minlength=len(Flag))
@@ -107,7 +115,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     sensor = sensor or SensorConfig()
     tiles = row_tiles(*scan.shape, options.tile_pixels)
     with clock("validity"):
-        flags, usable_depth = _validity_pass(scan, options, sensor, tiles)
+        flags, usable_depth, measured = _validity_pass(scan, options, sensor, tiles)
     gate_started = time.perf_counter()
     with clock("gate"):
         gate = make_gate(options)
@@ -123,13 +131,16 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     predict = not (model.geometric and (scene is None or not scene.has_geometry))
     del scene  # its masks are in the flags now
     depth = usable_depth  # the scene geometry is done with it: filled in place, no copy
+    ambiguous = flags == Flag.AMBIGUOUS
+    depth[ambiguous] = measured.depth[ambiguous]  # a range that cannot be told: as measured
     inference_s = 0.0
     if predict:
         gate_s, inference_s = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
     h, w = scan.shape
     unserved = unserved_reason(flags, model, options, served=predict)
     return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
-                      bias_m, notes, clock.seconds, calibration, unserved)
+                      bias_m, notes, clock.seconds, calibration, unserved, measured.depth.reshape(h, w),
+                      None if measured.confidence is None else measured.confidence.reshape(h, w))
 
 
 def _range_rule(flags: NDArray[np.uint8], usable_depth: NDArray[np.float32], model: CorrectionModel,
@@ -164,6 +175,11 @@ def unserved_reason(flags: NDArray[np.uint8], model: CorrectionModel, options: C
                         "the model takes geometric inputs and the scan has no geometry: import the scan with its "
                         "azimuth and elevation (mpi-lidar import-scan), or train a model without them "
                         "(mpi-lidar train --no-geometric)")
+    if counts[Flag.AMBIGUOUS] / measured > AMBIGUOUS_SHARE:
+        return Unserved(UnservedReason.AMBIGUOUS_RANGE,
+                        f"{100 * counts[Flag.AMBIGUOUS] / measured:.0f} % of the pixels have an ambiguous range: "
+                        "their frequencies' wrap counts cannot be told apart at their noise; if the scanner "
+                        "unwrapped its depths already, import them so (mpi-lidar import-scan --depths unwrapped)")
     if counts[Flag.CORRECTED] == 0 and counts[Flag.OUT_OF_RANGE] > 0:
         return Unserved(UnservedReason.OUT_OF_RANGE,
                         f"{counts[Flag.OUT_OF_RANGE]:,} pixels that may need correction lie outside the model's "
@@ -172,22 +188,47 @@ def unserved_reason(flags: NDArray[np.uint8], model: CorrectionModel, options: C
     return None
 
 
-def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
-                   tiles: list[slice]) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-    """Validity of every pixel, tile by tile: the flags (H*W,) (NOT_NEEDED where valid) and the
-    highest-frequency depth of the usable pixels (H*W,) [m] (NaN elsewhere)."""
+@dataclass(frozen=True)
+class _Measured:
+    """The highest frequency's depth of every pixel as measured (H*W,) [m], unwrapped into one range where the
+    scan's depths were wrapped and the unwrapping is certain, and the unwrapping's confidence (H*W,) [1] (None
+    for a scan whose depths came unwrapped)."""
+
+    depth: NDArray[np.float32]
+    confidence: NDArray[np.float32] | None
+
+
+def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
+                   ) -> tuple[NDArray[np.uint8], NDArray[np.float32], _Measured]:
+    """Unwrapping and validity of every pixel, tile by tile: the flags (H*W,) (NOT_NEEDED where valid), the
+    highest-frequency depth of the usable pixels (H*W,) [m] (NaN elsewhere) and the measured depth."""
+    f = len(scan.frequencies_hz)
     flags = np.empty(scan.shape[0] * scan.shape[1], dtype=np.uint8)
     usable_depth = np.empty(flags.size, dtype=np.float32)
+    measured = _Measured(np.empty(flags.size, dtype=np.float32),
+                         np.empty(flags.size, dtype=np.float32) if scan.depth_wrapped else None)
     for pixels, raw in _raw_tiles(scan, tiles):
         def check(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
-            part = raw[rows]
-            part_flags = validity_flags(part, scan.frequencies_hz, options, sensor)
+            part, confidence = _unwrapped(scan, raw[rows], sensor)
+            part_flags = validity_flags(part, scan.frequencies_hz, options, sensor, confidence)
             where = slice(start + rows.start, start + rows.stop)
             flags[where] = part_flags
             usable_depth[where] = usable_depth_of(part, part_flags)
+            measured.depth[where] = np.where(part_flags == Flag.AMBIGUOUS, raw[rows, f - 1], part[:, f - 1])
+            if measured.confidence is not None and confidence is not None:
+                measured.confidence[where] = confidence
 
         on_cores_by_rows(check, raw.shape[0], PARALLEL_MIN_ROWS)
-    return flags, usable_depth
+    return flags, usable_depth, measured
+
+
+def _unwrapped(scan: Scan, raw: NDArray[np.float32], sensor: SensorConfig,
+               ) -> tuple[NDArray[np.float32], NDArray[np.float64] | None]:
+    """Raw rows of the scan with their depths in one range (:func:`unwrapped_rows`) where the scan's depths are
+    wrapped, and the unwrapping's confidence; the rows as they are (and None) where they came unwrapped."""
+    if not scan.depth_wrapped:
+        return raw, None
+    return unwrapped_rows(raw, scan.frequencies_hz, sensor)
 
 
 def _gate(flags: NDArray[np.uint8], gate: Gate, scene: SceneGeometry | None) -> tuple[str, ...]:
@@ -216,11 +257,13 @@ def _predict(scan: Scan, model: CorrectionModel, sensor: SensorConfig, tiles: li
     for pixels, raw in _raw_tiles(scan, tiles):
         tile_cpu, tile_started = time.process_time(), time.perf_counter()
         valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
-        needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
+        rows, _ = _unwrapped(scan, raw[valid], sensor)  # the same rows as in the validity pass
+        picked = gate.needs_correction(rows, scan.frequencies_hz, sensor)
+        needs, rows = valid[picked], rows[picked]
         gate_cpu, gate_wall = time.process_time() - tile_cpu, time.perf_counter() - tile_started
         if needs.size:
             depth[pixels.start + needs], inputs_cpu, inputs_wall = _predict_pixels(
-                model, raw[needs], pixels.start + needs, inputs)
+                model, rows, pixels.start + needs, inputs)
             gate_cpu, gate_wall = gate_cpu + inputs_cpu, gate_wall + inputs_wall
         flags[pixels.start + needs] = Flag.CORRECTED
         # The pixel-wise gate and the geometric inputs are the gate's share of the tile; the model's inputs and

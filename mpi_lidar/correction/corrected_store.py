@@ -32,6 +32,7 @@ def write_corrected_store(path: Path, scan: Scan, correction: Correction, identi
     group = zarr.open_group(store=str(path), mode="w-")
     written: tuple[tuple[str, NDArray | None], ...] = (
         ("corrected_depth", correction.depth), ("flags", correction.flags),
+        ("measured_depth", correction.measured_depth), ("unwrap_confidence", correction.unwrap_confidence),
         ("multipath_bias_m", correction.multipath_bias_m),
         ("azimuth_rad", scan.azimuth_rad), ("elevation_rad", scan.elevation_rad))
     arrays = {name: (np.asarray(values), CORRECTED[name].dims) for name, values in written if values is not None}

@@ -33,6 +33,7 @@ class Flag(IntEnum):
     OUT_OF_RANGE = 6
     NO_MULTIPATH = 7
     UNCALIBRATED = 8
+    AMBIGUOUS = 9
 
 
 INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
@@ -63,8 +64,8 @@ class UnservedReason(StrEnum):
     out_of_range: every pixel that may need correction lies outside the range the model was trained for;
     no_geometry: the model takes geometric inputs and the scan has no geometry; amplitude_units: more than
     90 % of the measured pixels read as saturated, as amplitudes in another unit than the model's do;
-    ambiguous_range: more than ``max_invalid_share`` of the pixels have an ambiguous range (the frequencies'
-    wrap counts could not be told apart).
+    ambiguous_range: more than half of the measured pixels have an ambiguous range (the frequencies' wrap
+    counts could not be told apart).
     """
 
     OUT_OF_RANGE = "out_of_range"
@@ -98,6 +99,10 @@ class CorrectionOptions(BaseModel):
     # (benchmarks/model_range.py): such depths are corrected, not left raw.
     near_range_fraction: Annotated[float, Field(ge=0, lt=1)] = 0.15
     consistency_p_value: Annotated[float, Field(gt=0, lt=1)] = 0.01
+    # A wrapped scan's pixels whose wrap counts have a lower posterior probability than this are ambiguous:
+    # left as measured (flag ambiguous). At 0.999 fewer than 0.1 % of the pixels kept are expected to be
+    # unwrapped wrong where the noise model holds (mpi_lidar.physics.unwrap).
+    min_unwrap_confidence: Annotated[float, Field(gt=0, lt=1)] = 0.999
     min_multipath_bias_m: NonNegative = 0.004
     geometry_block_m: Positive = geometry.DEFAULT_BLOCK_M
     partner_range_m: Positive = geometry.DEFAULT_MAX_RANGE_M

@@ -1,4 +1,5 @@
-"""Which pixels can be trusted at all: finite, above the noise floor, unsaturated, frequencies consistent."""
+"""Which pixels can be trusted at all: one range from the wrapped depths, finite, above the noise floor,
+unsaturated, frequencies consistent."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
 from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.physics.sensor import received_voltage_amplitude
+from mpi_lidar.physics.unwrap import unwrap_depths
 
 
 @lru_cache(maxsize=4)
@@ -29,7 +31,26 @@ def quadrature_noise_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...],
     """Std of a tap quadrature (n, F) [V^2] for single-path light of the measured amplitudes (n, F) [V^2].
 
     Shot noise grows with the signal, so the depth noise of a pixel is this over its amplitude, times c / 4 pi f.
+    The moment model's variance is a + b A in the amplitude A (thermal and amplifier noise, plus shot noise in
+    proportion to the light), so it is worked out at two amplitudes once per sensor and evaluated as that line.
     """
+    offset, slope = _quadrature_variance_line(sensor, tuple(frequencies_hz))
+    return np.sqrt(offset + slope * np.maximum(amplitude_v2, 0.0))
+
+
+@lru_cache(maxsize=8)
+def _quadrature_variance_line(sensor: SensorConfig, frequencies_hz: tuple[float, ...],
+                              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Offset [V^4] and slope [V^2] per frequency (F,) of the moment model's quadrature variance against the
+    amplitude: its variance at no light, and its growth per V^2 (at 1 V^2)."""
+    variance = _moment_quadrature_noise(sensor, frequencies_hz, np.array([[0.0], [1.0]]).repeat(
+        len(frequencies_hz), axis=1)) ** 2
+    return variance[0], variance[1] - variance[0]
+
+
+def _moment_quadrature_noise(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray,
+                             ) -> NDArray:
+    """:func:`quadrature_noise_v2` from the moment model's full tap covariance."""
     model = _noise_model(sensor, tuple(frequencies_hz))
     r = received_voltage_amplitude(np.maximum(amplitude_v2, 0.0), sensor.modulation_contrast,
                                    sensor.demodulation_amplitude_v)
@@ -38,9 +59,30 @@ def quadrature_noise_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...],
     return np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
 
 
+def unwrapped_rows(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig,
+                   ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+    """Raw rows (n, 2F) whose depths are each frequency's wrapped depth, with the depths unwrapped into one
+    range (:func:`mpi_lidar.physics.unwrap.unwrap_depths`, each weighted by the noise model's sd at its
+    amplitude, :func:`depth_noise_m`), and the unwrapping's confidence per row (n,) [1].
+
+    A row whose unwrapping fails (a non-finite value) keeps its measured depths, with confidence 0.
+    """
+    f = len(frequencies_hz)
+    sigma = depth_noise_m(sensor, frequencies_hz, np.asarray(raw[:, f:], dtype=np.float64))
+    result = unwrap_depths(raw[:, :f], sigma, frequencies_hz, sensor.speed_of_light_m_per_s)
+    rows = np.array(raw, dtype=np.float32)
+    found = np.isfinite(result.depth_m)
+    rows[:, :f][found] = result.depth_m[found]
+    return rows, result.confidence
+
+
 def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: CorrectionOptions,
-                   sensor: SensorConfig) -> NDArray[np.uint8]:
-    """Flag per pixel: NOT_NEEDED for valid pixels (the gate decides later), else the first reason it is invalid."""
+                   sensor: SensorConfig, confidence: NDArray | None = None) -> NDArray[np.uint8]:
+    """Flag per pixel: NOT_NEEDED for valid pixels (the gate decides later), else the first reason it is invalid.
+
+    ``confidence`` (n,): the unwrapping's confidence of rows whose depths were unwrapped (:func:`unwrapped_rows`);
+    rows below ``options.min_unwrap_confidence`` are AMBIGUOUS, unless a more basic reason holds.
+    """
     f = len(frequencies_hz)
     depth, amplitude = raw[:, :f], raw[:, f:]
     flags = np.full(raw.shape[0], Flag.NOT_NEEDED, dtype=np.uint8)
@@ -49,8 +91,10 @@ def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: Cor
         high, low = np.maximum(high, depth[:, column]), np.minimum(low, depth[:, column])
     spread = high - low  # NaN where a depth is NaN, as a row's max - min: those rows are NOT_FINITE
     floor = options.min_amplitude_sigmas * noise_floor_v2(sensor, tuple(frequencies_hz))
+    ambiguous = np.zeros(raw.shape[0], bool) if confidence is None else ~(confidence >= options.min_unwrap_confidence)
     rules = [
         (Flag.INCONSISTENT, spread > options.max_depth_spread_m),
+        (Flag.AMBIGUOUS, ambiguous),
         (Flag.SATURATED, (amplitude > options.saturation_amplitude_v2).any(axis=1)),
         (Flag.NO_RETURN, (amplitude < floor[None, :]).any(axis=1)),
         (Flag.NOT_FINITE, ~np.isfinite(raw).all(axis=1)),
@@ -73,8 +117,12 @@ def depth_noise_m(sensor: SensorConfig, frequencies_hz: tuple[float, ...], ampli
     return noise / np.maximum(amplitude_v2, 1e-12) * metres_per_rad[None, :]
 
 
+# Pixels whose depth the scene geometry and the model cannot use: the invalid ones, and those of an unknown range.
+UNUSABLE_FLAGS = (*INVALID_FLAGS, Flag.AMBIGUOUS)
+
+
 def usable_depth_of(raw: NDArray, flags: NDArray) -> NDArray:
     """The highest-frequency depth (n,) [m] of raw rows (n, 2F) whose ``flags`` (n,) are not invalid
-    (:data:`INVALID_FLAGS`), NaN elsewhere: what the scene geometry is worked out from."""
+    (:data:`INVALID_FLAGS`) or ambiguous, NaN elsewhere: what the scene geometry is worked out from."""
     f = raw.shape[1] // 2
-    return np.where(~np.isin(flags, [int(flag) for flag in INVALID_FLAGS]), raw[:, f - 1], np.nan)
+    return np.where(~np.isin(flags, [int(flag) for flag in UNUSABLE_FLAGS]), raw[:, f - 1], np.nan)

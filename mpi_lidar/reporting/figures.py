@@ -16,10 +16,11 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
 from mpi_lidar.correction import Correction, Flag
-from mpi_lidar.reporting.metrics import applied_correction_mm
+from mpi_lidar.reporting.metrics import applied_correction_mm, measured_depth
 from mpi_lidar.scans.scan import Scan
 
-FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea"]
+FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea",
+                "#ff6b81"]
 THUMBNAIL_PX = 512  # longest side of thumbnail.png [px]
 THUMBNAIL_GAP_PX = 4
 VIEW_3D_POINTS = 20_000  # most points per cloud in the interactive 3-D view of report.html
@@ -58,9 +59,10 @@ def maps_figure(scan: Scan, correction: Correction) -> Figure:
     axes = fig.subplots(2, columns, squeeze=False)
     grid = grid_axes(scan)
     label = f"{scan.frequencies_hz[-1] / 1e6:g} MHz"
-    finite = scan.depth[-1][np.isfinite(correction.depth)]
+    raw_depth = measured_depth(scan, correction)
+    finite = raw_depth[np.isfinite(correction.depth)]
     limits = np.quantile(finite, [0.01, 0.99]) if finite.size else (0.0, 1.0)
-    _image(axes[0, 0], scan.depth[-1], f"raw depth {label} [m]", "viridis", limits, grid)
+    _image(axes[0, 0], raw_depth, f"raw depth {label} [m]", "viridis", limits, grid)
     _image(axes[0, 1], correction.depth, "corrected depth [m]", "viridis", limits, grid)
     _image(axes[0, 2], scan.amplitude[-1], f"amplitude {label} [V$^2$]", "magma", None, grid)
     applied = applied_correction_mm(scan, correction)
@@ -69,7 +71,7 @@ def maps_figure(scan: Scan, correction: Correction) -> Figure:
     _image(axes[0, 3] if reference else axes[1, 0], applied,
            f"applied correction [mm]\n({shown.size:,} pixels corrected)", "RdBu_r", (-span, span), grid)
     if reference_depth is not None:
-        raw_error = 1e3 * (scan.depth[-1] - reference_depth)
+        raw_error = 1e3 * (raw_depth - reference_depth)
         corrected_error = 1e3 * (correction.depth - reference_depth)
         valid = np.isfinite(corrected_error)
         span = float(np.quantile(np.abs(raw_error[valid]), 0.99)) if valid.any() else 1.0

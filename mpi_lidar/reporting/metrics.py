@@ -12,6 +12,14 @@ from mpi_lidar.scans.scan import Scan
 METRIC_BAND_PIXELS = 1 << 20
 
 
+def measured_depth(scan: Scan, correction: Correction, rows: slice = slice(None)) -> np.ndarray:
+    """The highest frequency's measured depth of a range of rows (h, W) [m]: unwrapped into one range where
+    correction unwrapped it (:attr:`Correction.measured_depth`), the scan's own otherwise."""
+    if correction.measured_depth is not None:
+        return correction.measured_depth[rows]
+    return np.asarray(scan.depth[-1, rows])
+
+
 def metric_regions(scan: Scan, correction: Correction, rows: slice = slice(None)) -> dict[str, np.ndarray]:
     """Where the metrics are taken, per region, for a range of rows: pixels with a reference depth and a
     valid measurement (whole map), and those of them in the reference mask (masked region)."""
@@ -26,7 +34,8 @@ def metric_regions(scan: Scan, correction: Correction, rows: slice = slice(None)
 
 
 def scan_metrics(scan: Scan, correction: Correction) -> dict[str, dict[str, float]]:
-    """MAE, RMSE and max error of the raw highest-frequency depth and of the corrected depth, per region. [m]
+    """MAE, RMSE and max error of the raw highest-frequency depth (:func:`measured_depth`) and of the corrected
+    depth, per region. [m]
 
     Summed a band of rows at a time (:data:`METRIC_BAND_PIXELS`), so a scan kept in its store is read one
     band at a time and the float64 errors of the whole scan never exist at once.
@@ -39,7 +48,7 @@ def scan_metrics(scan: Scan, correction: Correction) -> dict[str, dict[str, floa
     for top in range(0, h, step):
         rows = slice(top, min(top + step, h))
         reference = scan.reference_depth[rows]
-        raw, corrected = scan.depth[-1, rows], correction.depth[rows]
+        raw, corrected = measured_depth(scan, correction, rows), correction.depth[rows]
         for region, where in metric_regions(scan, correction, rows).items():
             before, after = sums.setdefault(region, (_ErrorSums(), _ErrorSums()))
             before.add(raw[where], reference[where])
@@ -79,7 +88,7 @@ def applied_correction_mm(scan: Scan, correction: Correction) -> np.ndarray:
     """What correction did per pixel: corrected minus raw highest-frequency depth [mm], NaN where the pixel
     was not corrected (left as measured, or invalid)."""
     with np.errstate(invalid="ignore"):
-        applied = 1e3 * (correction.depth.astype(np.float64) - scan.depth[-1])
+        applied = 1e3 * (correction.depth.astype(np.float64) - measured_depth(scan, correction))
     return np.where(correction.flags == Flag.CORRECTED, applied, np.nan)
 
 

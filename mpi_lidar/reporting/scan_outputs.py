@@ -26,7 +26,7 @@ from mpi_lidar.reporting.figures import (
     write_plotly_js,
     write_png,
 )
-from mpi_lidar.reporting.metrics import metric_regions
+from mpi_lidar.reporting.metrics import measured_depth, metric_regions
 from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.reporting.point_cloud_files import point_cloud_formats, write_point_clouds
 from mpi_lidar.reporting.report import REPORT_MARKER, Embed, error_histogram_figure, save_figure
@@ -87,7 +87,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
                     where = metric_regions(scan, correction)["whole map"]
                     figures["error_hist.png"] = error_histogram_figure(
                         {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz":
-                         1e3 * (scan.depth[-1] - scan.reference_depth)[where],
+                         1e3 * (measured_depth(scan, correction) - scan.reference_depth)[where],
                          "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
         rays = scan.rays() if level == OutputLevel.FULL or formats else None
         if rays is not None:
@@ -95,10 +95,10 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
 
             with _cpu(cpu_s, "write"):
                 raw_points = geometry.point_cloud(
-                    np.where(np.isfinite(correction.depth), scan.depth[-1], np.nan), rays)
+                    np.where(np.isfinite(correction.depth), measured_depth(scan, correction), np.nan), rays)
                 corrected_points = geometry.point_cloud(correction.depth, rays)
                 del rays
-                fields = correction_fields(scan.depth[-1], correction.depth, correction.flags,
+                fields = correction_fields(measured_depth(scan, correction), correction.depth, correction.flags,
                                            scan.amplitude[-1])
                 files += write_point_clouds(staging, formats, raw_points, corrected_points, fields)
             if level == OutputLevel.FULL:

@@ -115,6 +115,13 @@ VARIABLES: tuple[Variable, ...] = (
              required=True, note="NaN where the pixel is invalid."),
     Variable("flags", Store.CORRECTED, ("y", "x"), "u", "uint8", "1", "what was done to the pixel",
              required=True, note="CF flag_values and flag_meanings name the codes (corrected, left as measured...)."),
+    Variable("measured_depth", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
+             "measured range along the ray at the highest frequency",
+             note="Unwrapped into one range where the scan's depths were wrapped; as measured where that range "
+                  "is ambiguous (flag ambiguous)."),
+    Variable("unwrap_confidence", Store.CORRECTED, ("y", "x"), "f", "float32", "1",
+             "posterior probability of the chosen wrap counts",
+             note="Written for scans whose depths came wrapped; 0 where a measurement is not finite."),
     Variable("multipath_bias_m", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
              "expected multipath bias (geometry gate)", note="Written by the geometry gate only."),
     Variable("azimuth_rad", Store.CORRECTED, ("x",), "f", "as given", "rad", "azimuth of the pixel column",

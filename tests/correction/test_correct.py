@@ -224,8 +224,9 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model
 
 
 def test_flag__existing_codes_are_stable():
-    assert [int(f) for f in Flag] == list(range(9))
+    assert [int(f) for f in Flag] == list(range(10))
     assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0 and Flag.UNCALIBRATED == 8
+    assert Flag.AMBIGUOUS == 9
 
 
 def test_scan_status__degraded_then_unchanged_then_corrected():
@@ -240,12 +241,13 @@ def test_scan_status__degraded_then_unchanged_then_corrected():
 
 
 def test_correction_options__max_invalid_share_is_bounded_and_not_hashed():
-    # the hash of the defaults before max_invalid_share, the self-calibrating footprint and the near range
-    # existed: outputs written then are still recognised when the old footprint and range rule are given
+    # the hash of the defaults before max_invalid_share, the self-calibrating footprint, the near range and
+    # unwrapping existed: unwrapping changes the pixels of wrapped scans, so outputs written then are corrected
+    # again (at 6 m every pixel was lost before)
     from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 
     old_defaults = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2, near_range_fraction=0.0)
-    assert old_defaults.sha256() == "60f34a4236aaaebe7317d65a6b26b44fb18bdd6d4b7e20a9cb91fc30bd1028ed"
+    assert old_defaults.sha256() != "60f34a4236aaaebe7317d65a6b26b44fb18bdd6d4b7e20a9cb91fc30bd1028ed"
     # correcting depths below the prior changes pixels: not the same identity
     assert CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2).sha256() != old_defaults.sha256()
     assert CorrectionOptions(max_invalid_share=0.9).sha256() == CorrectionOptions().sha256()
