@@ -3,78 +3,17 @@ unsaturated, frequencies consistent."""
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
+from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
-from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.physics.sensor import received_voltage_amplitude
-from mpi_lidar.physics.unwrap import unwrap_depths
 
+# The noise model correction's stages weigh pixels by, re-exported from where the simulator's physics keeps it.
+from mpi_lidar.physics.noise import depth_noise_m, noise_floor_v2, quadrature_noise_v2, unwrapped_rows
 
-@lru_cache(maxsize=4)
-def _noise_model(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> MomentSensor:
-    # Rounding off: the closed-form moments, which is all a noise prediction needs.
-    return MomentSensor(Config(sensor=sensor, frequencies_hz=frequencies_hz,
-                               simulator=SimulatorConfig(round_photons=False)))
-
-
-def noise_floor_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
-    """Std of each tap quadrature with no light [V^2]: the amplitude of a pixel with no return is of this order."""
-    return quadrature_noise_v2(sensor, frequencies_hz, np.zeros((1, len(frequencies_hz))))[0]
-
-
-def quadrature_noise_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray) -> NDArray:
-    """Std of a tap quadrature (n, F) [V^2] for single-path light of the measured amplitudes (n, F) [V^2].
-
-    Shot noise grows with the signal, so the depth noise of a pixel is this over its amplitude, times c / 4 pi f.
-    The moment model's variance is a + b A in the amplitude A (thermal and amplifier noise, plus shot noise in
-    proportion to the light), so it is worked out at two amplitudes once per sensor and evaluated as that line.
-    """
-    offset, slope = _quadrature_variance_line(sensor, tuple(frequencies_hz))
-    return np.sqrt(offset + slope * np.maximum(amplitude_v2, 0.0))
-
-
-@lru_cache(maxsize=8)
-def _quadrature_variance_line(sensor: SensorConfig, frequencies_hz: tuple[float, ...],
-                              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Offset [V^4] and slope [V^2] per frequency (F,) of the moment model's quadrature variance against the
-    amplitude: its variance at no light, and its growth per V^2 (at 1 V^2)."""
-    variance = _moment_quadrature_noise(sensor, frequencies_hz, np.array([[0.0], [1.0]]).repeat(
-        len(frequencies_hz), axis=1)) ** 2
-    return variance[0], variance[1] - variance[0]
-
-
-def _moment_quadrature_noise(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray,
-                             ) -> NDArray:
-    """:func:`quadrature_noise_v2` from the moment model's full tap covariance."""
-    model = _noise_model(sensor, tuple(frequencies_hz))
-    r = received_voltage_amplitude(np.maximum(amplitude_v2, 0.0), sensor.modulation_contrast,
-                                   sensor.demodulation_amplitude_v)
-    waveforms = model.waveforms_from_phasors(r, r.astype(np.complex128))
-    _, cov = model.waveform_moments(waveforms)
-    return np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
-
-
-def unwrapped_rows(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig,
-                   ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
-    """Raw rows (n, 2F) whose depths are each frequency's wrapped depth, with the depths unwrapped into one
-    range (:func:`mpi_lidar.physics.unwrap.unwrap_depths`, each weighted by the noise model's sd at its
-    amplitude, :func:`depth_noise_m`), and the unwrapping's confidence per row (n,) [1].
-
-    A row whose unwrapping fails (a non-finite value) keeps its measured depths, with confidence 0.
-    """
-    f = len(frequencies_hz)
-    sigma = depth_noise_m(sensor, frequencies_hz, np.asarray(raw[:, f:], dtype=np.float64))
-    result = unwrap_depths(raw[:, :f], sigma, frequencies_hz, sensor.speed_of_light_m_per_s)
-    rows = np.array(raw, dtype=np.float32)
-    found = np.isfinite(result.depth_m)
-    rows[:, :f][found] = result.depth_m[found]
-    return rows, result.confidence
-
+__all__ = ["UNUSABLE_FLAGS", "depth_noise_m", "noise_floor_v2", "quadrature_noise_v2", "unwrapped_rows",
+           "usable_depth_of", "validity_flags"]
 
 def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: CorrectionOptions,
                    sensor: SensorConfig, confidence: NDArray | None = None) -> NDArray[np.uint8]:
@@ -103,18 +42,6 @@ def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: Cor
         flags[where] = flag
     return flags
 
-
-
-def depth_noise_m(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray) -> NDArray:
-    """Std of the measured depth (n, F) [m] of single-path light of the measured amplitudes (n, F) [V^2].
-
-    sigma_f = sigma_q(Gamma_f) / Gamma_f * c / (4 pi f): the quadrature noise (:func:`quadrature_noise_v2`) over
-    the amplitude is the phase noise [rad], and c / 4 pi f [m/rad] turns phase into depth. Amplitudes below
-    1e-12 V^2 divide as 1e-12.
-    """
-    metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * np.asarray(frequencies_hz, dtype=np.float64))
-    noise = quadrature_noise_v2(sensor, tuple(frequencies_hz), amplitude_v2)
-    return noise / np.maximum(amplitude_v2, 1e-12) * metres_per_rad[None, :]
 
 
 # Pixels whose depth the scene geometry and the model cannot use: the invalid ones, and those of an unknown range.

@@ -31,6 +31,8 @@ from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
 from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import SensorModel, make_sensor
+from mpi_lidar.physics.demod import unambiguous_range
+from mpi_lidar.physics.noise import unwrapped_rows
 from mpi_lidar.scans.store import consolidate
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
@@ -109,10 +111,32 @@ def cached_sensor(config: Config) -> SensorModel:
 
 def simulate_rows(config: Config, n: int, rng: np.random.Generator) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
     """n rows drawn from the configured prior and measured by its sensor, from ``rng``: the features (n, 2F)
-    (depths then amplitudes, float32) and theta (n, 6); the true depth d_AS is theta's first column. [m, V^2]"""
+    (depths then amplitudes, float32) and theta (n, 6); the true depth d_AS is theta's first column. [m, V^2]
+
+    Where the prior reaches ranges at which a frequency's depth wraps (:func:`prior_wraps`), the depths are
+    unwrapped into one range as correction unwraps a scan's (:func:`mpi_lidar.physics.noise.unwrapped_rows`),
+    so the model learns from what it will be given.
+    """
     theta = sample_theta(config.prior, n, rng)
     depth, amplitude = cached_sensor(config).measure(theta, rng)
-    return np.concatenate([depth, amplitude], axis=1).astype(np.float32), theta
+    rows = np.concatenate([depth, amplitude], axis=1).astype(np.float32)
+    if prior_wraps(config):
+        rows, _ = unwrapped_rows(rows, config.frequencies_hz, config.sensor)
+    return rows, theta
+
+
+# Share of the highest frequency's unambiguous range that a prior's longest path may reach and still count as
+# never wrapping: a margin for the noise of the farthest, weakest rows.
+NO_WRAP_SHARE = 0.9
+
+
+def prior_wraps(config: Config) -> bool:
+    """Whether the prior's longest path (farthest d_AS plus longest d_AB) reaches 90 % of the smallest
+    unambiguous range c / 2f: only then can a measured depth wrap. A prior that cannot wrap is not unwrapped,
+    so its datasets stay byte for byte what they were before unwrapping existed. [1]"""
+    longest_m = config.prior.d_as_m[1] + config.prior.d_ab_m[1]
+    shortest_range_m = float(unambiguous_range(max(config.frequencies_hz), config.sensor.speed_of_light_m_per_s))
+    return longest_m >= NO_WRAP_SHARE * shortest_range_m
 
 
 def simulate_chunk(config: Config, index: int) -> Chunk:
