@@ -116,6 +116,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     tiles = row_tiles(*scan.shape, options.tile_pixels)
     with clock("validity"):
         flags, usable_depth, measured = _validity_pass(scan, options, sensor, tiles)
+        if measured.moved:  # some depths wrapped: every later stage reads them unwrapped
+            scan = _unwrapped_scan(scan, sensor, tiles)
     gate_started = time.perf_counter()
     with clock("gate"):
         gate = make_gate(options)
@@ -188,14 +190,15 @@ def unserved_reason(flags: NDArray[np.uint8], model: CorrectionModel, options: C
     return None
 
 
-@dataclass(frozen=True)
+@dataclass
 class _Measured:
     """The highest frequency's depth of every pixel as measured (H*W,) [m], unwrapped into one range where the
-    scan's depths were wrapped and the unwrapping is certain, and the unwrapping's confidence (H*W,) [1] (None
-    for a scan whose depths came unwrapped)."""
+    scan's depths were wrapped and the unwrapping is certain, the unwrapping's confidence (H*W,) [1] (None
+    for a scan whose depths came unwrapped), and whether any depth took a wrap count (``moved``)."""
 
     depth: NDArray[np.float32]
     confidence: NDArray[np.float32] | None
+    moved: bool = False
 
 
 def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
@@ -217,6 +220,8 @@ def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
             measured.depth[where] = np.where(part_flags == Flag.AMBIGUOUS, raw[rows, f - 1], part[:, f - 1])
             if measured.confidence is not None and confidence is not None:
                 measured.confidence[where] = confidence
+                if not measured.moved and not np.array_equal(part[:, :f], raw[rows, :f], equal_nan=True):
+                    measured.moved = True  # one thread's True is enough: no thread sets it back
 
         on_cores_by_rows(check, raw.shape[0], PARALLEL_MIN_ROWS)
     return flags, usable_depth, measured
@@ -229,6 +234,20 @@ def _unwrapped(scan: Scan, raw: NDArray[np.float32], sensor: SensorConfig,
     if not scan.depth_wrapped:
         return raw, None
     return unwrapped_rows(raw, scan.frequencies_hz, sensor)
+
+
+def _unwrapped_scan(scan: Scan, sensor: SensorConfig, tiles: list[slice]) -> Scan:
+    """The scan with its depth maps unwrapped into one range, in memory (F x H x W float32, as large as the
+    depth maps themselves, also for a scan kept in its store): the scene geometry, the footprint and the model
+    all read depths. Only a scan some of whose depths took a wrap count pays for it."""
+    f = len(scan.frequencies_hz)
+    depth = np.empty((f, scan.shape[0] * scan.shape[1]), dtype=np.float32)
+    for pixels, raw in _raw_tiles(scan, tiles):
+        def unwrap(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
+            depth[:, start + rows.start:start + rows.stop] = _unwrapped(scan, raw[rows], sensor)[0][:, :f].T
+
+        on_cores_by_rows(unwrap, raw.shape[0], PARALLEL_MIN_ROWS)
+    return replace(scan, depth=depth.reshape(f, *scan.shape), depth_wrapped=False)
 
 
 def _gate(flags: NDArray[np.uint8], gate: Gate, scene: SceneGeometry | None) -> tuple[str, ...]:
@@ -257,13 +276,11 @@ def _predict(scan: Scan, model: CorrectionModel, sensor: SensorConfig, tiles: li
     for pixels, raw in _raw_tiles(scan, tiles):
         tile_cpu, tile_started = time.process_time(), time.perf_counter()
         valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
-        rows, _ = _unwrapped(scan, raw[valid], sensor)  # the same rows as in the validity pass
-        picked = gate.needs_correction(rows, scan.frequencies_hz, sensor)
-        needs, rows = valid[picked], rows[picked]
+        needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
         gate_cpu, gate_wall = time.process_time() - tile_cpu, time.perf_counter() - tile_started
         if needs.size:
             depth[pixels.start + needs], inputs_cpu, inputs_wall = _predict_pixels(
-                model, rows, pixels.start + needs, inputs)
+                model, raw[needs], pixels.start + needs, inputs)
             gate_cpu, gate_wall = gate_cpu + inputs_cpu, gate_wall + inputs_wall
         flags[pixels.start + needs] = Flag.CORRECTED
         # The pixel-wise gate and the geometric inputs are the gate's share of the tile; the model's inputs and

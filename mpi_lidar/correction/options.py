@@ -14,6 +14,7 @@ from mpi_lidar.config import describe_validation_error
 from mpi_lidar.correction.gate_names import GATES as GATES  # re-exported: the gates of the options
 from mpi_lidar.correction.gate_names import GateName
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.physics.unwrap import MIN_UNWRAP_CONFIDENCE
 from mpi_lidar.scans import geometry
 
 CORRECTED_SCHEMA = "mpi-lidar/corrected@1"
@@ -102,7 +103,7 @@ class CorrectionOptions(BaseModel):
     # A wrapped scan's pixels whose wrap counts have a lower posterior probability than this are ambiguous:
     # left as measured (flag ambiguous). At 0.999 fewer than 0.1 % of the pixels kept are expected to be
     # unwrapped wrong where the noise model holds (mpi_lidar.physics.unwrap).
-    min_unwrap_confidence: Annotated[float, Field(gt=0, lt=1)] = 0.999
+    min_unwrap_confidence: Annotated[float, Field(gt=0, lt=1)] = MIN_UNWRAP_CONFIDENCE
     min_multipath_bias_m: NonNegative = 0.004
     geometry_block_m: Positive = geometry.DEFAULT_BLOCK_M
     partner_range_m: Positive = geometry.DEFAULT_MAX_RANGE_M

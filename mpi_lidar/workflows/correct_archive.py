@@ -256,12 +256,12 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
             (target / name).is_file() for name in point_cloud_files(scan, outputs, point_clouds))
         existing = _existing_results(target) if done else None
         if existing is not None:
-            counts, unserved = existing["counts"], existing["unserved"]
+            counts, kept_reason = existing["counts"], existing["unserved"]
             return ScanOutcome(source, name, ScanStatus.SKIPPED, "already corrected with this model and options",
                                output=str(target), counts=counts, metrics=existing["metrics"],
                                seconds=time.perf_counter() - started, notes=existing["notes"],
-                               kept_status=scan_status(counts, options.max_invalid_share, unserved),
-                               unserved=unserved)
+                               kept_status=scan_status(counts, options.max_invalid_share, kept_reason),
+                               unserved=kept_reason)
         correction = correct_scan(scan, model, options)
     else:
         # Nothing there to skip: the scan's identity is hashed on a thread beside the correction (hashlib
@@ -280,11 +280,11 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
                                    options, outputs, point_clouds=point_clouds)
         metrics = metrics if measuring is None else measuring.result()
     counts = correction.counts()
-    unserved = correction.unserved
-    return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share, unserved and unserved.reason),
-                       "" if unserved is None else unserved.message, output=str(target), counts=counts,
-                       metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes),
-                       unserved=unserved and unserved.reason)
+    reason = None if correction.unserved is None else correction.unserved.reason
+    return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share, reason),
+                       "" if correction.unserved is None else correction.unserved.message, output=str(target),
+                       counts=counts, metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes),
+                       unserved=reason)
 
 # --- a batch ----------------------------------------------------------------------------------------------
 
