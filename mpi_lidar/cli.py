@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, cast
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from mpi_lidar.config import PRESETS, resolve_config
+from mpi_lidar.config import PRESETS, Config, resolve_config
 from mpi_lidar.correction.gate_names import GATES
 from mpi_lidar.errors import EXIT_FAILURE, EXIT_USER_ERROR, MpiLidarError
 from mpi_lidar.learning.feature_choices import (  # not .features: that imports dask, and --help must be quick
@@ -38,6 +38,20 @@ def cli() -> None:
     """Multipath-interference suppression for AMCW coaxial scanning LiDAR."""
 
 
+SENSOR_SIMULATION_HELP = ("Sensor profile (sensor.toml from mpi-lidar calibrate): simulate that sensor, its "
+                          "frequencies, noise scale and working range (widened by 15 %), over the preset and file.")
+
+
+def for_sensor(config: Config, sensor: Path | None) -> Config:
+    """The configuration with a sensor profile's frequencies, noise scale and working range (none: as it is)."""
+    if sensor is None:
+        return config
+    from mpi_lidar.config import validate_overrides
+    from mpi_lidar.correction.profile import read_profile
+
+    return validate_overrides(read_profile(sensor).simulation(), config, source=f"sensor profile {sensor}")
+
+
 @cli.command()
 @click.option("--out", "out", type=click.Path(path_type=Path), required=True, help="Dataset store to write (.zarr).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file overriding the preset.")
@@ -46,12 +60,13 @@ def cli() -> None:
 @click.option("--chunk-rows", type=int, help="Rows per chunk.")
 @click.option("--seed", type=int, help="Seed of the sampling plan.")
 @click.option("--fidelity", type=click.Choice(["moment", "waveform"]), help="Simulator fidelity.")
+@click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None, help=SENSOR_SIMULATION_HELP)
 @click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
               help="Dask worker processes of a local cluster; 0 runs in this process.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786) instead of a local cluster.")
 def simulate(
     out: Path, config_file: Path | None, preset_name: str, samples: int | None, chunk_rows: int | None,
-    seed: int | None, fidelity: str | None, workers: int, scheduler: str | None,
+    seed: int | None, fidelity: str | None, sensor: Path | None, workers: int, scheduler: str | None,
 ) -> None:
     """Simulate a labelled dataset and print its raw-error summary.
 
@@ -64,8 +79,8 @@ def simulate(
     """
     from mpi_lidar.simulation import dataset
 
-    config = resolve_config(config_file, preset_name, samples=samples, chunk_rows=chunk_rows, seed=seed,
-                            fidelity=fidelity)
+    config = for_sensor(resolve_config(config_file, preset_name, samples=samples, chunk_rows=chunk_rows, seed=seed,
+                                       fidelity=fidelity), sensor)
 
     from mpi_lidar.workflows.executor import InProcess, dask_executor
     from mpi_lidar.workflows.generate import generate
@@ -237,9 +252,10 @@ def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
 @click.option("--preset", "preset_name", type=click.Choice(sorted(PRESETS)), default="quick", show_default=True)
 @click.option("--trials", type=click.IntRange(min=1), default=6, show_default=True, help="Tuning budget.")
 @click.option("--tune-rows", type=click.IntRange(min=100), default=20_000, show_default=True)
+@click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None, help=SENSOR_SIMULATION_HELP)
 @cluster_options
-def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: int, tune_rows: int, workers: int,
-             scheduler: str | None) -> None:
+def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: int, tune_rows: int,
+             sensor: Path | None, workers: int, scheduler: str | None) -> None:
     """The main job: simulate, tune, train and evaluate into one run directory (resumable).
 
     \b
@@ -249,7 +265,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
     from mpi_lidar.workflows.cluster import dask_client
     from mpi_lidar.workflows.pipeline import ClusterSteps, run_pipeline
 
-    config = resolve_config(config_file, preset_name)
+    config = for_sensor(resolve_config(config_file, preset_name), sensor)
     out_dir = out_dir or Path("runs") / preset_name
     with dask_client(scheduler, workers) as client:
         result = run_pipeline(ClusterSteps(client), out_dir, config, trials, tune_rows, echo=click.echo)
@@ -284,6 +300,10 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None,
               help="Sensor profile (sensor.toml from mpi-lidar calibrate): footprint and the saturation and "
                    "no-return thresholds; --footprint-area-m2 overrides its footprint.")
+@click.option("--amplitude-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="The scanner's amplitude unit per V^2 (e.g. 4000 for amplitudes in counts of 1/4000 V^2): "
+                   "amplitudes are divided by it before anything reads them. (default: the --sensor "
+                   "profile's, else 1: V^2)")
 @click.option("--max-invalid-share", type=click.FloatRange(0, 1), default=None,
               help="A scan with more invalid pixels (not finite, no return, saturated, inconsistent) than this "
                    "share is 'degraded'. (default 0.5)")
@@ -309,7 +329,8 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "every core on each scan (on 2 cores 1.2-1.5 times as fast as 2 workers).")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
-            footprint_area_m2: str | None, sensor: Path | None, max_invalid_share: float | None,
+            footprint_area_m2: str | None, sensor: Path | None, amplitude_scale: float | None,
+            max_invalid_share: float | None,
             fail_on: tuple[str, ...], allow_unserved: bool,
             outputs: str, point_clouds: tuple[str, ...], workers: int | None, scheduler: str | None) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
@@ -336,7 +357,8 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     from mpi_lidar.workflows.executor import InProcess, dask_executor
 
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
-                                         max_invalid_share=max_invalid_share, **profile_options(sensor))
+                                         max_invalid_share=max_invalid_share, amplitude_scale=amplitude_scale,
+                                         **profile_options(sensor))
     started = time.perf_counter()
     here = not scheduler and not workers
     total = len(expand_archive(list(scans)))
@@ -377,12 +399,17 @@ def calibrate(scans: tuple[str, ...], out: Path, no_reference: bool) -> None:
     depth where it has one); the estimates are pooled by their uncertainty. Scans of corners work best. Nothing
     is written when the pooled estimate is not significant (exit 2).
     """
-    from mpi_lidar.workflows.calibrate import calibrate_scans, describe
+    from mpi_lidar.workflows.calibrate import calibrate_scans, describe, describe_scale
 
     profile, _ = calibrate_scans(list(scans), out, use_reference=not no_reference,
-                                 on_scan=lambda r: click.echo(f"{r.source}: {describe(r.estimate)}"))
+                                 on_scan=lambda r: click.echo(f"{r.source}: {describe(r.estimate)}; "
+                                                              f"{describe_scale(r.scale)}"))
     sigma = profile.calibration["sigma_m2"] if profile.calibration else float("nan")
-    click.echo(f"footprint {profile.footprint_area_m2:.4g} +- {sigma:.2g} m^2; sensor profile written to {out}")
+    click.echo(f"footprint {profile.footprint_area_m2:.4g} +- {sigma:.2g} m^2; amplitude unit "
+               f"{profile.amplitude_scale:.4g} per V^2; noise scale "
+               + ("not measured" if profile.noise_scale is None else f"{profile.noise_scale:.3g}")
+               + (f"; range {profile.range_m[0]:.2f}-{profile.range_m[1]:.2f} m" if profile.range_m else "")
+               + f"; sensor profile written to {out}")
 
 
 @cli.command("import-scan")

@@ -113,6 +113,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     clock = _StageClock()
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
     sensor = sensor or SensorConfig()
+    if options.amplitude_scale != 1.0:  # the scanner's unit to V^2, once, in memory
+        scan = replace(scan, amplitude=(np.asarray(scan.amplitude) / options.amplitude_scale).astype(np.float32))
     tiles = row_tiles(*scan.shape, options.tile_pixels)
     with clock("validity"):
         flags, usable_depth, measured = _validity_pass(scan, options, sensor, tiles)
@@ -170,8 +172,8 @@ def unserved_reason(flags: NDArray[np.uint8], model: CorrectionModel, options: C
         return Unserved(UnservedReason.AMPLITUDE_UNITS,
                         f"{100 * counts[Flag.SATURATED] / measured:.0f} % of the pixels read as saturated (above "
                         f"{options.saturation_amplitude_v2:g} V^2): the amplitudes are likely in another unit; "
-                        "measure the sensor's saturation level and give it in a profile "
-                        "(mpi-lidar correct --sensor sensor.toml)")
+                        "give the scanner's unit per V^2 (mpi-lidar correct --amplitude-scale, or a profile from "
+                        "mpi-lidar calibrate: --sensor sensor.toml)")
     if not served:
         return Unserved(UnservedReason.NO_GEOMETRY,
                         "the model takes geometric inputs and the scan has no geometry: import the scan with its "

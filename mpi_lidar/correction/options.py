@@ -110,6 +110,9 @@ class CorrectionOptions(BaseModel):
     # The receiver footprint A_fp [m^2] that scales the geometric coupling, or "auto": each scan estimates its
     # own from the depth and amplitude near its facing surfaces (mpi_lidar.correction.footprint).
     footprint_area_m2: Positive | Literal["auto"] = AUTO
+    # The scanner's amplitude unit per V^2, the noise model's unit: a scan's amplitudes are divided by it before
+    # anything reads them (thresholds, albedo, the model's inputs). 1: amplitudes in V^2.
+    amplitude_scale: Positive = 1.0
     tile_pixels: Annotated[int, Field(ge=1)] = 262_144
     # Above this share of invalid pixels a scan is 'degraded', not 'corrected': past half the map the
     # outputs describe the sensor setup (gain, saturation level, range) more than the scene, and a batch
@@ -129,6 +132,8 @@ class CorrectionOptions(BaseModel):
             del pixels["sensor_profile_sha256"]
         if pixels["near_range_fraction"] == 0:  # the rule before it existed: those outputs keep their hash
             del pixels["near_range_fraction"]
+        if pixels["amplitude_scale"] == 1.0:  # V^2, as before the scale existed
+            del pixels["amplitude_scale"]
         return hashlib.sha256(json.dumps(pixels, sort_keys=True).encode()).hexdigest()
 
     @property
@@ -139,7 +144,8 @@ class CorrectionOptions(BaseModel):
     @classmethod
     def from_cli(cls, gate: str = "geometry", min_bias_mm: float | None = None,
                  footprint_area_m2: float | str | None = None, max_invalid_share: float | None = None,
-                 sensor_profile: dict[str, float | str] | None = None) -> CorrectionOptions:
+                 sensor_profile: dict[str, float | str] | None = None,
+                 amplitude_scale: float | None = None) -> CorrectionOptions:
         """The options of ``mpi-lidar correct`` and of the correction flow, in their units; None keeps a default.
 
         ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000);
@@ -150,7 +156,8 @@ class CorrectionOptions(BaseModel):
         overrides = {**(sensor_profile or {}),
                      **{k: v for k, v in {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
                                           "footprint_area_m2": _footprint(footprint_area_m2),
-                                          "max_invalid_share": max_invalid_share}.items() if v is not None}}
+                                          "max_invalid_share": max_invalid_share,
+                                          "amplitude_scale": amplitude_scale}.items() if v is not None}}
         try:
             return cls(gate=gate, **overrides)
         except ValidationError as exc:

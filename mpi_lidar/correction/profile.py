@@ -1,13 +1,20 @@
 """A sensor profile (``sensor.toml``): what correction needs to know of one sensor, in one small file.
 
-``mpi-lidar calibrate`` writes it from scans of that sensor (the footprint they measure, pooled); ``mpi-lidar
-correct --sensor sensor.toml`` reads it. Besides the footprint it holds the validity thresholds that depend on
-the sensor's gain (saturation, no return). A profile looks like::
+``mpi-lidar calibrate`` writes it from scans of that sensor (the footprint they measure, pooled, and what their
+flat surfaces say of the amplitude unit, the noise and the frequencies' depth offsets); ``mpi-lidar correct
+--sensor sensor.toml`` reads it, and ``mpi-lidar simulate/pipeline --sensor sensor.toml`` simulates that
+sensor (its frequencies, noise scale and working range) to train a model for it. Besides the footprint it holds
+the validity thresholds that depend on the sensor's gain (saturation, no return). A profile looks like::
 
     schema = "mpi-lidar/sensor@1"
     footprint_area_m2 = 0.0231
     saturation_amplitude_v2 = 0.7176
     min_amplitude_sigmas = 5.0
+    amplitude_scale = 4000.0            # the scanner's amplitude unit per V^2 (1: V^2)
+    frequencies_hz = [12500000.0, 18750000.0, 25000000.0, 31250000.0]
+    noise_scale = 1.02                  # its depth noise over the simulator's noise model
+    range_m = [0.6, 7.5]                # the depths its scans hold (1st-99th percentile)
+    frequency_offsets_m = [-0.00058, -0.00025, -0.00001, 0.0]
 
     [calibration]        # how the footprint was measured (written by mpi-lidar calibrate; optional)
     sigma_m2 = 0.0012
@@ -32,10 +39,15 @@ from mpi_lidar.storage.atomic import atomic_path
 
 PROFILE_SCHEMA: Final = "mpi-lidar/sensor@1"
 _DEFAULTS = CorrectionOptions()
+# A model for a sensor is trained on its working range widened by this share at either end: the scans of
+# tomorrow reach a little nearer and farther than those it was calibrated on.
+RANGE_MARGIN = 0.15
 
 
 class SensorProfile(BaseModel):
-    """One sensor's footprint [m^2] and validity thresholds, with how the footprint was measured."""
+    """One sensor's footprint [m^2], validity thresholds [V^2, 1] and amplitude unit [units/V^2], with how the
+    footprint was measured; optionally its frequencies [Hz], noise scale [1], working range [m] and the
+    frequencies' depth offsets relative to the highest [m], which simulating it for a model of its own uses."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
@@ -43,12 +55,31 @@ class SensorProfile(BaseModel):
     footprint_area_m2: Annotated[float, Field(gt=0)]
     saturation_amplitude_v2: Annotated[float, Field(gt=0)] = _DEFAULTS.saturation_amplitude_v2
     min_amplitude_sigmas: Annotated[float, Field(ge=0)] = _DEFAULTS.min_amplitude_sigmas
+    amplitude_scale: Annotated[float, Field(gt=0)] = _DEFAULTS.amplitude_scale
+    frequencies_hz: tuple[Annotated[float, Field(gt=0)], ...] | None = None
+    noise_scale: Annotated[float, Field(gt=0, le=100)] | None = None
+    range_m: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] | None = None
+    frequency_offsets_m: tuple[float, ...] | None = None
     calibration: dict[str, str | int | float | bool | list[str] | None] | None = None
 
     def options(self) -> dict[str, float]:
         """The correction options this profile sets (:meth:`CorrectionOptions.from_cli`)."""
         return {"footprint_area_m2": self.footprint_area_m2, "saturation_amplitude_v2": self.saturation_amplitude_v2,
-                "min_amplitude_sigmas": self.min_amplitude_sigmas}
+                "min_amplitude_sigmas": self.min_amplitude_sigmas, "amplitude_scale": self.amplitude_scale}
+
+    def simulation(self) -> dict[str, object]:
+        """The configuration sections (:meth:`mpi_lidar.config.Config.replace`) that simulate this sensor: its
+        frequencies, its noise scale and, log-uniformly, its working range widened by 15 % at either end."""
+        sections: dict[str, object] = {}
+        if self.frequencies_hz is not None:
+            sections["frequencies_hz"] = tuple(self.frequencies_hz)
+        if self.noise_scale is not None:
+            sections["simulator"] = {"noise_scale": self.noise_scale}
+        if self.range_m is not None:
+            near, far = self.range_m
+            sections["prior"] = {"d_as_m": (near * (1 - RANGE_MARGIN), far * (1 + RANGE_MARGIN)),
+                                 "d_as_distribution": "log_uniform"}
+        return sections
 
     def record(self) -> dict[str, object]:
         """What a corrected output records of the profile: its values and a hash of them."""
@@ -56,9 +87,11 @@ class SensorProfile(BaseModel):
         return {**data, "sha256": hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()}
 
     @classmethod
-    def from_estimate(cls, estimate: FootprintEstimate, sources: list[str], **thresholds: float) -> SensorProfile:
-        """The profile of a pooled footprint estimate over ``sources`` (the scans' paths)."""
-        return cls.model_validate({"footprint_area_m2": estimate.area_m2, **thresholds,
+    def from_estimate(cls, estimate: FootprintEstimate, sources: list[str], **measured: object) -> SensorProfile:
+        """The profile of a pooled footprint estimate over ``sources`` (the scans' paths), with the other fields
+        ``measured`` gives (None leaves a field out)."""
+        given = {key: value for key, value in measured.items() if value is not None}
+        return cls.model_validate({"footprint_area_m2": estimate.area_m2, **given,
                                    "calibration": {**{k: v for k, v in estimate.to_dict().items() if k != "area_m2"},
                                                    "sources": sources}})
 
@@ -100,6 +133,9 @@ def write_profile(profile: SensorProfile, path: str | Path) -> Path:
     lines = ["# mpi-lidar sensor profile: written by `mpi-lidar calibrate`, read by `mpi-lidar correct --sensor`.",
              f"schema = {_toml(PROFILE_SCHEMA)}"]
     lines += [f"{key} = {_toml(value)}" for key, value in profile.options().items()]
+    measured = {"frequencies_hz": profile.frequencies_hz, "noise_scale": profile.noise_scale,
+                "range_m": profile.range_m, "frequency_offsets_m": profile.frequency_offsets_m}
+    lines += [f"{key} = {_toml(value)}" for key, value in measured.items() if value is not None]
     if profile.calibration:
         lines += ["", "[calibration]"]
         lines += [f"{key} = {_toml(value)}" for key, value in profile.calibration.items() if value is not None]
@@ -109,7 +145,9 @@ def write_profile(profile: SensorProfile, path: str | Path) -> Path:
 
 
 def _toml(value: object) -> str:
-    """A TOML value: JSON's strings, numbers, booleans and arrays of strings are TOML too."""
+    """A TOML value: JSON's strings, numbers, booleans and arrays of them are TOML too."""
     if isinstance(value, float):
         return repr(value)
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(_toml(item) for item in value) + "]"
     return json.dumps(value)

@@ -57,11 +57,17 @@ STUDENT_DOF = 6.0
 MIN_PIXELS = 200
 # ... and the amplitude scale (and a fitted noise scale) known to this relative standard deviation.
 MAX_RELATIVE_SIGMA = 0.1
+# A pixel with a residual beyond this many standard deviations is an outlier, left out of the next fit (Gaussian
+# noise has one such pixel in some 4e5 at four frequencies); at most this many rounds of fits leave outliers out.
+OUTLIER_SIGMAS = 5.0
+OUTLIER_ROUNDS = 3
 # Pixels the likelihood is evaluated on at most (evenly spaced among those given): beyond some 10^5 the sigmas are
 # far below the model's own systematic errors.
 MAX_PIXELS = 100_000
 # Pixels of the coarse profile over the amplitude scale that starts the fit.
-START_PIXELS = 5_000
+START_PIXELS = 2_000
+# Step of that profile in log amplitude scale [1]: the optimizer refines it.
+START_STEP = 0.25
 # The amplitude scale is looked for where the median amplitude reads as this range of V^2 (wider than any sensor's
 # valid amplitudes); the noise scale within this factor of the model either way.
 MEDIAN_AMPLITUDE_RANGE_V2 = (1e-7, 1e2)
@@ -72,6 +78,13 @@ TABLE_POINTS_PER_DECADE = 40
 # a few times the default effective footprint, or the given one if larger.
 MAX_FLAT_BIAS_M = 2e-5
 GENEROUS_FOOTPRINT_FACTOR = 4.0
+# A block is taken only when its plane (fitted to the highest frequency) kept this share of its pixels: a block
+# that straddles a depth edge keeps one side only, and its label speaks for that side alone.
+MIN_KEPT_SHARE = 0.9
+# A pixel's residuals count when its mean depth lies within this many robust sigmas of its block's plane: wide
+# enough that no residual is truncated (a Gaussian passes 6 sigmas once in 5e8), narrow enough to leave out a
+# pixel of another surface.
+PLANE_WINDOW_SIGMAS = 6.0
 
 
 @dataclass(frozen=True)
@@ -106,6 +119,8 @@ class SensorScale:
     amplitude_decades : float
         log10 of the 95th over the 5th percentile of the pixels' amplitudes: the span that tells the two scales
         apart. [1]
+    outliers : int
+        Pixels left out for a residual beyond ``OUTLIER_SIGMAS`` standard deviations.
     """
 
     amplitude_scale: float
@@ -119,6 +134,7 @@ class SensorScale:
     reason: str
     scale_noise_correlation: float = float("nan")
     amplitude_decades: float = float("nan")
+    outliers: int = 0
 
 
 @dataclass(frozen=True)
@@ -190,16 +206,31 @@ def estimate_sensor_scale(amplitude: NDArray, residual_m: NDArray, frequencies_h
     SensorScale
         The estimates, their standard deviations, and whether they are significant.
     """
+    if fix_noise_scale is not None and not (np.isfinite(fix_noise_scale) and fix_noise_scale > 0):
+        raise ValueError(f"fix_noise_scale must be a positive number, got {fix_noise_scale}")
     freqs = tuple(float(f) for f in frequencies_hz)
     amplitude, residual, lever = _usable_rows(amplitude, residual_m, leverage, len(freqs))
     order = np.argsort(freqs)
     if amplitude.shape[0] < MIN_PIXELS:
         return _nothing_measured(len(freqs), amplitude.shape[0], fix_noise_scale,
                                  f"only {amplitude.shape[0]} flat pixels, at least {MIN_PIXELS} needed")
-    model = _Likelihood(np.log(amplitude), residual, lever, freqs, sensor, fix_noise_scale)
-    theta, converged = model.fit()
+    outliers = 0
+    for _ in range(OUTLIER_ROUNDS + 1):
+        model = _Likelihood(np.log(amplitude), residual, lever, freqs, sensor, fix_noise_scale)
+        theta, converged = model.fit()
+        outlying = model.outlying(theta)
+        if not outlying.any():
+            break
+        # Gross outliers still pull the bounded-influence fit, and all the more the split of lambda from eta where
+        # they gather at one end of the amplitudes: they are dropped and the fit repeated.
+        outliers += int(outlying.sum())
+        amplitude, residual, lever = amplitude[~outlying], residual[~outlying], lever[~outlying]
+        if amplitude.shape[0] < MIN_PIXELS:
+            return _nothing_measured(len(freqs), amplitude.shape[0], fix_noise_scale,
+                                     f"only {amplitude.shape[0]} flat pixels once {outliers} outliers were left out, "
+                                     f"at least {MIN_PIXELS} needed")
     covariance = model.covariance(theta)
-    return _result(model, theta, covariance, converged, order[-1], _decades(amplitude), amplitude.shape[0])
+    return _result(model, theta, covariance, converged, order[-1], _decades(amplitude), amplitude.shape[0], outliers)
 
 
 def _usable_rows(amplitude: NDArray, residual_m: NDArray, leverage: NDArray | None, frequencies: int
@@ -247,25 +278,28 @@ def gaussian_t_scale(dof: float) -> float:
 
 
 class _NoiseTable:
-    """log sd_f of the noise model (:func:`depth_noise_m`) and its slope d log sd / d log A, tabulated on a grid
-    of log amplitudes [log V^2] and interpolated linearly."""
+    """log sd_f of the noise model (:func:`depth_noise_m`) and its slope d log sd / d log A, tabulated on an even
+    grid of log amplitudes [log V^2] and interpolated linearly (held at the grid's ends)."""
 
     def __init__(self, sensor: SensorConfig, frequencies_hz: tuple[float, ...], low: float, high: float):
-        step = np.log(10.0) / TABLE_POINTS_PER_DECADE
-        self.grid = np.arange(low - step, high + 2 * step, step)
-        amplitude = np.repeat(np.exp(self.grid)[:, None], len(frequencies_hz), axis=1)
+        self.step = np.log(10.0) / TABLE_POINTS_PER_DECADE
+        grid = np.arange(low - self.step, high + 2 * self.step, self.step)
+        self.start = float(grid[0])
+        amplitude = np.repeat(np.exp(grid)[:, None], len(frequencies_hz), axis=1)
         self.log_sd = np.log(depth_noise_m(sensor, frequencies_hz, amplitude))
-        self.slope = np.gradient(self.log_sd, self.grid, axis=0)
+        self.slope = np.gradient(self.log_sd, grid, axis=0)
+        self.columns = np.arange(len(frequencies_hz))[None, :]
 
     def __call__(self, log_amplitude_v2: NDArray) -> tuple[NDArray, NDArray]:
         """log sd (n, F) [log m] and its slope (n, F) [1] at log amplitudes (n, F) [log V^2]."""
-        log_sd = np.empty_like(log_amplitude_v2)
-        slope = np.empty_like(log_amplitude_v2)
-        for column in range(log_amplitude_v2.shape[1]):
-            x = log_amplitude_v2[:, column]
-            log_sd[:, column] = np.interp(x, self.grid, self.log_sd[:, column])
-            slope[:, column] = np.interp(x, self.grid, self.slope[:, column])
-        return log_sd, slope
+        position = (log_amplitude_v2 - self.start) / self.step
+        below = np.clip(np.floor(position), 0, self.log_sd.shape[0] - 2).astype(np.intp)
+        fraction = np.clip(position - below, 0.0, 1.0)
+        return (self._at(self.log_sd, below, fraction), self._at(self.slope, below, fraction))
+
+    def _at(self, table: NDArray, below: NDArray, fraction: NDArray) -> NDArray:
+        low = table[below, self.columns]
+        return low + fraction * (table[below + 1, self.columns] - low)
 
 
 @dataclass
@@ -286,6 +320,9 @@ class _Likelihood:
     table: _NoiseTable = field(init=False)
     bounds: list[tuple[float, float]] = field(init=False)
     unit_m: NDArray = field(init=False)
+    k: float = field(init=False)
+    own_weight: NDArray = field(init=False)
+    shared_weight: NDArray = field(init=False)
 
     def __post_init__(self) -> None:
         median = float(np.median(self.log_amplitude))
@@ -350,7 +387,7 @@ class _Likelihood:
         offsets = np.median(self.residual[rows], axis=0) / self.unit_m
         low, high = self.bounds[0]
         best: tuple[float, NDArray] | None = None
-        for log_scale in np.arange(low, high, 0.1):
+        for log_scale in np.arange(low, high, START_STEP):
             theta = self._profiled(log_scale, offsets, rows)
             value = float(self.terms(theta, rows)[0].sum())
             if best is None or value < best[0]:
@@ -369,13 +406,25 @@ class _Likelihood:
         theta[1] = np.clip(np.log(max(ratio, 1e-300)), *self.bounds[1])
         return theta
 
+    def outlying(self, theta: NDArray) -> NDArray[np.bool_]:
+        """Pixels (n,) with a residual beyond ``OUTLIER_SIGMAS`` standard deviations (S1) of its offset."""
+        log_scale, log_noise, offsets = self.split(theta)
+        log_sd, _ = self.table(self.log_amplitude - log_scale)
+        own = np.exp(2 * log_sd)
+        variance = self.own_weight[:, None] * own + self.shared_weight[:, None] * own.sum(1, keepdims=True)
+        z = np.abs(self.residual - offsets) / (np.exp(log_noise) * np.sqrt(variance))
+        return np.asarray((z > OUTLIER_SIGMAS).any(1))
+
     def fit(self) -> tuple[NDArray[np.float64], bool]:
         """The maximum-likelihood parameters, and whether the optimizer converged."""
         from scipy.optimize import minimize
 
         found = minimize(self.value_and_gradient, self.start(), jac=True, method="L-BFGS-B", bounds=self.bounds,
                          options={"maxiter": 500, "ftol": 1e-13, "gtol": 1e-8})
-        return np.asarray(found.x, dtype=np.float64), bool(found.success)
+        # The line search may give up at the optimum itself, where the gradient is all rounding: a gradient below
+        # a hundredth of the score's own spread (about sqrt(n)) leaves the parameters within a hundredth of a sigma.
+        settled = np.abs(found.jac).max() <= 0.01 * np.sqrt(self.residual.shape[0])
+        return np.asarray(found.x, dtype=np.float64), bool(found.success or settled)
 
     def covariance(self, theta: NDArray) -> NDArray[np.float64]:
         """Sandwich covariance H^-1 J H^-1 of the parameters: H from central differences of the gradient, J the
@@ -400,7 +449,7 @@ class _Likelihood:
 
 
 def _result(model: _Likelihood, theta: NDArray, covariance: NDArray, converged: bool, reference: int,
-            decades: float, pixels: int) -> SensorScale:
+            decades: float, pixels: int, outliers: int) -> SensorScale:
     """The :class:`SensorScale` of a fit: estimates, standard deviations, and whether they are significant."""
     log_scale, log_noise, offsets = model.split(theta)
     frequencies = offsets.size
@@ -424,7 +473,7 @@ def _result(model: _Likelihood, theta: NDArray, covariance: NDArray, converged: 
         noise_scale=float(np.exp(log_noise)), noise_scale_sigma=float(np.exp(log_noise) * noise_sd),
         offsets_m=offsets - offsets[reference], offsets_sigma_m=np.sqrt(np.maximum(offset_variance, 0.0)),
         pixels=pixels, significant=not reason, reason=reason, scale_noise_correlation=correlation,
-        amplitude_decades=decades)
+        amplitude_decades=decades, outliers=outliers)
 
 
 def _reason(model: _Likelihood, theta: NDArray, covariance: NDArray, converged: bool, at_bound: bool,
@@ -481,12 +530,19 @@ def flat_surface_residuals(scan: Scan, usable_depth: NDArray, options: Correctio
     surface faces.
 
     A block is taken when it and its eight neighbours lie on one flat surface
-    (:func:`~mpi_lidar.correction.footprint.surface_labels`: no depth edge, no bend within a block of it) and none
+    (:func:`~mpi_lidar.correction.footprint.surface_labels`: no depth edge, no bend within a block of it), none
     of them has a multipath bias above ``MAX_FLAT_BIAS_M`` at a generous footprint (``GENEROUS_FOOTPRINT_FACTOR``
-    times the default effective footprint, or the given one if larger). Each taken block's plane is fitted again,
-    to the mean depth over the frequencies (:func:`mpi_lidar.scans.geometry.fit_block_planes`, its robust fit), and
-    every pixel of the block with a usable depth gets residuals, those the fit trimmed too, so that no frequency's
+    times the default effective footprint, or the given one if larger), and its own plane kept ``MIN_KEPT_SHARE``
+    of its pixels. Each taken block's plane is fitted again, to the mean depth over the frequencies
+    (:func:`mpi_lidar.scans.geometry.fit_block_planes`, its robust fit). A pixel of the block gets residuals when
+    its depth is usable, no neighbour of it is off its own block's plane (an edge's mixed pixels) and its mean depth
+    lies within ``PLANE_WINDOW_SIGMAS`` of the plane: the pixels the fit trimmed count too, so that no frequency's
     residuals are truncated.
+
+    Multipath from surfaces beyond ``options.partner_range_m`` is not seen (the blocks pair only within it): on the
+    far halves of a 90-degree corner of 1.2 m boards it leaves the pixels taken a bias of up to 1 mm, 0.1 mm on
+    average between frequencies, which reads as part of the depth offsets and is far below the noise the scales are
+    measured on.
 
     Parameters
     ----------
@@ -531,7 +587,8 @@ def _no_residuals(frequencies: int) -> FlatSurfaceResiduals:
 
 def _quiet_inner_blocks(blocks: geometry.FacingBlocks, flat: NDArray, options: CorrectionOptions) -> NDArray:
     """Blocks (Hb*Wb,) that lie with their eight neighbours on one flat surface, none of the nine reaching a
-    multipath bias of ``MAX_FLAT_BIAS_M`` at a generous footprint.
+    multipath bias of ``MAX_FLAT_BIAS_M`` at a generous footprint, whose plane kept ``MIN_KEPT_SHARE`` of its
+    pixels.
 
     Pixels interpolate block values from the neighbouring blocks, so a block is as quiet as its neighbourhood;
     past the scan's border a block is its own neighbour.
@@ -549,26 +606,19 @@ def _quiet_inner_blocks(blocks: geometry.FacingBlocks, flat: NDArray, options: C
     footprint_m2 = max(given, GENEROUS_FOOTPRINT_FACTOR * DEFAULT_FOOTPRINT_AREA_M2)
     bias_m = blocks.block_potential(footprint_m2).bias_m.reshape(hb, wb)
     quiet = maximum_filter(bias_m, size=3, mode="nearest") <= MAX_FLAT_BIAS_M
-    return (inner & quiet).ravel()
+    finite = np.nansum(geometry.to_blocks(blocks.finite.astype(np.float64), blocks.block_pixels), axis=-1)
+    whole = blocks.keep.sum(-1) >= MIN_KEPT_SHARE * finite
+    return (inner & quiet & whole).ravel()
 
 
 def _block_residuals(scan: Scan, usable_depth: NDArray, blocks: geometry.FacingBlocks,
                      chosen: NDArray) -> FlatSurfaceResiduals:
     """Residuals of the pixels of the blocks ``chosen`` (K,) (flat block indices) from planes fitted to their mean
-    depth over the frequencies.
-
-    The K blocks are laid side by side in a grid of b rows and K b columns, so that one call of
-    :func:`~mpi_lidar.scans.geometry.fit_block_planes` fits them all.
-    """
+    depth over the frequencies; only pixels whose mean depth lies within ``PLANE_WINDOW_SIGMAS`` of the plane."""
     b = blocks.block_pixels
-    height, width = blocks.shape
-    block_row, block_column = np.divmod(chosen, blocks.usable.shape[1])
-    ys = np.broadcast_to(block_row[:, None, None] * b + np.arange(b)[None, :, None], (chosen.size, b, b))
-    xs = np.broadcast_to(block_column[:, None, None] * b + np.arange(b)[None, None, :], (chosen.size, b, b))
-    inside = (ys < height) & (xs < width)
-    pixels = np.where(inside, ys * width + xs, -1).reshape(-1)  # (K b b,) in block, row, column order
+    pixels = _pixels_of_blocks(blocks, chosen)
     present = np.flatnonzero(pixels >= 0)
-    y, x = np.divmod(pixels[present], width)
+    y, x = np.divmod(pixels[present], blocks.shape[1])
     depth = np.full((pixels.size, len(scan.frequencies_hz)), np.nan)
     depth[present] = np.asarray(scan.depth[:, y, x], dtype=np.float64).T
     amplitude = np.full_like(depth, np.nan)
@@ -576,21 +626,67 @@ def _block_residuals(scan: Scan, usable_depth: NDArray, blocks: geometry.FacingB
     rays = np.full((pixels.size, 3), np.nan)
     rays[present] = scan.pixel_rays(y, x)
     usable = np.zeros(pixels.size, dtype=bool)
-    usable[present] = np.isfinite(np.asarray(usable_depth).reshape(-1)[pixels[present]])
+    usable[present] = (np.isfinite(np.asarray(usable_depth).reshape(-1)[pixels[present]])
+                       & ~_beside_other_surfaces(blocks).reshape(-1)[pixels[present]])
     usable &= np.isfinite(depth).all(1) & np.isfinite(amplitude).all(1)
     mean_depth = np.where(usable, depth.mean(1), np.nan)
-    # (K, b, b, 3) -> (b, K b, 3): block k's pixel (row, column) at grid (row, k b + column).
-    points = (mean_depth[:, None] * rays).reshape(chosen.size, b, b, 3).swapaxes(0, 1).reshape(b, chosen.size * b, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):  # blocks left without points
-        centres, normals, keep, fitted, _ = geometry.fit_block_planes(points, b)
-        centres, normals, keep, fitted = centres[0], normals[0], keep[0].reshape(-1), fitted[0]
-        block_of = np.repeat(np.arange(chosen.size), b * b)
-        plane_depth = (np.einsum("ki,ki->k", normals, centres)[block_of]
-                       / np.einsum("ni,ni->n", normals[block_of], rays))
-    leverage = _plane_leverage(keep.reshape(chosen.size, b * b), b).reshape(-1)
-    take = usable & fitted[block_of] & np.isfinite(plane_depth)
+    plane_depth, fitted = _mean_depth_planes(mean_depth, rays, chosen.size, b)
+    with np.errstate(invalid="ignore"):  # pixels without a depth or a plane
+        off_plane = np.abs(mean_depth - plane_depth).reshape(chosen.size, b * b)
+        spread = 1.4826 * geometry.nanmedian_last(np.where(fitted, off_plane, np.nan))
+        near = (off_plane <= PLANE_WINDOW_SIGMAS * spread[:, None]).reshape(-1)
+    leverage = _plane_leverage(fitted, b).reshape(-1)
+    take = usable & near & np.isfinite(plane_depth) & np.isfinite(leverage)
     return FlatSurfaceResiduals(amplitude[take], depth[take] - plane_depth[take, None], leverage[take],
-                                pixels[take].astype(np.intp), int(np.unique(block_of[take]).size))
+                                pixels[take].astype(np.intp), int(np.unique(np.flatnonzero(take) // (b * b)).size))
+
+
+def _beside_other_surfaces(blocks: geometry.FacingBlocks) -> NDArray[np.bool_]:
+    """Pixels (H, W) with one of their eight neighbours off its block's plane or without a depth: next to a depth
+    edge, where a real scan's pixels mix two surfaces.
+
+    A pixel's own distance from the plane does not count, so that the pixels the fit trimmed for their noise keep
+    their residuals, and their neighbours, left out for it, are left out whatever their own noise.
+    """
+    from scipy.ndimage import convolve
+
+    hb, wb = blocks.usable.shape
+    b = blocks.block_pixels
+    height, width = blocks.shape
+    inlier = blocks.keep.reshape(hb, wb, b, b).swapaxes(1, 2).reshape(hb * b, wb * b)[:height, :width]
+    ring = np.ones((3, 3), dtype=np.uint8)
+    ring[1, 1] = 0
+    # Past the scan's border there is no neighbour.
+    return np.asarray(convolve((~inlier).astype(np.uint8), ring, mode="constant", cval=0) > 0)
+
+
+def _pixels_of_blocks(blocks: geometry.FacingBlocks, chosen: NDArray) -> NDArray[np.intp]:
+    """Flat pixel indices (K b b,) of the blocks ``chosen`` (K,), block by block, each row by row; -1 past the
+    scan's edge."""
+    b = blocks.block_pixels
+    height, width = blocks.shape
+    block_row, block_column = np.divmod(chosen, blocks.usable.shape[1])
+    ys = np.broadcast_to(block_row[:, None, None] * b + np.arange(b)[None, :, None], (chosen.size, b, b))
+    xs = np.broadcast_to(block_column[:, None, None] * b + np.arange(b)[None, None, :], (chosen.size, b, b))
+    return np.where((ys < height) & (xs < width), ys * width + xs, -1).reshape(-1)
+
+
+def _mean_depth_planes(mean_depth: NDArray, rays: NDArray, count: int, b: int) -> tuple[NDArray, NDArray]:
+    """The plane's depth along each pixel's ray (K b b,) [m] from the robust plane of each of K blocks' mean
+    depths (K b b,) [m] along their rays (K b b, 3), and the pixels the fit kept (K, b*b).
+
+    The blocks are laid side by side in a grid of b rows and K b columns, so that one call of
+    :func:`~mpi_lidar.scans.geometry.fit_block_planes` fits them all; NaN where a block has no plane.
+    """
+    # (K, b, b, 3) -> (b, K b, 3): block k's pixel (row, column) at grid (row, k b + column).
+    points = (mean_depth[:, None] * rays).reshape(count, b, b, 3).swapaxes(0, 1).reshape(b, count * b, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):  # blocks left without points
+        centres, normals, keep, usable, _ = geometry.fit_block_planes(points, b)
+        block_of = np.repeat(np.arange(count), b * b)
+        plane_depth = (np.einsum("ki,ki->k", normals[0], centres[0])[block_of]
+                       / np.einsum("ni,ni->n", normals[0][block_of], rays))
+    plane_depth[~usable[0][block_of]] = np.nan
+    return plane_depth, keep[0] & usable[0][:, None]
 
 
 def _plane_leverage(fitted: NDArray, b: int) -> NDArray[np.float64]:
@@ -599,7 +695,7 @@ def _plane_leverage(fitted: NDArray, b: int) -> NDArray[np.float64]:
     The plane is linear in the pixel's row and column within a block (the ray's angles, to first order), and a
     leverage does not change under an affine change of the regressors: h = x^T (X^T X)^-1 x with x = (1, row,
     column) and X the fitted pixels' rows. The few pixels the robust fit trimmed get the same x^T (X^T X)^-1 x, the
-    leverage of a prediction: (S1) overstates their variance by 2 h s_f^2 / F, a negligible error on so few.
+    leverage of a prediction: (S1) understates their variance by 2 h s_f^2 / F, a negligible error on so few.
     """
     row, column = np.divmod(np.arange(b * b), b)
     x = np.column_stack([np.ones(b * b), row, column]).astype(np.float64)  # (b*b, 3)

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.footprint import NOTHING_MEASURED, FootprintEstimate, estimate_footprint, pool_estimates
 from mpi_lidar.correction.options import CorrectionOptions
 from mpi_lidar.correction.profile import SensorProfile, write_profile
 from mpi_lidar.correction.scene import scene_blocks
-from mpi_lidar.correction.validity import usable_depth_of, validity_flags
+from mpi_lidar.correction.sensor_scale import SensorScale, measure_sensor_scale
+from mpi_lidar.correction.validity import unwrapped_rows, usable_depth_of, validity_flags
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import read_scan
@@ -22,46 +24,88 @@ from mpi_lidar.workflows.correct_archive import expand_archive
 
 @dataclass(frozen=True)
 class ScanEstimate:
-    """One scan's footprint estimate and where it came from."""
+    """One scan's footprint estimate, what its flat surfaces say of the sensor, and where it came from.
+
+    ``depths_m`` is a sample of the scan's usable depths (at most :data:`DEPTH_SAMPLE` of them) [m].
+    """
 
     source: str
     estimate: FootprintEstimate
+    scale: SensorScale | None = None
+    depths_m: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+
+# Usable depths each scan keeps for the working range's percentiles.
+DEPTH_SAMPLE = 20_000
 
 
 def scan_footprint(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, use_reference: bool = True
                    ) -> FootprintEstimate:
-    """The footprint one scan measures: against its reference depth where it has one (and ``use_reference``),
-    else against its own surfaces. A scan without geometry measures nothing.
+    """The footprint one scan measures (:func:`scan_calibration`'s)."""
+    return scan_calibration(scan, options, sensor, use_reference).estimate
 
-    The stages of correction (:func:`mpi_lidar.correction.correct_scan`) up to the footprint: validity over the
-    whole scan (no model, so no model range), then the scene's blocks (:func:`scene_blocks`)."""
+
+def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, use_reference: bool = True,
+                     source: str = "") -> ScanEstimate:
+    """What one scan measures of its sensor: the amplitude unit, noise scale and frequency offsets on its flat
+    surfaces (:func:`mpi_lidar.correction.sensor_scale.measure_sensor_scale`, from the depths alone, so any
+    amplitude unit passes), then, with its amplitudes in V^2, the footprint: against its reference depth where it
+    has one (and ``use_reference``), else against its own surfaces. A scan without geometry measures nothing.
+
+    The stages of correction (:func:`mpi_lidar.correction.correct_scan`) up to the footprint: unwrapping and
+    validity over the whole scan (no model, so no model range), then the scene's blocks (:func:`scene_blocks`)."""
     if scan.ray_rows() is None:
-        return NOTHING_MEASURED
-    raw = scan.raw_pixels()
-    usable_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, options, sensor))
+        return ScanEstimate(source, NOTHING_MEASURED)
+    raw, confidence = scan.raw_pixels(), None
+    if scan.depth_wrapped:
+        raw, confidence = unwrapped_rows(raw, scan.frequencies_hz, sensor)
+        scan = replace(scan, depth=raw[:, :len(scan.frequencies_hz)].T.reshape(scan.depth.shape),
+                       depth_wrapped=False)
+    depth_rules = options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})
+    by_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, depth_rules, sensor, confidence))
+    scale = measure_sensor_scale(scan, by_depth, options, sensor)
+    if not scale.significant and scale.pixels > 0:  # one noise regime: the unit, with the noise model's noise
+        with_model_noise = measure_sensor_scale(scan, by_depth, options, sensor, fix_noise_scale=1.0)
+        scale = with_model_noise if with_model_noise.significant else scale
+    if scale.significant:
+        raw = raw.copy()
+        raw[:, len(scan.frequencies_hz):] /= scale.amplitude_scale
+        scan = replace(scan, amplitude=(np.asarray(scan.amplitude) / scale.amplitude_scale).astype(np.float32))
+    usable_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, options, sensor, confidence))
     valid = np.isfinite(usable_depth)
     blocks = scene_blocks(scan, usable_depth, options)
     assert blocks is not None  # the scan has rays
     reference = use_reference and scan.reference_depth is not None
     if reference:
         valid &= np.isfinite(np.asarray(scan.reference_depth, dtype=np.float64)).ravel()
-    return estimate_footprint(scan, blocks, valid, sensor, reference=reference)
+    depths = usable_depth[np.isfinite(usable_depth)].astype(np.float64)
+    sample = depths[np.linspace(0, depths.size - 1, min(DEPTH_SAMPLE, depths.size)).astype(np.intp)]
+    return ScanEstimate(source, estimate_footprint(scan, blocks, valid, sensor, reference=reference), scale, sample)
 
 
 def calibrate_scans(inputs: list[str], out: str | Path, options: CorrectionOptions | None = None,
                     use_reference: bool = True, on_scan: Callable[[ScanEstimate], None] | None = None
                     ) -> tuple[SensorProfile, list[ScanEstimate]]:
-    """Pool the footprint of every scan of ``inputs`` (stores, directories, globs) and write the profile to ``out``.
+    """Pool what every scan of ``inputs`` (stores, directories, globs) measures and write the profile to ``out``.
 
-    A pooled estimate that is not significant writes nothing: the scans hold too little facing geometry.
+    The footprint is pooled by its uncertainty; a pooled footprint that is not significant writes nothing (the
+    scans hold too little facing geometry). The amplitude unit, noise scale and frequency offsets are pooled
+    over the scans whose flat surfaces measured them (:func:`pool_scales`); the working range is the 1st to
+    99th percentile of the scans' usable depths; the frequencies are the scans' (all must share them).
     """
     options = options or CorrectionOptions()
     if Path(out).exists():
         raise MpiLidarError(f"sensor profile {out} already exists; choose another --out or remove it")
     sources = expand_archive(inputs)
     results = []
+    frequencies: set[tuple[float, ...]] = set()
     for source in sources:
-        result = ScanEstimate(source, scan_footprint(read_scan(source), options, SensorConfig(), use_reference))
+        scan = read_scan(source)
+        frequencies.add(scan.frequencies_hz)
+        if len(frequencies) > 1:
+            raise MpiLidarError(f"scan {source} was measured at other frequencies than the scans before it; "
+                                "calibrate one sensor's scans at a time")
+        result = scan_calibration(scan, options, SensorConfig(), use_reference, source)
         results.append(result)
         if on_scan:
             on_scan(result)
@@ -70,11 +114,36 @@ def calibrate_scans(inputs: list[str], out: str | Path, options: CorrectionOptio
         raise MpiLidarError(
             f"the {len(sources)} scans give no significant footprint ({_describe(pooled)}); calibrate on scans "
             "with corners or other surfaces facing each other, or give --footprint-area-m2 to correct")
-    thresholds = {"saturation_amplitude_v2": options.saturation_amplitude_v2,
-                  "min_amplitude_sigmas": options.min_amplitude_sigmas}
-    profile = SensorProfile.from_estimate(pooled, sources, **thresholds)
+    measured: dict[str, object] = {"saturation_amplitude_v2": options.saturation_amplitude_v2,
+                                   "min_amplitude_sigmas": options.min_amplitude_sigmas,
+                                   "frequencies_hz": next(iter(frequencies)) if frequencies else None}
+    measured.update(pool_scales([r.scale for r in results if r.scale is not None]))
+    depths = np.concatenate([r.depths_m for r in results]) if results else np.zeros(0)
+    if depths.size:
+        measured["range_m"] = (float(np.quantile(depths, 0.01)), float(np.quantile(depths, 0.99)))
+    profile = SensorProfile.from_estimate(pooled, sources, **measured)
     write_profile(profile, out)
     return profile, results
+
+
+def pool_scales(scales: list[SensorScale]) -> dict[str, object]:
+    """The profile's amplitude_scale, noise_scale and frequency_offsets_m from the significant scans' estimates,
+    each weighted by its inverse variance (the scales in log); empty where no scan measured them."""
+    good = [s for s in scales if s.significant]
+    if not good:
+        return {}
+    log_scale = np.array([np.log(s.amplitude_scale) for s in good])
+    scale_weight = np.array([(s.amplitude_scale / s.amplitude_scale_sigma) ** 2 for s in good])
+    pooled: dict[str, object] = {"amplitude_scale": float(np.exp(np.average(log_scale, weights=scale_weight)))}
+    fitted = [s for s in good if 0 < s.noise_scale_sigma < np.inf]
+    if fitted:
+        noise_weight = np.array([(s.noise_scale / s.noise_scale_sigma) ** 2 for s in fitted])
+        pooled["noise_scale"] = float(np.exp(np.average([np.log(s.noise_scale) for s in fitted],
+                                                        weights=noise_weight)))
+    offsets = np.array([s.offsets_m for s in good])
+    weights = 1.0 / np.maximum(np.array([s.offsets_sigma_m for s in good]), 1e-9) ** 2
+    pooled["frequency_offsets_m"] = tuple(float(o) for o in (offsets * weights).sum(0) / weights.sum(0))
+    return pooled
 
 
 def _describe(estimate: FootprintEstimate) -> str:
@@ -87,3 +156,14 @@ def describe(estimate: FootprintEstimate) -> str:
     """One line of a scan's or a pool's estimate, for the command line."""
     verdict = "significant" if estimate.significant else "not significant"
     return f"{_describe(estimate)} ({estimate.method}, {verdict})"
+
+
+def describe_scale(scale: SensorScale | None) -> str:
+    """One line of what a scan's flat surfaces say of its amplitude unit and noise, for the command line."""
+    if scale is None or not scale.significant:
+        why = "no geometry" if scale is None else scale.reason
+        return f"amplitude unit not measured ({why})"
+    noise = (f"noise scale {scale.noise_scale:.3g} +- {scale.noise_scale_sigma:.2g}"
+             if 0 < scale.noise_scale_sigma < np.inf else "noise scale not separable")
+    return (f"amplitude unit {scale.amplitude_scale:.4g} +- {scale.amplitude_scale_sigma:.2g} per V^2, {noise} "
+            f"({scale.pixels:,} flat pixels)")

@@ -463,3 +463,34 @@ def test_correction_diagnosis__a_scene_left_as_measured_gives_no_bins(tiny_geome
     rows = diagnose("weak corner", corner(120.0, 2.0, 0.2, height=24, width=32), (edge_line(2.0),),
                     tiny_geometric_model, seed=0, true_m2=1e-5)
     assert rows == []
+
+
+def test_calibrate__scans_in_counts_give_their_unit_and_correct_as_in_v2(tmp_path, tiny_geometric_model_dir,
+                                                                         monkeypatch, capsys):
+    from dataclasses import replace
+
+    from mpi_lidar.scans.store import write_scan
+
+    for seed in (1, 2):  # walls and a floor: flat regions away from the edges measure the unit
+        scan = rendered(room_corner(height=64, width=86), 0.02, seed=seed)
+        write_scan(scan, tmp_path / "v2" / f"c{seed}.scan.zarr")
+        write_scan(replace(scan, amplitude=(scan.amplitude * 4000).astype(np.float32)),
+                   tmp_path / "counts" / f"c{seed}.scan.zarr")
+    profile, results = calibrate_scans([str(tmp_path / "counts")], tmp_path / "sensor.toml")
+    assert all(r.scale is not None and r.scale.significant for r in results)
+    assert profile.amplitude_scale == pytest.approx(4000, rel=0.1)
+    assert profile.frequencies_hz == Config().frequencies_hz
+    assert profile.range_m is not None and 0.5 < profile.range_m[0] < profile.range_m[1] < 4.0
+    assert read_profile(tmp_path / "sensor.toml") == profile
+    outputs = {}
+    for unit, extra in (("v2", []), ("counts", ["--amplitude-scale", str(profile.amplitude_scale)])):
+        code, _, stderr = call_main(monkeypatch, capsys, "correct", str(tmp_path / unit / "c1.scan.zarr"), "--model",
+                                    str(tiny_geometric_model_dir), "--out", str(tmp_path / f"out-{unit}"),
+                                    "--footprint-area-m2", "0.02", "--workers", "0", *extra)
+        assert code == 0, stderr
+        outputs[unit] = zarr.open_group(str(tmp_path / f"out-{unit}" / "c1" / "corrected.zarr"),
+                                        mode="r")["corrected_depth"][:]
+    # the unit is known to a few %: the amplitudes it gives differ from V^2 by that, and the depths by far less
+    # (a pixel near a tree's split or the gate's threshold may go the other way)
+    difference = np.abs(outputs["counts"] - outputs["v2"])
+    assert np.nanmean(difference) < 0.05e-3 and np.nanmean(difference > 1e-4) < 0.05
