@@ -268,3 +268,22 @@ def test_simulate__empty_directory_is_used(tmp_path, monkeypatch, capsys):
     captured = capsys.readouterr()
     assert "1 of 1 chunks simulated" in captured.out
     assert dataset.is_complete(out)
+
+
+def test_simulate_cli__sensor_profile_sets_frequencies_noise_and_working_range(tmp_path, monkeypatch, capsys):
+    profile = tmp_path / "sensor.toml"
+    profile.write_text('schema = "mpi-lidar/sensor@1"\nfootprint_area_m2 = 0.02\nnoise_scale = 2.0\n'
+                       "frequencies_hz = [10000000.0, 20000000.0, 30000000.0]\nrange_m = [1.0, 6.0]\n")
+    code, out, err = call_main(monkeypatch, capsys, "simulate", "--out", tmp_path / "d.zarr", "--samples", "400",
+                               "--workers", "0", "--sensor", profile)
+    assert code == 0, err
+    config = dataset.store_config(dataset.open_store(tmp_path / "d.zarr"))
+    assert config.frequencies_hz == (10e6, 20e6, 30e6) and config.simulator.noise_scale == 2.0
+    assert config.prior.d_as_m == pytest.approx((0.85, 6.9)) and config.prior.d_as_distribution == "log_uniform"
+    assert "10 MHz" in out and "30 MHz" in out
+    profile.write_text('schema = "mpi-lidar/sensor@1"\nfootprint_area_m2 = 0.02\nfrequencies_hz = [1e9]\n')
+    code, out, err = call_main(monkeypatch, capsys, "simulate", "--out", tmp_path / "e.zarr", "--samples", "400",
+                               "--workers", "0", "--sensor", profile)
+    assert code == 2 and str(profile) in err and "cannot be demodulated" in err
+    assert_one_error_line(err)
+    assert not (tmp_path / "e.zarr").exists()
