@@ -35,6 +35,7 @@ PAGES = {
     "geometry": "benchmarks.scenes",
     "limits": "benchmarks.limits",
     "model-range": "benchmarks.model_range",
+    "range-bands": "benchmarks.range_bands",
     "scenes": "benchmarks.scenes",
     "sensor": "benchmarks.sensor",
     "tradeoff": "benchmarks.tradeoff",

@@ -124,8 +124,8 @@ class PriorConfig(_Frozen):
 
     @model_serializer(mode="wrap")
     def _omit_paper_default(self, handler: SerializerFunctionWrapHandler) -> dict[str, object]:
-        # At their defaults (those of the paper's prior) these fields are left out, so configs, dataset stores
-        # and model cards made before they existed keep their hash and their bytes.
+        # At their defaults these fields are left out, so configs, dataset stores and model cards made before
+        # they existed keep their hash and their bytes.
         data = handler(self)
         if self.no_multipath_fraction == 0.0:
             data.pop("no_multipath_fraction", None)
@@ -155,6 +155,13 @@ class PriorConfig(_Frozen):
             if low < 0 or high > 1:
                 raise ValueError(f"{name} must lie in [0, 1] (a reflectance), got {[low, high]}")
         return self
+
+
+# The default prior: the sensor's working range, 0.5 m to the 12.5 MHz unambiguous range (12 m; a white
+# surface still returns there at Table I's gain), log-uniform so that every octave of range gets as many rows.
+# A PriorConfig's own defaults stay the paper's 1.4-2.4 m, uniform (the ``paper`` preset): configs stored
+# before this default existed name their d_as_m and read back as they were written.
+WORKING_RANGE_PRIOR = PriorConfig(d_as_m=(0.5, 12.0), d_as_distribution="log_uniform")
 
 
 class SimulatorConfig(_Frozen):
@@ -197,7 +204,7 @@ class Config(_Frozen):
 
     sensor: SensorConfig = SensorConfig()
     frequencies_hz: tuple[float, ...] = PAPER_FREQUENCIES_HZ
-    prior: PriorConfig = PriorConfig()
+    prior: PriorConfig = WORKING_RANGE_PRIOR
     simulator: SimulatorConfig = SimulatorConfig()
     dataset: DatasetConfig = DatasetConfig()
 
@@ -253,12 +260,14 @@ class Config(_Frozen):
 
 PRESETS: dict[str, dict[str, object]] = {
     "quick": {"dataset": {"samples": 20_000, "chunk_rows": 5_000}},
-    "paper": {"dataset": {"samples": PAPER_SAMPLES, "chunk_rows": 65_536, "test_fraction": 0.2}},
+    "paper": {"dataset": {"samples": PAPER_SAMPLES, "chunk_rows": 65_536, "test_fraction": 0.2},
+              "prior": {"d_as_m": PriorConfig().d_as_m, "d_as_distribution": "uniform"}},
 }
 
 
 def preset(name: str) -> Config:
-    """The named preset: ``quick`` (20,000 rows) or ``paper`` (1,338,670 rows, 80/20 split)."""
+    """The named preset: ``quick`` (20,000 rows of the working range, 0.5-12 m) or ``paper`` (1,338,670 rows of
+    the paper's prior, d_AS 1.4-2.4 m, 80/20 split)."""
     if name not in PRESETS:
         raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}")
     return Config().replace(**PRESETS[name])

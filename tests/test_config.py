@@ -15,6 +15,7 @@ from mpi_lidar.config import (
     PAPER_FREQUENCIES_HZ,
     PAPER_SAMPLES,
     Config,
+    PriorConfig,
     config_from_json,
     config_json,
     config_sha256,
@@ -282,6 +283,8 @@ def _perturbed(value: object, key: str) -> object:
         return "independent"
     if key == "fidelity":
         return "waveform"
+    if key == "d_as_distribution":
+        return "uniform" if value == "log_uniform" else "log_uniform"
     if isinstance(value, int):
         return value - 1 if key == "chunk_rows" else value + 1
     if isinstance(value, float):
@@ -324,3 +327,34 @@ def test_resolve_config__fewer_samples_shrink_chunk_rows_unless_given():
     assert resolve_config(None, "quick") == resolve_config(None, "quick", samples=None)
     with pytest.raises(ConfigError, match=r"chunk_rows \(400\) is larger than samples \(300\)"):
         resolve_config(None, "quick", samples=300, chunk_rows=400)
+
+
+# --- the d_AS distribution ----------------------------------------------------------------------------------
+
+# SHA-256 of the default configuration as it was before PriorConfig.d_as_distribution existed (d_AS uniform over
+# 1.4-2.4 m, PriorConfig's own defaults): a regression anchor, as datasets and model cards record this hash.
+UNIFORM_PRIOR_CONFIG_SHA256 = "74ff96a9de35dc7698d118deff9fc47f530503f65ab46d9f1550a6ebc09925ff"
+
+
+def test_prior_config__uniform_d_as_distribution_is_left_out_and_keeps_the_hash():
+    uniform = Config(prior=PriorConfig())
+    assert uniform.prior.d_as_distribution == "uniform" and uniform.prior.d_as_m == (1.4, 2.4)
+    assert "d_as_distribution" not in config_json(uniform)
+    assert config_sha256(uniform) == UNIFORM_PRIOR_CONFIG_SHA256
+    assert config_sha256(Config(prior=PriorConfig(d_as_distribution="uniform"))) == UNIFORM_PRIOR_CONFIG_SHA256
+
+
+def test_prior_config__log_uniform_is_written_changes_the_hash_and_round_trips():
+    wide = Config(prior=PriorConfig(d_as_m=(0.5, 12.0), d_as_distribution="log_uniform"))
+    assert '"d_as_distribution":"log_uniform"' in config_json(wide)
+    assert config_from_json(config_json(wide)) == wide
+    assert config_sha256(wide) != config_sha256(wide.replace(prior={"d_as_distribution": "uniform"}))
+
+
+def test_load_config__log_uniform_needs_positive_distances_and_a_known_name(tmp_path):
+    zero = write_toml(tmp_path, '[prior]\nd_as_m = [0.0, 12.0]\nd_as_distribution = "log_uniform"\n')
+    with pytest.raises(ConfigError, match=r"d_as_m must be positive .*log-uniform d_as_distribution needs low > 0"):
+        load_config(zero)
+    unknown = write_toml(tmp_path, '[prior]\nd_as_distribution = "normal"\n', name="unknown.toml")
+    with pytest.raises(ConfigError, match=r"prior\.d_as_distribution: .*'uniform' or 'log_uniform'"):
+        load_config(unknown)

@@ -14,7 +14,14 @@ Feature sets:
   depth, and the log amplitude of the highest frequency. The multipath bias depends on the A-B distance and
   the reflectances, not on d_AS (the phase offset and the amplitude ratio of the two paths do not involve it);
   range enters only through the amplitude (rho / d^2), which sets the noise. A model on these inputs therefore
-  holds at any range whose amplitudes its training rows covered. It needs the residual target.
+  holds at any range whose amplitudes its training rows covered. It needs the residual target. What it gives
+  up: the albedo of A, amplitude times squared range, which under the reciprocal prior scales the multipath
+  ratio (a rho_ABA); over 0.5-12 m this keeps it 10-30 % above the Bayes limit (docs/results/range-bands.md).
+
+- ``physical`` (the default): the range-free columns plus the log albedo estimate of A, ln(A d^2) of the
+  highest frequency [ln(V^2 m^2)] (the albedo times Gamma_R times the incidence cosine): range enters only where
+  the physics puts it, the noise (through the amplitude) and the strength of the multipath (the light that
+  returns from B is reflected at A again, so the multipath over direct ratio scales with A's albedo).
 
 Depths past the highest frequency's unambiguous range (c / 2f, 4.8 m at 31.25 MHz) are measured wrapped; every
 set but ``raw`` takes differences of depths and needs them unwrapped (each frequency's depth within half its
@@ -155,8 +162,8 @@ class FeatureSpec:
         if self.target_mode not in TARGET_MODES:
             raise MpiLidarError(f"unknown target mode {self.target_mode!r}; choose one of {', '.join(TARGET_MODES)}")
         if self.feature_set in RELATIVE_FEATURE_SETS and self.target_mode == "absolute":
-            raise MpiLidarError(f"the {self.feature_set} feature set holds no absolute depth, so it cannot predict one: "
-                                "use target mode 'residual'")
+            raise MpiLidarError(f"the {self.feature_set} feature set holds no absolute depth, so it cannot predict "
+                                "one: use target mode 'residual'")
 
     @property
     def n_freq(self) -> int:
@@ -168,7 +175,7 @@ class FeatureSpec:
 
     @property
     def names(self) -> list[str]:
-        names = self.raw_names if self.feature_set != "range_free" else []
+        names = self.raw_names if self.feature_set in ("raw", "engineered") else []
         if self.feature_set != "raw":
             labels = frequency_labels(self.frequencies_hz)
             top = labels[-1]
@@ -176,6 +183,8 @@ class FeatureSpec:
             names += [f"amplitude_{x}_over_{top}" for x in labels[:-1]]
             names += ["weighted_depth" if self.feature_set == "engineered" else f"weighted_depth_minus_{top}",
                       f"log_amplitude_{top}"]
+        if self.feature_set == "physical":
+            names.append(f"log_albedo_{top}")
         if self.geometric:
             names += list(GEOMETRIC_NAMES)
         return names
@@ -250,12 +259,16 @@ class FeatureSpec:
             return out
         f = self.n_freq
         engineered = self.feature_set == "engineered"
+        physical = self.feature_set == "physical"
         if out is None:
-            out = np.empty((raw.shape[0], 4 * f if engineered else 2 * f), dtype=np.float32)
+            out = np.empty((raw.shape[0], 4 * f if engineered else 2 * f + physical), dtype=np.float32)
         if engineered:
             out[:, :2 * f] = raw  # rounded to float32 like every column (exact for float32 measurements)
-        _relative_columns(raw, self.frequencies_hz, out[:, 2 * f:] if engineered else out,
+        _relative_columns(raw, self.frequencies_hz, out[:, 2 * f:] if engineered else out[:, :2 * f],
                           weighted_from_top=not engineered)
+        if physical:
+            top_amplitude = np.maximum(raw[:, 2 * f - 1].astype(np.float64), AMPLITUDE_FLOOR_V2)
+            out[:, 2 * f] = np.log(top_amplitude * np.square(raw[:, f - 1].astype(np.float64)))
         return out
 
     @overload

@@ -39,12 +39,13 @@ Range and wrapping: a depth is measured as a phase, wrapped to [0, c / 2f) per f
 The likelihood sees the depths only through the phasors exp(i 4 pi f d / c), which do not change when a depth
 moves by a whole c / 2f: it is right for wrapped and unwrapped depths alike. The proposal is not: its centre
 is a single-path range, by default the weighted depth of the row, which is only meaningful once the depths are
-unwrapped. Past 4.8 m give :func:`posterior_estimates` unwrapped depths or the unwrapped range of each row
-(``range_m``). Within 0.5-12 m a wrong wrap count carries no posterior mass at 12.5-31.25 MHz: the four
-phases agree again only 24 m further (c / 2 gcd(f)), and every other shift that locally fits them best within
-+-12 m leaves them 2.8 rad off or more (root sum of squares, at +-10.2 m), against a phase noise of at most
-0.25 rad per frequency (12 m, albedo 0.14): a likelihood ratio below e^-60. So :func:`bayes_limit`, which
-knows the truth, unwraps its rows with the true wrap count.
+unwrapped. Past 4.8 m give :func:`posterior_estimates` unwrapped depths (as
+:func:`mpi_lidar.physics.noise.unwrapped_rows` makes them) or the unwrapped range of each row (``range_m``,
+e.g. :func:`mpi_lidar.physics.unwrap.unwrap_depths` ``.range_m``). Within 0.5-12 m a wrong wrap count carries
+no posterior mass at 12.5-31.25 MHz: the four phases agree again only 24 m further (c / 2 gcd(f)), and every
+other shift that locally fits them best within +-12 m leaves them 2.8 rad off or more (root sum of squares,
+at +-10.2 m), against a phase noise of at most 0.25 rad per frequency (12 m, albedo 0.14): a likelihood ratio
+below e^-60. So :func:`bayes_limit`, which knows the truth, unwraps its rows with the true wrap count.
 """
 
 from __future__ import annotations

@@ -80,7 +80,8 @@ def range_band_errors(true_d_as_m: NDArray, raw_depth_m: NDArray, posterior_medi
     ----------
     true_d_as_m : True direct depth of each row, shape (n,). [m]
     raw_depth_m : Raw highest-frequency depth of each row, unwrapped. [m]
-    posterior_median_m : Posterior median of d_AS of each row (:func:`mpi_lidar.learning.limits.posterior_estimates`). [m]
+    posterior_median_m : Posterior median of d_AS of each row
+        (:func:`mpi_lidar.learning.limits.posterior_estimates`). [m]
     model_depth_m : A model's depth of each row; None leaves the model's columns NaN. [m]
     bands_m : (low, high) bands of the true d_AS, in increasing order. [m]
     """

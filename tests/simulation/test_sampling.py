@@ -88,7 +88,8 @@ def test_sample_theta__no_multipath_fraction_zeroes_that_share_of_rows(scheme):
 
 
 def test_sample_theta__no_multipath_rows_have_no_multipath_bias():
-    config = Config().replace(prior={"no_multipath_fraction": 1.0}, simulator={"noise_scale": 0.0})
+    # the paper's prior: nothing there wraps, so the noiseless depth is the range itself
+    config = Config(prior=PriorConfig(no_multipath_fraction=1.0)).replace(simulator={"noise_scale": 0.0})
     theta = sample_theta(config.prior, 200, np.random.default_rng(3))
     taps = MomentSensor(config).taps(theta, np.random.default_rng(4))
     depth, _ = depth_and_amplitude(taps, config.frequencies_hz, config.sensor.speed_of_light_m_per_s)
@@ -172,8 +173,8 @@ def test_simulate_chunk__independent_of_other_chunks():
 
 @pytest.fixture(scope="module")
 def default_store(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("prior") / "default.zarr"
-    generate(path, Config())  # 20,000 rows, the quick preset
+    path = tmp_path_factory.mktemp("prior") / "paper.zarr"
+    generate(path, Config(prior=PriorConfig()))  # 20,000 rows of the paper's prior
     return path
 
 
@@ -215,3 +216,45 @@ def test_prior_config__no_multipath_fraction_keeps_old_hashes_and_round_trips():
     assert '"no_multipath_fraction":0.5' in config_json(mixed)
     assert config_from_json(config_json(mixed)) == mixed
     assert config_from_json(config_json(Config())).prior.no_multipath_fraction == 0.0
+
+
+# --- the d_AS distribution ----------------------------------------------------------------------------------
+
+# SHA-256 of chunk 0 (features, theta) of the quick preset as it was simulated before
+# PriorConfig.d_as_distribution existed (20,000 rows in chunks of 5,000, d_AS uniform over 1.4-2.4 m): a
+# regression anchor that the uniform prior still draws the very same numbers, so stored datasets keep their
+# bytes. (The features pass through libm; a platform whose exp/sin round otherwise would differ.)
+QUICK_CHUNK0_FEATURES_SHA256 = "e51a7da322080301ff35f4623468b773f7a7c3638120bf5d14298e8a0a75eca9"
+QUICK_CHUNK0_THETA_SHA256 = "c66d6279738f808e738aac010fdcae1892d2cbca44deb65f5b49e26a54dd4484"
+
+
+def test_simulate_chunk__uniform_prior_keeps_the_bytes_of_earlier_datasets():
+    import hashlib
+
+    config = Config(prior=PriorConfig(), dataset={"samples": 20_000, "chunk_rows": 5_000})
+    chunk = dataset.simulate_chunk(config, 0)
+    assert hashlib.sha256(chunk.theta.tobytes()).hexdigest() == QUICK_CHUNK0_THETA_SHA256
+    assert hashlib.sha256(chunk.features.tobytes()).hexdigest() == QUICK_CHUNK0_FEATURES_SHA256
+
+
+@pytest.mark.parametrize("scheme", sorted(SCHEMES))
+def test_sample_theta__log_uniform_d_as_is_the_uniform_draw_mapped_to_log_scale(scheme):
+    # Both distributions take the same single uniform draw for d_AS: u = (d_uniform - lo) / (hi - lo), and the
+    # log-uniform d_AS is lo (hi / lo)^u; every other column is the very same draw.
+    low, high = 0.5, 12.0
+    uniform = sample_theta(PriorConfig(scheme=scheme, d_as_m=(low, high)), N, np.random.default_rng(8))
+    log_uniform = sample_theta(PriorConfig(scheme=scheme, d_as_m=(low, high), d_as_distribution="log_uniform"), N,
+                               np.random.default_rng(8))
+    u = (column(uniform, "d_as_m") - low) / (high - low)
+    np.testing.assert_allclose(column(log_uniform, "d_as_m"), low * (high / low) ** u, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(log_uniform[:, 1:], uniform[:, 1:])
+
+
+def test_sample_theta__log_uniform_d_as_fills_every_octave_alike():
+    low, high = 0.5, 8.0  # four octaves
+    d_as = column(sample_theta(PriorConfig(d_as_m=(low, high), d_as_distribution="log_uniform"), N,
+                               np.random.default_rng(9)), "d_as_m")
+    assert d_as.min() >= low and d_as.max() <= high
+    assert stats.kstest(np.log(d_as), stats.uniform(np.log(low), np.log(high / low)).cdf).pvalue > KS_ALPHA
+    counts, _ = np.histogram(d_as, [0.5, 1.0, 2.0, 4.0, 8.0])
+    assert np.all(np.abs(counts - N / 4) <= 5 * np.sqrt(N / 4 * 3 / 4))  # binomial, 5 sigma
