@@ -31,6 +31,7 @@ PAGES = {
     "cluster": "benchmarks.cluster",
     "correction": "benchmarks.correction",
     "correction-diagnosis": "benchmarks.correction_diagnosis",
+    "envelope": "benchmarks.envelope",
     "generation": "benchmarks.generation",
     "geometry": "benchmarks.scenes",
     "limits": "benchmarks.limits",

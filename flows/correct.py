@@ -108,7 +108,7 @@ def correct_and_publish(scans: list[str], model: str, out: str, options: Correct
 @flow(name="correct-archive")
 def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "geometry",
                          min_bias_mm: float | None = None, footprint_area_m2: float | str | None = None,
-                         sensor: str | None = None,
+                         sensor: str | None = None, amplitude_scale: float | None = None,
                          max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
                          allow_unserved: bool = False, workers: int = 2, scheduler: str | None = None,
                          outputs: Outputs = "light",
@@ -116,7 +116,8 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "g
     """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
 
     The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
-    [m^2] or "auto", ``sensor`` (a sensor profile's path) and ``max_invalid_share`` (None keeps the
+    [m^2] or "auto", ``sensor`` (a sensor profile's path), ``amplitude_scale`` (the scanner's amplitude unit
+    per V^2) and ``max_invalid_share`` (None keeps the
     default), ``fail_on`` (statuses that end the flow Failed after the summary is written; failed always does,
     unserved unless ``allow_unserved``), ``workers`` (0: in the flow's process),
     ``scheduler``, ``outputs`` (light: store, metrics, report and thumbnail; data; full) and ``point_clouds``
@@ -124,7 +125,8 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "g
     run's id, the wall time and each source's status.
     """
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
-                                         max_invalid_share=max_invalid_share, **profile_options(sensor))
+                                         max_invalid_share=max_invalid_share, amplitude_scale=amplitude_scale,
+                                         **profile_options(sensor))
     fail_on = list(fail_on or [])
     batch_failure([], fail_on)  # an unknown status is refused before any scan runs
     outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler, outputs,

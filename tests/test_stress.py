@@ -14,7 +14,7 @@ import xgboost as xgb
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, SensorConfig
+from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, PriorConfig, SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan, validity_flags
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.limits import posterior_estimates
@@ -234,7 +234,7 @@ def test_prony_two_path__near_degenerate_poles_error_bounded_by_single_path_bias
 
 @pytest.fixture(scope="module")
 def tiny_model() -> CorrectionModel:
-    config = Config()
+    config = Config(prior=PriorConfig())  # the paper's prior: 1.4-2.4 m, the range the cases below test
     rng = np.random.default_rng(5)
     theta = sample_theta(config.prior, 3000, rng)
     depth, amplitude = make_sensor(config).measure(theta, rng)

@@ -235,7 +235,8 @@ class CorrectionModel:
         if tuple(float(f) for f in frequencies_hz) != expected:
             raise MpiLidarError(
                 f"{source} was measured at {_mhz(frequencies_hz)} but the model expects {_mhz(expected)}; "
-                "use a model trained for these frequencies"
+                "train a model for them (mpi-lidar calibrate writes them into sensor.toml, then mpi-lidar "
+                "pipeline --sensor sensor.toml)"
             )
         if list(raw_names) != list(self.card.raw_feature_names):
             raise MpiLidarError(f"{source} has columns {list(raw_names)} but the model expects "

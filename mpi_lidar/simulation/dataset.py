@@ -565,8 +565,11 @@ def summarize(path: str | Path, noise_only_rows: int = 200_000) -> DatasetSummar
     split = stored["split"]
     rows = min(noise_only_rows, config.dataset.samples)
     theta = stored["theta"][:rows]
-    clean_depth, _ = cached_sensor(config).measure(theta, seeded_rng(config.dataset.seed, *SUMMARY_STREAM),
-                                                   multipath=False)
+    clean_depth, clean_amplitude = cached_sensor(config).measure(
+        theta, seeded_rng(config.dataset.seed, *SUMMARY_STREAM), multipath=False)
+    if prior_wraps(config):  # as the stored rows are
+        clean = np.concatenate([clean_depth, clean_amplitude], axis=1).astype(np.float32)
+        clean_depth = unwrapped_rows(clean, config.frequencies_hz, config.sensor)[0][:, :n_freq].astype(np.float64)
     noise_error = clean_depth - theta[:, :1]
     return DatasetSummary(
         path=str(path),

@@ -155,7 +155,7 @@ def _set(path: str, value: object):
     (_set("dataset.samples", "many"), "dataset.samples: Input should be a valid integer (found string)"),
     (_set("frequencies_hz", "31.25e6"), "frequencies_hz: Input should be a valid array"),
     (_set("dataset.prior.d_as_m", [2.4, 1.4]), "is not a (low, high) range"),
-    (_set("feature_set", "fancy"), "feature_set: Input should be 'raw' or 'engineered'"),
+    (_set("feature_set", "fancy"), "feature_set: Input should be 'raw', 'engineered', 'range_free' or 'physical'"),
     (_set("params.max_depth", [3]), "params.max_depth: Value error, an XGBoost parameter must be"),
     (_set("metrics.validation_mae_m", None), "metrics.validation_mae_m: Input should be a valid number"),
     (_set("training.extra", 1), "has unknown key 'training.extra'"),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, SensorConfig
+from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, PriorConfig, SensorConfig
 from mpi_lidar.physics import make_sensor
 from mpi_lidar.physics.demod import unambiguous_range
 from mpi_lidar.physics.noise import _moment_quadrature_noise, depth_noise_m, quadrature_noise_v2, unwrapped_rows
@@ -41,7 +41,7 @@ def test_unwrapped_rows__depths_that_need_no_count_keep_their_bytes():
 
 def test_simulate_rows__a_prior_past_the_wrap_gives_unwrapped_depths_one_within_it_does_not_unwrap():
     far = Config().replace(prior={"d_as_m": (5.0, 11.0)})
-    assert prior_wraps(far) and not prior_wraps(Config())
+    assert prior_wraps(far) and prior_wraps(Config()) and not prior_wraps(Config(prior=PriorConfig()))
     rows, theta = simulate_rows(far, 3000, np.random.default_rng(3))
     ambiguity = unambiguous_range(np.asarray(PAPER_FREQUENCIES_HZ), SENSOR.speed_of_light_m_per_s)
     assert (theta[:, 0] > ambiguity[-1]).mean() > 0.9

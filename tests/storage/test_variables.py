@@ -54,6 +54,9 @@ def test_registry__attributes_the_stores_have_always_written():
         "corrected_depth": ("m", "corrected range along the ray"),
         "flags": ("1", "what was done to the pixel"),
         "multipath_bias_m": ("m", "expected multipath bias (geometry gate)"),
+        # new arrays (2026-11-25): those above keep what they were
+        "measured_depth": ("m", "measured range along the ray at the highest frequency"),
+        "unwrap_confidence": ("1", "posterior probability of the chosen wrap counts"),
     }
     assert {name: (v.units, v.long_name) for name, v in CORRECTED.items()}.items() <= ARRAY_METADATA.items()
     assert {name: v.dims for name, v in DATASET.items()} == {

@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from mpi_lidar.cli import cli
-from mpi_lidar.config import Config
+from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.correction import ConsistencyGate, CorrectionOptions
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.workflows.bench import (
@@ -25,7 +25,7 @@ from mpi_lidar.workflows.bench import (
     with_pareto,
 )
 
-CONFIG = Config()
+CONFIG = Config(prior=PriorConfig())  # the paper's prior: the raw error anchor and the small model's range
 
 
 def _dominated_by_loops(error: list[float], cost: list[float]) -> list[bool]:
