@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
-from mpi_lidar.config import Config
+from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import evaluate_model
 from mpi_lidar.learning.features import FeatureSpec
@@ -41,7 +41,7 @@ def test_train_and_save__card_describes_model_and_data(trained, small_dataset):
     assert card.raw_feature_names == info.feature_names
     assert card.target_mode == "residual" and card.residual_reference == "depth_31.25MHz"
     assert card.dataset.config_sha256 == info.config_sha256 and card.dataset.samples == 8_000
-    assert card.dataset.prior.d_as_m == Config().prior.d_as_m
+    assert card.dataset.prior.d_as_m == PriorConfig().d_as_m  # the small dataset's: the paper's prior
     assert card.params == {**BASE_PARAMS, **FAST}
     assert 0 < card.metrics.validation_mae_m < 0.02
     assert card.training.fit_rows + card.training.validation_rows == 6_400
