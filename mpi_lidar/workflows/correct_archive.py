@@ -290,22 +290,49 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
 
 
 def expand_archive(inputs: list[str]) -> list[str]:
-    """Scan stores named directly, found in a directory, or matched by a glob; sorted and unique."""
+    """Scan stores named directly, found in a directory, or matched by a glob; sorted and unique.
+
+    Refused with one line, before anything is read or written: a path that does not exist, a glob that matches
+    no scan store, a directory that holds none, and a file of another tool (pointed to ``import-scan``).
+    """
     found: list[str] = []
     for item in inputs:
         path = Path(item)
         if glob.has_magic(item):
-            matches = sorted(glob.glob(item))
+            matches = [m for m in sorted(glob.glob(item)) if _is_scan_store(Path(m))]
             if not matches:
-                raise MpiLidarError(f"{item} matches no scan; give *{SCAN_SUFFIX} stores, a directory or a glob")
+                raise MpiLidarError(f"{item} matches no scan store; give *{SCAN_SUFFIX} stores, a directory or a "
+                                    f"glob of them{_import_hint(sorted(glob.glob(item)))}")
             found += matches
-        elif path.name.endswith(SCAN_SUFFIX) or (path.is_dir() and (path / "zarr.json").exists()):
+        elif _is_scan_store(path):
             found.append(str(path))
+        elif not path.exists():
+            raise MpiLidarError(f"{item} does not exist; give *{SCAN_SUFFIX} stores, a directory or a glob of them")
         elif path.is_dir():
-            found += sorted(str(p) for p in path.glob(f"*{SCAN_SUFFIX}"))
+            stores = sorted(str(p) for p in path.glob(f"*{SCAN_SUFFIX}") if _is_scan_store(p))
+            if not stores:
+                raise MpiLidarError(f"directory {item} holds no *{SCAN_SUFFIX} store"
+                                    f"{_import_hint([str(p) for p in path.iterdir()])}")
+            found += stores
         else:
-            raise MpiLidarError(f"{item} is not a scan store or a directory of *{SCAN_SUFFIX} stores")
+            raise MpiLidarError(f"{item} is not a scan store (*{SCAN_SUFFIX}){_import_hint([item])}")
     return sorted(dict.fromkeys(found))
+
+
+def _is_scan_store(path: Path) -> bool:
+    """A Zarr store (its ``zarr.json``), or anything named ``*.scan.zarr`` that exists: whether it is a readable
+    scan is for :func:`read_scan`, and a damaged one fails alone."""
+    return (path.is_dir() and (path / "zarr.json").exists()) or (path.name.endswith(SCAN_SUFFIX) and path.exists())
+
+
+def _import_hint(paths: list[str]) -> str:
+    """A pointer to ``import-scan`` where ``paths`` hold files it reads; nothing otherwise."""
+    from mpi_lidar.scans.importers import IMPORT_SUFFIXES
+
+    importable = [p for p in paths if Path(p).suffix.lower() in IMPORT_SUFFIXES]
+    if not importable:
+        return ""
+    return f"; {Path(importable[0]).name} is another tool's file: convert it first with mpi-lidar import-scan"
 
 
 def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,

@@ -27,7 +27,7 @@ from mpi_lidar.workflows.correct_archive import (
     safe_scan_name,
     scan_output_paths,
 )
-from tests.cli_runner import call_main
+from tests.cli_runner import assert_one_error_line, call_main
 from tests.scan_factory import two_path_scan
 
 ALL = CorrectionOptions(gate="all")  # every valid pixel corrected: a two-path scan ends 'corrected'
@@ -328,3 +328,27 @@ def test_process_scan__identity_and_metrics_made_beside_are_those_made_alone(sma
     assert (Path(outcome.output) / "thumbnail.png").is_file() == (outputs == "light")
     [again] = correct_archive([str(source)], small_model, tmp_path / "out", ALL, outputs=outputs)
     assert again.status == "skipped", "the identity written beside the correction is the one a re-run finds"
+
+
+def with_npz(root: Path) -> Path:
+    """``root`` with another tool's file in it."""
+    (root / "frame.npz").write_bytes(b"")
+    return root
+
+
+@pytest.mark.parametrize("make, fragment", [
+    (lambda root: root / "missing.scan.zarr", "does not exist"),
+    (lambda root: root, "holds no *.scan.zarr store"),
+    (lambda root: with_npz(root) / "frame.npz", "mpi-lidar import-scan"),
+    (lambda root: with_npz(root), "mpi-lidar import-scan"),
+    (lambda root: str(root / "*.scan.zarr"), "matches no scan store"),
+], ids=["missing", "empty-folder", "npz-file", "npz-folder", "empty-glob"])
+def test_correct_cli__nothing_to_correct_is_one_line_exit_2_and_nothing_written(tmp_path, monkeypatch, capsys,
+                                                                               small_model, make, fragment):
+    root = tmp_path / "in"
+    root.mkdir()
+    code, out, err = call_main(monkeypatch, capsys, "correct", make(root), "--model", small_model,
+                               "--out", tmp_path / "out", "--workers", "0")
+    assert code == 2 and out == ""
+    assert_one_error_line(err, fragment)
+    assert not (tmp_path / "out").exists()
