@@ -108,7 +108,7 @@ def correct_and_publish(scans: list[str], model: str, out: str, options: Correct
 @flow(name="correct-archive")
 def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "geometry",
                          min_bias_mm: float | None = None, footprint_area_m2: float | str | None = None,
-                         sensor: str | None = None, amplitude_scale: float | None = None,
+                         sensor: str | None = None, amplitude_scale: float | str | None = None,
                          max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
                          allow_unserved: bool = False, workers: int = 2, scheduler: str | None = None,
                          outputs: Outputs = "light",

@@ -300,10 +300,11 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None,
               help="Sensor profile (sensor.toml from mpi-lidar calibrate): footprint and the saturation and "
                    "no-return thresholds; --footprint-area-m2 overrides its footprint.")
-@click.option("--amplitude-scale", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--amplitude-scale", default=None, metavar="auto|N",
               help="The scanner's amplitude unit per V^2 (e.g. 4000 for amplitudes in counts of 1/4000 V^2): "
-                   "amplitudes are divided by it before anything reads them. (default: the --sensor "
-                   "profile's, else 1: V^2)")
+                   "amplitudes are divided by it before anything reads them; auto: each scan measures its own "
+                   "on its flat surfaces, and one that cannot is left as measured (status unserved). "
+                   "(default: the --sensor profile's, else 1: V^2)")
 @click.option("--max-invalid-share", type=click.FloatRange(0, 1), default=None,
               help="A scan with more invalid pixels (not finite, no return, saturated, inconsistent) than this "
                    "share is 'degraded'. (default 0.5)")
@@ -329,7 +330,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "every core on each scan (on 2 cores 1.2-1.5 times as fast as 2 workers).")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
-            footprint_area_m2: str | None, sensor: Path | None, amplitude_scale: float | None,
+            footprint_area_m2: str | None, sensor: Path | None, amplitude_scale: str | None,
             max_invalid_share: float | None,
             fail_on: tuple[str, ...], allow_unserved: bool,
             outputs: str, point_clouds: tuple[str, ...], workers: int | None, scheduler: str | None) -> None:

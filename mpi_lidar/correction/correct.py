@@ -30,9 +30,10 @@ from numpy.typing import NDArray
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
 from mpi_lidar.correction.gates import Gate, make_gate
-from mpi_lidar.correction.options import CorrectionOptions, Flag, UnservedReason
+from mpi_lidar.correction.options import AUTO, CorrectionOptions, Flag, UnservedReason
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
+from mpi_lidar.correction.sensor_scale import SensorScale, measure_sensor_scale
 from mpi_lidar.correction.validity import unwrapped_rows, usable_depth_of, validity_flags
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
@@ -113,9 +114,15 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     clock = _StageClock()
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
     sensor = sensor or SensorConfig()
-    if options.amplitude_scale != 1.0:  # the scanner's unit to V^2, once, in memory
-        scan = replace(scan, amplitude=(np.asarray(scan.amplitude) / options.amplitude_scale).astype(np.float32))
     tiles = row_tiles(*scan.shape, options.tile_pixels)
+    unit_note: tuple[str, ...] = ()
+    if options.amplitude_scale == AUTO:
+        unit = _measured_unit(scan, options, sensor, tiles)
+        if not unit.significant:
+            return _left_as_measured(scan, options, sensor, tiles, unit, started)
+        scan, unit_note = _in_v2(scan, unit.amplitude_scale), (unit_note_of(unit),)
+    elif options.amplitude_scale != 1.0:  # the scanner's unit to V^2, once, in memory
+        scan = _in_v2(scan, options.amplitude_scale)
     with clock("validity"):
         flags, usable_depth, measured = _validity_pass(scan, options, sensor, tiles)
         if measured.moved:  # some depths wrapped: every later stage reads them unwrapped
@@ -143,8 +150,53 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     h, w = scan.shape
     unserved = unserved_reason(flags, model, options, served=predict)
     return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
-                      bias_m, notes, clock.seconds, calibration, unserved, measured.depth.reshape(h, w),
+                      bias_m, unit_note + notes, clock.seconds, calibration, unserved, measured.depth.reshape(h, w),
                       None if measured.confidence is None else measured.confidence.reshape(h, w))
+
+
+def _in_v2(scan: Scan, units_per_v2: float) -> Scan:
+    """The scan with its amplitudes divided by the scanner's unit per V^2, in memory."""
+    return replace(scan, amplitude=(np.asarray(scan.amplitude) / units_per_v2).astype(np.float32))
+
+
+def _measured_unit(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice]) -> SensorScale:
+    """The scan's own amplitude unit, from its flat surfaces (:func:`measure_sensor_scale`), found from the depths
+    alone (no amplitude threshold: the amplitudes' unit is not known yet); the noise model's noise is assumed
+    where the amplitudes span one noise regime only."""
+    depth_rules = options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})
+    _, usable_depth, measured = _validity_pass(scan, depth_rules, sensor, tiles)
+    if measured.moved:
+        scan = _unwrapped_scan(scan, sensor, tiles)
+    unit = measure_sensor_scale(scan, usable_depth, options, sensor)
+    if not unit.significant and unit.pixels > 0:
+        with_model_noise = measure_sensor_scale(scan, usable_depth, options, sensor, fix_noise_scale=1.0)
+        unit = with_model_noise if with_model_noise.significant else unit
+    return unit
+
+
+def unit_note_of(unit: SensorScale) -> str:
+    """What a report says of a scan's own amplitude unit."""
+    if not unit.significant:
+        return f"amplitude unit auto: not measured ({unit.reason}); every pixel left as measured"
+    return (f"amplitude unit auto: {unit.amplitude_scale:.4g} +- {unit.amplitude_scale_sigma:.2g} per V^2 from "
+            f"{unit.pixels:,} flat pixels")
+
+
+def _left_as_measured(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
+                      unit: SensorScale, started: float) -> Correction:
+    """A scan whose amplitude unit could not be measured: validity from the depths alone, every valid pixel as
+    measured (flag uncalibrated), the scan unserved for its amplitude unit."""
+    depth_rules = options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})
+    flags, usable_depth, measured = _validity_pass(scan, depth_rules, sensor, tiles)
+    flags[flags == Flag.NOT_NEEDED] = Flag.UNCALIBRATED
+    depth = np.where(flags == Flag.AMBIGUOUS, measured.depth, usable_depth).astype(np.float32)
+    h, w = scan.shape
+    why = Unserved(UnservedReason.AMPLITUDE_UNITS,
+                   f"the scan's amplitude unit could not be measured ({unit.reason}): give it "
+                   "(mpi-lidar correct --amplitude-scale, or a profile from mpi-lidar calibrate: --sensor)")
+    return Correction(depth.reshape(h, w), flags.reshape(h, w), 0.0, time.perf_counter() - started,
+                      notes=(unit_note_of(unit),), unserved=why, measured_depth=measured.depth.reshape(h, w),
+                      unwrap_confidence=None if measured.confidence is None else measured.confidence.reshape(h, w))
 
 
 def _range_rule(flags: NDArray[np.uint8], usable_depth: NDArray[np.float32], model: CorrectionModel,

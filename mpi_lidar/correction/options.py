@@ -111,8 +111,10 @@ class CorrectionOptions(BaseModel):
     # own from the depth and amplitude near its facing surfaces (mpi_lidar.correction.footprint).
     footprint_area_m2: Positive | Literal["auto"] = AUTO
     # The scanner's amplitude unit per V^2, the noise model's unit: a scan's amplitudes are divided by it before
-    # anything reads them (thresholds, albedo, the model's inputs). 1: amplitudes in V^2.
-    amplitude_scale: Positive = 1.0
+    # anything reads them (thresholds, albedo, the model's inputs). 1: amplitudes in V^2. "auto": each scan
+    # measures its own on its flat surfaces (mpi_lidar.correction.sensor_scale); where that is not significant
+    # the scan's pixels are left as measured and it ends unserved (amplitude_units).
+    amplitude_scale: Positive | Literal["auto"] = 1.0
     tile_pixels: Annotated[int, Field(ge=1)] = 262_144
     # Above this share of invalid pixels a scan is 'degraded', not 'corrected': past half the map the
     # outputs describe the sensor setup (gain, saturation level, range) more than the scene, and a batch
@@ -145,7 +147,7 @@ class CorrectionOptions(BaseModel):
     def from_cli(cls, gate: str = "geometry", min_bias_mm: float | None = None,
                  footprint_area_m2: float | str | None = None, max_invalid_share: float | None = None,
                  sensor_profile: dict[str, float | str] | None = None,
-                 amplitude_scale: float | None = None) -> CorrectionOptions:
+                 amplitude_scale: float | str | None = None) -> CorrectionOptions:
         """The options of ``mpi-lidar correct`` and of the correction flow, in their units; None keeps a default.
 
         ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000);
@@ -155,9 +157,13 @@ class CorrectionOptions(BaseModel):
         """
         overrides = {**(sensor_profile or {}),
                      **{k: v for k, v in {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
-                                          "footprint_area_m2": _footprint(footprint_area_m2),
+                                          "footprint_area_m2": _positive_or_auto("footprint_area_m2",
+                                                                                 footprint_area_m2,
+                                                                                 "square metres (e.g. 0.02)"),
                                           "max_invalid_share": max_invalid_share,
-                                          "amplitude_scale": amplitude_scale}.items() if v is not None}}
+                                          "amplitude_scale": _positive_or_auto("amplitude_scale", amplitude_scale,
+                                                                               "units per V^2 (e.g. 4000)"),
+                                          }.items() if v is not None}}
         try:
             return cls(gate=gate, **overrides)
         except ValidationError as exc:
@@ -165,8 +171,8 @@ class CorrectionOptions(BaseModel):
             raise MpiLidarError(f"invalid correction options ({problems})") from None
 
 
-def _footprint(value: float | str | None) -> float | str | None:
-    """A footprint given on a command line or in a flow parameter: "auto", a positive number, or None."""
+def _positive_or_auto(name: str, value: float | str | None, unit: str) -> float | str | None:
+    """An option given on a command line or in a flow parameter: "auto", a positive number, or None."""
     if value is None:
         return None
     if isinstance(value, str) and value.strip().lower() == AUTO:
@@ -176,6 +182,5 @@ def _footprint(value: float | str | None) -> float | str | None:
     except (TypeError, ValueError):
         number = float("nan")
     if not np.isfinite(number) or number <= 0:
-        raise MpiLidarError(f"footprint_area_m2 must be 'auto' or a positive number of square metres (e.g. 0.02), "
-                            f"got {value!r}")
+        raise MpiLidarError(f"{name} must be 'auto' or a positive number of {unit}, got {value!r}")
     return number

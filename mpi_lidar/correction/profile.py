@@ -55,7 +55,7 @@ class SensorProfile(BaseModel):
     footprint_area_m2: Annotated[float, Field(gt=0)]
     saturation_amplitude_v2: Annotated[float, Field(gt=0)] = _DEFAULTS.saturation_amplitude_v2
     min_amplitude_sigmas: Annotated[float, Field(ge=0)] = _DEFAULTS.min_amplitude_sigmas
-    amplitude_scale: Annotated[float, Field(gt=0)] = _DEFAULTS.amplitude_scale
+    amplitude_scale: Annotated[float, Field(gt=0)] = 1.0  # V^2
     frequencies_hz: tuple[Annotated[float, Field(gt=0)], ...] | None = None
     noise_scale: Annotated[float, Field(gt=0, le=100)] | None = None
     range_m: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] | None = None

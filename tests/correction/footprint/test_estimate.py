@@ -494,3 +494,29 @@ def test_calibrate__scans_in_counts_give_their_unit_and_correct_as_in_v2(tmp_pat
     # (a pixel near a tree's split or the gate's threshold may go the other way)
     difference = np.abs(outputs["counts"] - outputs["v2"])
     assert np.nanmean(difference) < 0.05e-3 and np.nanmean(difference > 1e-4) < 0.05
+
+
+def test_correct_scan__amplitude_unit_auto_measures_each_scans_own(tiny_geometric_model_dir):
+    from dataclasses import replace
+
+    from mpi_lidar.correction import correct_scan
+    from mpi_lidar.learning.model import load_model
+
+    model = load_model(tiny_geometric_model_dir)
+    scan = rendered(room_corner(height=64, width=86), 0.02, seed=1)
+    in_v2 = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=0.02))
+    counts = replace(scan, amplitude=(scan.amplitude * 4000).astype(np.float32))
+    auto = correct_scan(counts, model, CorrectionOptions(footprint_area_m2=0.02, amplitude_scale="auto"))
+    assert auto.unserved is None and auto.notes[0].startswith("amplitude unit auto: ")
+    assert 3600 < float(auto.notes[0].split()[3]) < 4400  # the unit, within 10 %
+    difference = np.abs(auto.depth - in_v2.depth)
+    assert np.nanmean(difference) < 0.05e-3 and auto.counts()["corrected"] > 0
+    # a corner alone has no flat surface away from its edge: nothing measured, every pixel as measured
+    corner_scan = rendered(corner(90.0, 2.0, 0.8), 0.02)
+    lost = correct_scan(replace(corner_scan, amplitude=(corner_scan.amplitude * 4000).astype(np.float32)), model,
+                        CorrectionOptions(amplitude_scale="auto"))
+    assert lost.unserved is not None and lost.unserved.reason == "amplitude_units"
+    assert "--amplitude-scale" in lost.unserved.message and lost.counts()["corrected"] == 0
+    valid = np.isfinite(lost.depth)
+    assert valid.mean() > 0.9
+    np.testing.assert_array_equal(lost.depth[valid], corner_scan.depth[-1][valid])
