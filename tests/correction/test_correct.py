@@ -276,3 +276,13 @@ def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, t
     assert 0 < (default == Flag.CORRECTED).sum() < (every == Flag.CORRECTED).sum()
     assert not (every == Flag.NO_MULTIPATH).any(), "a zero threshold lets every valid pixel through"
     assert not (blind == Flag.CORRECTED).any(), "a vanishing footprint leaves no multipath potential"
+
+
+def test_correction_options__amplitude_scale_auto_or_a_positive_number():
+    assert CorrectionOptions.from_cli(amplitude_scale="auto").amplitude_scale == "auto"
+    assert CorrectionOptions.from_cli(amplitude_scale="4000").amplitude_scale == 4000.0
+    assert CorrectionOptions().amplitude_scale == 1.0
+    assert CorrectionOptions(amplitude_scale=4000.0).sha256() != CorrectionOptions().sha256()
+    for bad in ("-1", "0", "nan", "many"):
+        with pytest.raises(MpiLidarError, match="amplitude_scale must be 'auto' or a positive number"):
+            CorrectionOptions.from_cli(amplitude_scale=bad)
