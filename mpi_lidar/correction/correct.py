@@ -34,7 +34,7 @@ from mpi_lidar.correction.options import AUTO, CorrectionOptions, Flag, Unserved
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
 from mpi_lidar.correction.sensor_scale import SensorScale, measure_sensor_scale
-from mpi_lidar.correction.validity import unwrapped_rows, usable_depth_of, validity_flags
+from mpi_lidar.correction.validity import depth_rules_only, unwrapped_rows, usable_depth_of, validity_flags
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.scans.scan import Scan
@@ -163,7 +163,7 @@ def _measured_unit(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
     """The scan's own amplitude unit, from its flat surfaces (:func:`measure_sensor_scale`), found from the depths
     alone (no amplitude threshold: the amplitudes' unit is not known yet); the noise model's noise is assumed
     where the amplitudes span one noise regime only."""
-    depth_rules = options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})
+    depth_rules = depth_rules_only(options)
     _, usable_depth, measured = _validity_pass(scan, depth_rules, sensor, tiles)
     if measured.moved:
         scan = _unwrapped_scan(scan, sensor, tiles)
@@ -186,7 +186,7 @@ def _left_as_measured(scan: Scan, options: CorrectionOptions, sensor: SensorConf
                       unit: SensorScale, started: float) -> Correction:
     """A scan whose amplitude unit could not be measured: validity from the depths alone, every valid pixel as
     measured (flag uncalibrated), the scan unserved for its amplitude unit."""
-    depth_rules = options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})
+    depth_rules = depth_rules_only(options)
     flags, usable_depth, measured = _validity_pass(scan, depth_rules, sensor, tiles)
     flags[flags == Flag.NOT_NEEDED] = Flag.UNCALIBRATED
     depth = np.where(flags == Flag.AMBIGUOUS, measured.depth, usable_depth).astype(np.float32)

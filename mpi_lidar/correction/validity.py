@@ -12,8 +12,8 @@ from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 # The noise model correction's stages weigh pixels by, re-exported from where the simulator's physics keeps it.
 from mpi_lidar.physics.noise import depth_noise_m, noise_floor_v2, quadrature_noise_v2, unwrapped_rows
 
-__all__ = ["UNUSABLE_FLAGS", "depth_noise_m", "noise_floor_v2", "quadrature_noise_v2", "unwrapped_rows",
-           "usable_depth_of", "validity_flags"]
+__all__ = ["UNUSABLE_FLAGS", "depth_noise_m", "depth_rules_only", "noise_floor_v2", "quadrature_noise_v2",
+           "unwrapped_rows", "usable_depth_of", "validity_flags"]
 
 def validity_flags(raw: NDArray, frequencies_hz: tuple[float, ...], options: CorrectionOptions,
                    sensor: SensorConfig, confidence: NDArray | None = None) -> NDArray[np.uint8]:
@@ -53,3 +53,9 @@ def usable_depth_of(raw: NDArray, flags: NDArray) -> NDArray:
     (:data:`INVALID_FLAGS`) or ambiguous, NaN elsewhere: what the scene geometry is worked out from."""
     f = raw.shape[1] // 2
     return np.where(~np.isin(flags, [int(flag) for flag in UNUSABLE_FLAGS]), raw[:, f - 1], np.nan)
+
+
+def depth_rules_only(options: CorrectionOptions) -> CorrectionOptions:
+    """``options`` without amplitude thresholds (no-return floor 0, saturation out of reach): validity from the
+    depths alone, for amplitudes whose unit is not known yet."""
+    return options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})

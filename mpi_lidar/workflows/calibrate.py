@@ -15,7 +15,7 @@ from mpi_lidar.correction.options import CorrectionOptions
 from mpi_lidar.correction.profile import SensorProfile, write_profile
 from mpi_lidar.correction.scene import scene_blocks
 from mpi_lidar.correction.sensor_scale import SensorScale, measure_sensor_scale
-from mpi_lidar.correction.validity import unwrapped_rows, usable_depth_of, validity_flags
+from mpi_lidar.correction.validity import depth_rules_only, unwrapped_rows, usable_depth_of, validity_flags
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import read_scan
@@ -61,7 +61,7 @@ def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfi
         raw, confidence = unwrapped_rows(raw, scan.frequencies_hz, sensor)
         scan = replace(scan, depth=raw[:, :len(scan.frequencies_hz)].T.reshape(scan.depth.shape),
                        depth_wrapped=False)
-    depth_rules = options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})
+    depth_rules = depth_rules_only(options)
     by_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, depth_rules, sensor, confidence))
     scale = measure_sensor_scale(scan, by_depth, options, sensor)
     if not scale.significant and scale.pixels > 0:  # one noise regime: the unit, with the noise model's noise
