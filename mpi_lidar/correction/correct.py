@@ -117,9 +117,9 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     tiles = row_tiles(*scan.shape, options.tile_pixels)
     unit_note: tuple[str, ...] = ()
     if options.amplitude_scale == AUTO:
-        unit = _measured_unit(scan, options, sensor, tiles)
+        unit, by_depth = _measured_unit(scan, options, sensor, tiles)
         if not unit.significant:
-            return _left_as_measured(scan, options, sensor, tiles, unit, started)
+            return _left_as_measured(scan, by_depth, unit, started)
         scan, unit_note = _in_v2(scan, unit.amplitude_scale), (unit_note_of(unit),)
     elif options.amplitude_scale != 1.0:  # the scanner's unit to V^2, once, in memory
         scan = _in_v2(scan, options.amplitude_scale)
@@ -159,19 +159,28 @@ def _in_v2(scan: Scan, units_per_v2: float) -> Scan:
     return replace(scan, amplitude=(np.asarray(scan.amplitude) / units_per_v2).astype(np.float32))
 
 
-def _measured_unit(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice]) -> SensorScale:
+@dataclass(frozen=True)
+class _DepthValidity:
+    """The validity pass from the depths alone: flags (H*W,), usable depth (H*W,) [m] and measured depth."""
+
+    flags: NDArray[np.uint8]
+    usable_depth: NDArray[np.float32]
+    measured: _Measured
+
+
+def _measured_unit(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
+                   ) -> tuple[SensorScale, _DepthValidity]:
     """The scan's own amplitude unit, from its flat surfaces (:func:`measure_sensor_scale`), found from the depths
-    alone (no amplitude threshold: the amplitudes' unit is not known yet); the noise model's noise is assumed
-    where the amplitudes span one noise regime only."""
-    depth_rules = depth_rules_only(options)
-    _, usable_depth, measured = _validity_pass(scan, depth_rules, sensor, tiles)
-    if measured.moved:
+    alone (no amplitude threshold: the amplitudes' unit is not known yet), and that depth-only validity; the noise
+    model's noise is assumed where the amplitudes span one noise regime only."""
+    by_depth = _DepthValidity(*_validity_pass(scan, depth_rules_only(options), sensor, tiles))
+    if by_depth.measured.moved:
         scan = _unwrapped_scan(scan, sensor, tiles)
-    unit = measure_sensor_scale(scan, usable_depth, options, sensor)
+    unit = measure_sensor_scale(scan, by_depth.usable_depth, options, sensor)
     if not unit.significant and unit.pixels > 0:
-        with_model_noise = measure_sensor_scale(scan, usable_depth, options, sensor, fix_noise_scale=1.0)
+        with_model_noise = measure_sensor_scale(scan, by_depth.usable_depth, options, sensor, fix_noise_scale=1.0)
         unit = with_model_noise if with_model_noise.significant else unit
-    return unit
+    return unit, by_depth
 
 
 def unit_note_of(unit: SensorScale) -> str:
@@ -182,14 +191,12 @@ def unit_note_of(unit: SensorScale) -> str:
             f"{unit.pixels:,} flat pixels")
 
 
-def _left_as_measured(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
-                      unit: SensorScale, started: float) -> Correction:
-    """A scan whose amplitude unit could not be measured: validity from the depths alone, every valid pixel as
-    measured (flag uncalibrated), the scan unserved for its amplitude unit."""
-    depth_rules = depth_rules_only(options)
-    flags, usable_depth, measured = _validity_pass(scan, depth_rules, sensor, tiles)
+def _left_as_measured(scan: Scan, by_depth: _DepthValidity, unit: SensorScale, started: float) -> Correction:
+    """A scan whose amplitude unit could not be measured: validity from the depths alone (``by_depth``), every
+    valid pixel as measured (flag uncalibrated), the scan unserved for its amplitude unit."""
+    flags, measured = by_depth.flags, by_depth.measured
     flags[flags == Flag.NOT_NEEDED] = Flag.UNCALIBRATED
-    depth = np.where(flags == Flag.AMBIGUOUS, measured.depth, usable_depth).astype(np.float32)
+    depth = np.where(flags == Flag.AMBIGUOUS, measured.depth, by_depth.usable_depth).astype(np.float32)
     h, w = scan.shape
     why = Unserved(UnservedReason.AMPLITUDE_UNITS,
                    f"the scan's amplitude unit could not be measured ({unit.reason}): give it "
