@@ -208,8 +208,9 @@ def measure_row(label: str, scan: Scan, edges: tuple[EdgeLine, ...], model: Corr
     less it is what a perfect removal of the multipath would leave (the noise), the edge's floor for any
     correction of the multipath.
     """
-    known = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=true_m2))
-    auto = correct_scan(scan, model, CorrectionOptions(footprint_area_m2="auto"))
+    # The raw baseline: pixels the model leaves alone keep the measured depth, so the rows compare footprints only.
+    known = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=true_m2, baseline="raw"))
+    auto = correct_scan(scan, model, CorrectionOptions(footprint_area_m2="auto", baseline="raw"))
     usable = usable_pixels(scan, known.flags, auto.flags)
     near = usable & near_edges(scan, edges)
     raw, reference = scan.depth[-1], scan.reference_depth

@@ -36,6 +36,8 @@ PAGES = {
     "geometry": "benchmarks.scenes",
     "limits": "benchmarks.limits",
     "model-range": "benchmarks.model_range",
+    "noise-limit": "benchmarks.noise_limit",
+    "point-clouds": "benchmarks.point_clouds",
     "range-bands": "benchmarks.range_bands",
     "scenes": "benchmarks.scenes",
     "sensor": "benchmarks.sensor",

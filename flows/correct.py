@@ -1,11 +1,13 @@
-"""Prefect flow: correct an archive of scans, one task per scan on a Dask cluster.
+"""Prefect flow: correct an archive of scans, one task per scan, in the flow's process or on a Dask cluster.
 
 The library does the work: :func:`mpi_lidar.workflows.correct_archive.correct_archive`, the same call as
 ``mpi-lidar correct``, checks the model and the gate, removes the staging an interrupted run left, and runs
 :func:`~mpi_lidar.workflows.correct_archive.process_scan` once per scan (it reads, corrects and writes one
 scan's outputs atomically, and turns a bad scan into a 'failed' outcome with its reason) on a
 :class:`flows.runtime.PrefectExecutor`, so each scan is a run of :data:`correct_scan_task`. This flow adds
-the tasks, the batch summary and the artifacts of it and of every scan's metrics. A scan already corrected
+the tasks, the batch summary and the artifacts of it and of every scan's metrics (each under a key:
+:func:`artifact_slugs`). By default (``workers=0``, as ``mpi-lidar correct``) the scans run one after the
+other in the flow's process, every core on each, and no Dask cluster is started. A scan already corrected
 with the same model and options is skipped (its numbers read back from its outputs). The flow ends Failed
 when any scan failed, is unserved (unless ``allow_unserved``), or has a status named in ``fail_on`` (degraded,
 unchanged), after all the others were
@@ -14,7 +16,9 @@ corrected and the summary was written, so nothing is lost and nothing failed sil
 
 from __future__ import annotations
 
+import re
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Literal
 
@@ -36,6 +40,7 @@ Gate = Literal[GATES]  # the values of mpi_lidar.correction.GateName, as a param
 FailOn = Literal["degraded", "unchanged", "failed"]  # mpi_lidar.workflows.correct_archive.FAIL_ON
 Outputs = Literal["full", "light", "data"]  # mpi_lidar.reporting.output_levels.OutputLevel
 PointCloud = Literal["las", "laz", "ply"]  # mpi_lidar.scans.pointcloud.PointCloudFormat
+Baseline = Literal["fused", "raw"]  # mpi_lidar.correction.options.Baseline
 
 # One scan: the library's process_scan itself (validity mask, gate, inference, outputs), as a task run named
 # after its source. A bad scan returns a 'failed' outcome, so the one retry is for infrastructure failures.
@@ -43,20 +48,53 @@ correct_scan_task = task(process_scan, name="correct-scan", task_run_name="corre
                          cache_policy=NO_CACHE, retries=1, retry_delay_seconds=2)
 
 
-@task(name="publish-scan", cache_policy=NO_CACHE)
-def publish_scan_task(outcome: ScanOutcome) -> None:
-    """One scan's outcome, metrics and output files as a markdown artifact."""
+def artifact_slugs(names: Iterable[str]) -> list[str]:
+    """Each scan name as the tail of its Prefect artifact keys: lowercase letters, digits and dashes.
+
+    Prefect keys allow nothing else, so ``Cornered_Board`` is ``cornered-board``; a name whose slug an
+    earlier name of the batch already took gets ``-2``, ``-3`` in batch order (by source). A scan's keys,
+    ``scan-<slug>`` (its outcome) and ``report-<slug>`` (the link to its report), keep the history of that
+    scan's artifacts across runs.
+    """
+    slugs: list[str] = []
+    for name in names:
+        base = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "unnamed"
+        slug, n = base, 1
+        while slug in slugs:
+            n += 1
+            slug = f"{base}-{n}"
+        slugs.append(slug)
+    return slugs
+
+
+@task(name="publish-scans", cache_policy=NO_CACHE)
+def publish_scans_task(outcomes: list[ScanOutcome]) -> list[str]:
+    """Every scan's artifacts, in one task run (a task run per scan would cost a batch more than its artifacts);
+    returns their keys."""
+    keys = []
+    for outcome, slug in zip(outcomes, artifact_slugs(o.name for o in outcomes), strict=True):
+        keys.extend(publish_scan(outcome, slug))
+    return keys
+
+
+def publish_scan(outcome: ScanOutcome, slug: str) -> list[str]:
+    """One scan's outcome, metrics and output files as a markdown artifact (key ``scan-<slug>``) and a link to
+    its report (key ``report-<slug>``); returns the keys."""
     lines = [f"Scan `{outcome.source}`: **{outcome.status}** {outcome.reason}".rstrip(), ""]
     for region, m in outcome.metrics.items():
         lines.append(f"- {region}: MAE {1e3 * m['raw_mae_m']:.3f} -> {1e3 * m['corrected_mae_m']:.3f} mm "
                      f"over {m['pixels']:,} pixels")
     if outcome.output:
         lines.append(f"- outputs: `{outcome.output}/` (its report lists them)")
-    create_markdown_artifact(markdown="\n".join(lines), description=f"Correction of {outcome.name}")
+    create_markdown_artifact(markdown="\n".join(lines), key=f"scan-{slug}",
+                             description=f"Correction of {outcome.name}")
     report = Path(outcome.output) / "report.html" if outcome.output else None
     if report is not None and report.is_file():
         create_link_artifact(link=report.resolve().as_uri(), link_text=f"report of {outcome.name}",
+                             key=f"report-{slug}",
                              description=f"Correction report of {outcome.source}")
+        return [f"scan-{slug}", f"report-{slug}"]
+    return [f"scan-{slug}"]
 
 
 @task(name="write-summary", cache_policy=NO_CACHE)
@@ -99,8 +137,7 @@ def correct_and_publish(scans: list[str], model: str, out: str, options: Correct
         outcomes = correct_archive(scans, model, out, options, executor, outputs=outputs,
                                    point_clouds=point_clouds)
     wall_s = time.perf_counter() - started
-    for outcome in outcomes:
-        publish_scan_task(outcome)
+    publish_scans_task(outcomes)
     summary_task(outcomes, wall_s, out)
     return outcomes, wall_s
 
@@ -110,23 +147,26 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "g
                          min_bias_mm: float | None = None, footprint_area_m2: float | str | None = None,
                          sensor: str | None = None, amplitude_scale: float | str | None = None,
                          max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
-                         allow_unserved: bool = False, workers: int = 2, scheduler: str | None = None,
+                         allow_unserved: bool = False, workers: int = 0, scheduler: str | None = None,
                          outputs: Outputs = "light",
-                         point_clouds: list[PointCloud] | None = None) -> dict[str, object]:
+                         point_clouds: list[PointCloud] | None = None,
+                         baseline: Baseline = "fused") -> dict[str, object]:
     """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
 
     The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
     [m^2] or "auto", ``sensor`` (a sensor profile's path), ``amplitude_scale`` (the scanner's amplitude unit
     per V^2) and ``max_invalid_share`` (None keeps the
     default), ``fail_on`` (statuses that end the flow Failed after the summary is written; failed always does,
-    unserved unless ``allow_unserved``), ``workers`` (0: in the flow's process),
+    unserved unless ``allow_unserved``), ``workers`` (0, the default of ``mpi-lidar correct``: in the flow's
+    process, every core on each scan and no Dask cluster started; N: a LocalCluster of N processes),
     ``scheduler``, ``outputs`` (light: store, metrics, report and thumbnail; data; full) and ``point_clouds``
-    (formats written at any level, as ``--point-cloud``; None: ply and las at full, none below). Returns the flow
-    run's id, the wall time and each source's status.
+    (formats written at any level, as ``--point-cloud``; None: ply and las at full, none below) and ``baseline``
+    (what the pixels the model does not correct get: fused or raw). Returns the flow run's id, the wall time and
+    each source's status.
     """
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
                                          max_invalid_share=max_invalid_share, amplitude_scale=amplitude_scale,
-                                         **profile_options(sensor))
+                                         baseline=baseline, **profile_options(sensor))
     fail_on = list(fail_on or [])
     batch_failure([], fail_on)  # an unknown status is refused before any scan runs
     outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler, outputs,

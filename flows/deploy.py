@@ -52,15 +52,18 @@ def on_demand_deployments(workers: int = 2, scheduler: str | None = None) -> lis
     """Tuning, training and archive correction, run when triggered with their data as parameters.
 
     Every option of the flow (for correction: ``gate``, ``min_bias_mm``, ``footprint_area_m2``, as
-    ``mpi-lidar correct``) is a parameter of its deployment, set with ``--param`` when triggered.
+    ``mpi-lidar correct``) is a parameter of its deployment, set with ``--param`` when triggered. ``workers``
+    is the LocalCluster of tuning and training; correction keeps the flow's default, as ``mpi-lidar correct``
+    does: the scans run in the flow's process, every core on each scan (``--param workers=N`` for a cluster).
     """
-    cluster: dict[str, object] = {"workers": workers, **({"scheduler": scheduler} if scheduler else {})}
+    at_scheduler: dict[str, object] = {"scheduler": scheduler} if scheduler else {}
+    cluster: dict[str, object] = {"workers": workers, **at_scheduler}
     return [
         tune_flow.to_deployment(name="tune", parameters=cluster, tags=["mpi-lidar", "tuning"],
                                 description="Optuna TPE study on the shared storage; trials on Dask."),
         train_flow.to_deployment(name="train", parameters=cluster, tags=["mpi-lidar", "training"],
                                  description="Final model through xgboost.dask with a study's best parameters."),
-        correct_archive_flow.to_deployment(name="correct-archive", parameters=cluster, tags=["mpi-lidar", "scans"],
+        correct_archive_flow.to_deployment(name="correct-archive", parameters=at_scheduler, tags=["mpi-lidar", "scans"],
                                            description="Batch correction of an archive of scans, one task per scan."),
     ]
 
@@ -70,7 +73,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--root", default=DEFAULT_ROOT, help=f"Directory of the stores (default {DEFAULT_ROOT}).")
     parser.add_argument("--cron", default=DEFAULT_CRON, help=f"Cron schedule (default '{DEFAULT_CRON}').")
     parser.add_argument("--preset", default="quick", choices=sorted(PRESETS))
-    parser.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes per run.")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="LocalCluster worker processes per run of generation, tuning and training.")
     parser.add_argument("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
     return parser.parse_args(argv)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from prefect import flow, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
@@ -12,6 +14,7 @@ from mpi_lidar.reporting.report import Report, write_report
 from mpi_lidar.reporting.table2 import table2_report
 from mpi_lidar.workflows.pipeline import evaluate_to_report
 
+Split = Literal["test", "train"]  # the dataset splits a model is evaluated on, as mpi-lidar evaluate --split
 EVALUATION_ARTIFACT_KEY = "evaluation"
 TABLE2_ARTIFACT_KEY = "table-2"
 
@@ -41,11 +44,13 @@ def table2_task(data: str, model: str | None, report_dir: str, trials: int, trai
 
 
 @flow(name="evaluate")
-def evaluate_flow(data: str, model: str, report: str, split: str = "test") -> str:
+def evaluate_flow(data: str, model: str, report: str, split: Split = "test") -> str:
+    """``mpi-lidar evaluate`` as a flow (``report`` is ``--out``); returns the published markdown."""
     return evaluate_task(data, model, report, split)[1]
 
 
 @flow(name="table-2")
 def table2_flow(data: str, report: str, model: str | None = None, trials: int = 10, train_rows: int = 100_000,
                 svm_rows: int = 20_000) -> str:
+    """``mpi-lidar table2`` as a flow (``report`` is ``--out``); returns the published markdown."""
     return table2_task(data, model, report, trials, train_rows, svm_rows)

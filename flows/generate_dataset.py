@@ -17,7 +17,8 @@ from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from flows.runtime import PrefectExecutor, dask_task_runner, describe_workers, shared_api
-from mpi_lidar.config import Config, config_sha256, resolve_config
+from mpi_lidar.config import Config, config_sha256, resolve_config, validate_overrides
+from mpi_lidar.correction.profile import read_profile
 from mpi_lidar.reporting import report
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.generate import CHUNK_RETRIES, GenerationReport, generate
@@ -32,11 +33,20 @@ def histogram_path(out: str | Path) -> Path:
     return out.with_name(f"{out.name.removesuffix('.zarr')}.error_hist.png")
 
 
+def for_sensor(config: Config, sensor: str | None) -> Config:
+    """The configuration with a sensor profile's frequencies, noise scale and working range (none: as it is),
+    as ``mpi-lidar simulate --sensor`` and ``mpi-lidar pipeline --sensor`` apply it."""
+    if sensor is None:
+        return config
+    return validate_overrides(read_profile(sensor).simulation(), config, source=f"sensor profile {sensor}")
+
+
 @task(name="build-config", cache_policy=NO_CACHE)
 def build_config_task(preset: str, config_file: str | None, samples: int | None, seed: int | None,
-                      chunk_rows: int | None = None, fidelity: str | None = None) -> Config:
-    """Preset, then the TOML file, then the options: the same precedence as the CLI."""
-    return resolve_config(config_file, preset, samples=samples, chunk_rows=chunk_rows, seed=seed, fidelity=fidelity)
+                      chunk_rows: int | None = None, fidelity: str | None = None, sensor: str | None = None) -> Config:
+    """Preset, then the TOML file, then the options, then the sensor profile: the same precedence as the CLI."""
+    config = resolve_config(config_file, preset, samples=samples, chunk_rows=chunk_rows, seed=seed, fidelity=fidelity)
+    return for_sensor(config, sensor)
 
 
 @task(name="create-store", cache_policy=NO_CACHE)
@@ -83,14 +93,16 @@ def generate_dataset_flow(
     scheduler: str | None = None,
     chunk_rows: int | None = None,
     fidelity: str | None = None,
+    sensor: str | None = None,
 ) -> dict[str, object]:
     """Generate (or resume) the dataset store ``out``; publish its raw-error summary and histogram.
 
-    The options are those of ``mpi-lidar simulate``: ``workers`` processes of a LocalCluster simulate the
-    chunks, or the Dask cluster at ``scheduler`` (``tcp://host:8786``); ``workers=0`` runs them in the flow's
-    process. A complete store is only summarised again: no cluster is started.
+    The options are those of ``mpi-lidar simulate`` (``config_file`` is ``--config``, ``sensor`` a sensor
+    profile whose sensor is simulated): ``workers`` processes of a LocalCluster simulate the chunks, or the
+    Dask cluster at ``scheduler`` (``tcp://host:8786``); ``workers=0`` runs them in the flow's process. A
+    complete store is only summarised again: no cluster is started.
     """
-    config = build_config_task(preset, config_file, samples, seed, chunk_rows, fidelity)
+    config = build_config_task(preset, config_file, samples, seed, chunk_rows, fidelity, sensor)
     todo = create_store_task(out, config)
     runner = dask_task_runner(workers, scheduler) if todo and workers > 0 else None
     with shared_api(), PrefectExecutor(runner, [write_chunk_task]) as executor:

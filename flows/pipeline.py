@@ -15,7 +15,7 @@ from prefect.cache_policies import NO_CACHE
 
 from flows.correct import correct_and_publish
 from flows.evaluate import evaluate_task
-from flows.generate_dataset import generate_dataset_flow
+from flows.generate_dataset import for_sensor, generate_dataset_flow
 from flows.train import train_flow
 from flows.tune import tune_flow
 from mpi_lidar.config import Config, resolve_config
@@ -35,13 +35,15 @@ def demo_scans_task(scene_dir: str, config: Config) -> list[str]:
 class FlowSteps(PipelineSteps):
     """The pipeline's steps as the flows and tasks of this package, on ``workers`` or at ``scheduler``."""
 
-    def __init__(self, preset: str, config_file: str | None, workers: int, scheduler: str | None) -> None:
+    def __init__(self, preset: str, config_file: str | None, workers: int, scheduler: str | None,
+                 sensor: str | None = None) -> None:
         self.preset, self.config_file, self.workers, self.scheduler = preset, config_file, workers, scheduler
+        self.sensor = sensor
 
     def generate(self, data: Path, config: Config) -> GenerationReport:
-        # The subflow resolves the same preset and file into the same config (run_pipeline's).
+        # The subflow resolves the same preset, file and sensor profile into the same config (run_pipeline's).
         run = generate_dataset_flow(out=str(data), preset=self.preset, config_file=self.config_file,
-                                    workers=self.workers, scheduler=self.scheduler)
+                                    workers=self.workers, scheduler=self.scheduler, sensor=self.sensor)
         return GenerationReport(run["chunks_written"], run["chunks_skipped"], run["rows_written"], run["wall_s"])
 
     def tune(self, storage: str, study: str, settings: tune.TuneSettings, trials: int) -> tune.TuneReport:
@@ -73,14 +75,17 @@ class FlowSteps(PipelineSteps):
 
 
 @flow(name="pipeline")
-def pipeline_flow(out: str = "runs/quick", preset: str = "quick", trials: int = 6, tune_rows: int = 20_000,
-                  workers: int = 2, scheduler: str | None = None, config_file: str | None = None) -> dict[str, object]:
-    """``mpi-lidar pipeline`` as a flow: the same options (``config_file`` is ``--config``), the same run directory.
+def pipeline_flow(out: str | None = None, preset: str = "quick", trials: int = 6, tune_rows: int = 20_000,
+                  workers: int = 2, scheduler: str | None = None, config_file: str | None = None,
+                  sensor: str | None = None) -> dict[str, object]:
+    """``mpi-lidar pipeline`` as a flow: the same options (``config_file`` is ``--config``), the same run directory
+    (``runs/<preset>`` by default).
 
     ``corrected`` is False when a demo scene failed to correct (its reason is in the published summary).
     """
-    config = resolve_config(config_file, preset)
-    steps = FlowSteps(preset, config_file, workers, scheduler)
+    config = for_sensor(resolve_config(config_file, preset), sensor)
+    steps = FlowSteps(preset, config_file, workers, scheduler, sensor)
+    out = out or str(Path("runs") / preset)
     result = run_pipeline(steps, out, config, trials, tune_rows, echo=get_run_logger().info)
-    return {"best_value_m": result.tuning.best_value_m,
+    return {"out": out, "best_value_m": result.tuning.best_value_m,
             "corrected": all(o.status != "failed" for o in result.scans)}

@@ -88,11 +88,18 @@ def dask_task_runner(workers: int = 2, scheduler: str | None = None) -> DaskTask
         return DaskTaskRunner(address=scheduler)
     if workers < 1:
         raise MpiLidarError(f"workers must be at least 1, got {workers}")
-    return DaskTaskRunner(
-        cluster_class=LocalCluster,
-        cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
-                        "dashboard_address": None, "silence_logs": logging.ERROR},
-    )
+    return DaskTaskRunner(cluster_class=LocalCluster, cluster_kwargs=local_cluster_kwargs(workers))
+
+
+def local_cluster_kwargs(workers: int) -> dict[str, object]:
+    """A quiet LocalCluster of ``workers`` processes x 1 thread, with no dashboard.
+
+    ``dashboard_address=None`` alone leaves the scheduler's HTTP routes (health, metrics) on port 8787, and a
+    warning when another cluster holds it; they go on a free port instead, still without the dashboard.
+    """
+    return {"n_workers": workers, "threads_per_worker": 1, "processes": True, "dashboard_address": None,
+            "scheduler_kwargs": {"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+            "silence_logs": logging.ERROR}
 
 
 def describe_workers(workers: int, scheduler: str | None) -> str:

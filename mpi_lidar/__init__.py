@@ -1,8 +1,9 @@
 """mpi-lidar: multipath-interference suppression for AMCW coaxial scanning LiDAR.
 
-The Python API (README, "Python API"): ``mpi_lidar.load_model``, ``read_scan``, ``correct_scan``,
-``write_point_cloud`` and the others in ``__all__``. Each is imported on first access (PEP 562), so
-``import mpi_lidar`` stays light (the command line's ``--help`` imports it).
+The Python API (README, "Python API"; docs/reference/python-api.md): ``mpi_lidar.load_model``,
+``read_scan``, ``correct_scan``, ``correct_archive``, ``write_point_cloud`` and the others in ``__all__``.
+Each is imported on first access (PEP 562), so ``import mpi_lidar`` stays light (the command line's
+``--help`` imports it).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ _EXPORTS = {
     "posterior_estimates": "mpi_lidar.learning.limits",
     "CorrectionOptions": "mpi_lidar.correction",
     "correct_scan": "mpi_lidar.correction",
+    "correct_archive": "mpi_lidar.workflows.correct_archive",
     "generate": "mpi_lidar.workflows.generate",
     "verify_store": "mpi_lidar.workflows.verify",
 }
@@ -40,7 +42,8 @@ _EXPORTS = {
 __all__ = [  # noqa: RUF022 (grouped as in _EXPORTS)
     "__version__", "Config", "Scan", "read_scan", "write_scan", "load_scan_file", "POINT_CLOUD_FORMATS",
     "correction_fields", "write_point_cloud", "simulate_rows", "load_model", "train_arrays", "train_and_save",
-    "bayes_limit", "posterior_estimates", "CorrectionOptions", "correct_scan", "generate", "verify_store",
+    "bayes_limit", "posterior_estimates", "CorrectionOptions", "correct_scan", "correct_archive", "generate",
+    "verify_store",
 ]
 
 

@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 import click
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from mpi_lidar.config import PRESETS, Config, resolve_config
 from mpi_lidar.correction.gate_names import GATES
@@ -24,8 +23,10 @@ from mpi_lidar.learning.feature_choices import (  # not .features: that imports 
 )
 from mpi_lidar.redact import redact
 from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS
+from mpi_lidar.terminal import Display, plural, print_table
 
 if TYPE_CHECKING:
+    from mpi_lidar.correction import ScanOutcome
     from mpi_lidar.learning.feature_choices import FeatureSet, TargetMode
     from mpi_lidar.learning.features import FeatureSpec
 
@@ -87,12 +88,18 @@ def simulate(
 
     plan = dataset.SamplingPlan.from_config(config)
     todo = len(dataset.incomplete_chunks(dataset.create_store(out, config)))
-    with _progress() as progress:
-        task = progress.add_task("simulating chunks", total=todo)
+    with Display() as display, display.step("simulating chunks", todo) as advance:
         with InProcess() if not todo or workers == 0 else dask_executor(scheduler, workers) as executor:
-            report = generate(out, config, executor, on_chunk=lambda _i: progress.advance(task))
-    click.echo(dataset.summarize(out).to_markdown())
-    click.echo(f"\n{report.chunks_written} of {plan.chunks} chunks simulated in {report.wall_s:.1f} s "
+            report = generate(out, config, executor, on_chunk=lambda _i: advance())
+    summary = dataset.summarize(out)
+    click.echo(f"dataset {summary.path}: {plural(summary.samples, 'row')} ({summary.train:,} train, "
+               f"{summary.test:,} test), config {summary.config_sha256[:12]}")
+    print_table(("frequency", "raw MAE [mm]", "raw RMSE [mm]", "noise-only MAE [mm]"),
+                [(f"{f / 1e6:g} MHz", f"{1e3 * mae:.3f}", f"{1e3 * rmse:.3f}", f"{1e3 * noise:.3f}")
+                 for f, mae, rmse, noise in zip(summary.frequencies_hz, summary.mae_m, summary.rmse_m,
+                                                summary.noise_only_mae_m, strict=True)])
+    click.echo(f"noise-only: the same scenes without the A -> B -> A path, first {summary.noise_only_rows:,} rows")
+    click.echo(f"{report.chunks_written} of {plural(plan.chunks, 'chunk')} simulated in {report.wall_s:.1f} s "
                f"({report.rows_per_s:,.0f} rows/s, {config.simulator.fidelity} fidelity)")
 
 
@@ -153,10 +160,9 @@ def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_row
                                    tune_rows=tune_rows)
     study = tuning.open_study(storage, study_name, settings)
     todo = max(0, trials - tuning.count(study, *tuning.FINISHED))
-    with _progress() as progress, dask_client(scheduler, workers) as client:
-        task = progress.add_task("trials", total=todo)
-        report = tuning.tune(client, storage, study_name, settings, trials, on_trial=lambda _n: progress.advance(task))
-    click.echo(f"study {study_name!r} in {tuning.masked(storage)}: {report.trials_run} trials run in "
+    with Display() as display, dask_client(scheduler, workers) as client, display.step("trials", todo) as advance:
+        report = tuning.tune(client, storage, study_name, settings, trials, on_trial=lambda _n: advance())
+    click.echo(f"study {study_name!r} in {tuning.masked(storage)}: {plural(report.trials_run, 'trial')} run in "
                f"{report.wall_s:.1f} s; {report.complete} complete, {report.pruned} pruned, {report.failed} failed")
     if report.best_value_m is not None:
         click.echo(f"best validation MAE {1e3 * report.best_value_m:.3f} mm with {report.best_params}")
@@ -195,10 +201,10 @@ def train(data: Path, out: Path, params_file: Path | None, study_name: str | Non
         geometric = settings.get("geometric", False) if geometric is None else geometric
         params = tuning.best_params(study)
     spec = feature_spec(data, feature_set, target_mode, geometric)
-    with _progress() as progress, dask_client(scheduler, workers) as client:
-        progress.add_task(f"training on {data} (early-stopped; up to {DEFAULT_ROUNDS} rounds)", total=None)
+    with (Display() as display, dask_client(scheduler, workers) as client,
+          display.step(f"training on {data} (early-stopped, up to {DEFAULT_ROUNDS} rounds)")):
         out_dir, result = train_and_save(client, data, out, spec, params)
-    click.echo(f"model written to {out_dir}: {result.best_iteration + 1} trees, validation MAE "
+    click.echo(f"model written to {out_dir}: {plural(result.best_iteration + 1, 'tree')}, validation MAE "
                f"{1e3 * result.validation_mae_m:.3f} mm, {result.fit_rows:,} rows in {result.wall_s:.1f} s")
 
 
@@ -240,9 +246,11 @@ def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
     from mpi_lidar.reporting.report import Table
     from mpi_lidar.workflows.pipeline import evaluate_to_report
 
-    _, report = evaluate_to_report(data, model_dir, report_dir, split)
-    click.echo(next(block for block in report.blocks if isinstance(block, Table)).markdown())  # the metrics
-    click.echo(f"\nreport written to {report_dir}")
+    with Display() as display, display.step(f"evaluating on the {split} split"):
+        _, report = evaluate_to_report(data, model_dir, report_dir, split)
+    metrics = next(block for block in report.blocks if isinstance(block, Table))
+    print_table(metrics.headers, metrics.rows)
+    click.echo(f"report written to {report_dir}")
 
 
 @cli.command()
@@ -267,8 +275,9 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 
     config = for_sensor(resolve_config(config_file, preset_name), sensor)
     out_dir = out_dir or Path("runs") / preset_name
-    with dask_client(scheduler, workers) as client:
-        result = run_pipeline(ClusterSteps(client), out_dir, config, trials, tune_rows, echo=click.echo)
+    with Display() as display, dask_client(scheduler, workers) as client:
+        result = run_pipeline(ClusterSteps(client, display.step), out_dir, config, trials, tune_rows,
+                              echo=display.echo)
     metrics = result.evaluation.metrics
     raw, corrected = metrics[result.evaluation.raw_label], metrics["corrected (XGBoost)"]
     click.echo(f"test split: {result.evaluation.raw_label} MAE {1e3 * raw.mae_m:.3f} mm -> corrected "
@@ -305,6 +314,10 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "amplitudes are divided by it before anything reads them; auto: each scan measures its own "
                    "on its flat surfaces, and one that cannot is left as measured (status unserved). "
                    "(default: the --sensor profile's, else 1: V^2)")
+@click.option("--baseline", type=click.Choice(["fused", "raw"]), default="fused", show_default=True,
+              help="What the valid pixels the model does not correct get: fused, their frequencies' depths fused "
+                   "by inverse variance where they agree within noise (about 0.7 of the highest frequency's "
+                   "noise); raw, the highest frequency's depth as measured.")
 @click.option("--max-invalid-share", type=click.FloatRange(0, 1), default=None,
               help="A scan with more invalid pixels (not finite, no return, saturated, inconsistent) than this "
                    "share is 'degraded'. (default 0.5)")
@@ -330,7 +343,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
                    "every core on each scan (on 2 cores 1.2-1.5 times as fast as 2 workers).")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")
 def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, min_bias_mm: float | None,
-            footprint_area_m2: str | None, sensor: Path | None, amplitude_scale: str | None,
+            footprint_area_m2: str | None, sensor: Path | None, amplitude_scale: str | None, baseline: str,
             max_invalid_share: float | None,
             fail_on: tuple[str, ...], allow_unserved: bool,
             outputs: str, point_clouds: tuple[str, ...], workers: int | None, scheduler: str | None) -> None:
@@ -359,29 +372,59 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
 
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
                                          max_invalid_share=max_invalid_share, amplitude_scale=amplitude_scale,
-                                         **profile_options(sensor))
+                                         baseline=baseline, **profile_options(sensor))
     started = time.perf_counter()
     here = not scheduler and not workers
     total = len(expand_archive(list(scans)))
-    done = iter(range(1, total + 1))
-
-    def on_scan(outcome) -> None:
-        progress.advance(task)
-        if not sys.stdout.isatty():  # a log, not a terminal: one line per scan as it finishes
-            click.echo(f"[{next(done)}/{total}] {outcome.source}: {outcome.status}")
-
-    with _progress() as progress:
-        task = progress.add_task("scans", total=total)
+    with Display() as display, display.step("correcting scans", total) as advance:
         with InProcess() if here else dask_executor(scheduler, workers or 2) as executor:
-            outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor, on_scan=on_scan,
+            outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
+                                       on_scan=lambda outcome: advance(f"{outcome.name}: {outcome.status}"),
                                        outputs=outputs, point_clouds=point_clouds or None)
-    summary = write_batch_report(outcomes, time.perf_counter() - started, out_dir)
-    click.echo(summary.joinpath("report.md").read_text())
+    wall_s = time.perf_counter() - started
+    summary = write_batch_report(outcomes, wall_s, out_dir)
+    print_batch(outcomes, wall_s, summary)
     failing = failing_outcomes(outcomes, fail_on, allow_unserved)
     for outcome in failing:
         click.echo(f"error: {failure_line(outcome)}", err=True)
     if failing:
         sys.exit(1)
+
+
+def print_batch(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path) -> None:
+    """The batch on the terminal: a line counting the statuses, a table of the scans, where the summary is.
+
+    The same figures as the summary's report (``mpi_lidar.reporting.batch_report``), without its source paths and
+    links: each scan's outputs are named by their directory.
+    """
+    from mpi_lidar.correction import ScanStatus
+    from mpi_lidar.correction.outcome import invalid_share
+    from mpi_lidar.reporting.batch_report import GATED_OUT
+
+    def mm(metrics: dict[str, float], key: str) -> str:
+        value = metrics.get(key) if isinstance(metrics, dict) else None
+        return f"{1e3 * value:.3f}" if isinstance(value, int | float) else ""
+
+    def change(metrics: dict[str, float]) -> str:
+        raw, corrected = mm(metrics, "raw_mae_m"), mm(metrics, "corrected_mae_m")
+        return f"{raw} -> {corrected}" if raw and corrected else ""
+
+    rows = []
+    for o in outcomes:
+        total = max(sum(o.counts.values()), 1)
+        gated = sum(o.counts.get(name, 0) for name in GATED_OUT)
+        reason = f"{o.reason} ({o.kept_status})" if o.kept_status else o.reason
+        rows.append((o.name, o.status, f"{100 * gated / total:.1f} %" if o.counts else "",
+                     f"{100 * invalid_share(o.counts):.1f} %" if o.counts else "",
+                     change(o.metrics.get("whole map", {})), change(o.metrics.get("masked region", {})),
+                     f"{o.seconds:.2f}", o.output, "; ".join(n for n in (reason, *o.notes) if n)))
+    labels = {ScanStatus.SKIPPED: "already done"}
+    counted = ", ".join(f"{n} {labels.get(status, status.value)}" for status in ScanStatus
+                        if (n := sum(o.status == status for o in outcomes)))
+    click.echo(f"{plural(len(outcomes), 'scan')} in {wall_s:.1f} s" + (f": {counted}" if counted else ""))
+    print_table(("scan", "status", "gated out", "invalid", "MAE [mm]", "masked MAE [mm]", "seconds", "outputs",
+                 "notes"), rows, clip=("notes",))
+    click.echo(f"summary: {summary_dir / 'report.html'}")
 
 
 @cli.command()
@@ -505,14 +548,14 @@ def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, tr
     from mpi_lidar.reporting.report import write_report
     from mpi_lidar.reporting.table2 import table2_report, table2_table
 
-    with _progress() as progress:
-        task = progress.add_task("baselines", total=4)
+    with Display() as display, display.step("baselines", 4) as advance:
         result = make_table2(data, model_dir, train_rows=train_rows, trials=trials, svm_rows=svm_rows,
-                             on_row=lambda _row: progress.advance(task))
+                             on_row=lambda _row: advance())
     report, figures = table2_report(result)
     write_report(report, report_dir, figures)
-    click.echo(table2_table(result).markdown())
-    click.echo(f"\nreport written to {report_dir}")
+    table = table2_table(result)
+    print_table(table.headers, table.rows)
+    click.echo(f"report written to {report_dir}")
 
 
 @cli.command()
@@ -538,13 +581,13 @@ def bench(out_dir: Path, rows: int | None, quick: bool, seed: int | None) -> Non
     if rows is not None:
         plan = dataclasses.replace(plan, rows=rows, test_rows=max(10, rows // 2))
     config = Config() if seed is None else Config().replace(dataset={"seed": seed})
-    with _progress() as progress:
-        task = progress.add_task("bench", total=None)
-        result = run_bench(plan, config, on_step=lambda name: progress.update(task, description=name))
+    with Display() as display, display.step("bench") as advance:
+        result = run_bench(plan, config, on_step=advance)
     machine = f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}. "
     write_bench(result, out_dir, machine)
-    click.echo(tradeoff_table(result).markdown())
-    click.echo(f"\nreport written to {out_dir} ({result.wall_s:.0f} s)")
+    table = tradeoff_table(result)
+    print_table(table.headers, table.rows)
+    click.echo(f"report written to {out_dir} ({result.wall_s:.0f} s)")
 
 
 @cli.command()
@@ -575,24 +618,22 @@ def verify(stores: tuple[Path, ...]) -> None:
         sys.exit(EXIT_FAILURE)
 
 
-def _progress() -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    transient=True, disable=not sys.stderr.isatty())
-
-
 def main() -> None:
     """Run the command line; every error is one line on stderr.
 
-    A user error (bad input, a damaged store, an unreachable service) exits 2; anything unexpected exits 1 with
-    its traceback written to a log file (printed with ``--debug``). Secrets are masked in every line.
+    A user error (bad input, a damaged store, an unreachable service, a mistyped option) exits 2; anything
+    unexpected exits 1 with its traceback written to a log file (printed with ``--debug``). Secrets are masked in
+    every line. Without ``--debug`` nothing else reaches stderr (:func:`_quiet`).
     """
     debug = "--debug" in sys.argv[1:]
     if debug:
         sys.argv.remove("--debug")
+    else:
+        _quiet()
     try:
-        cli.main(standalone_mode=False)
+        cli.main(standalone_mode=False, prog_name="mpi-lidar")
     except click.ClickException as exc:
-        exc.show()
+        click.echo(f"error: {redact(_usage_line(exc))}", err=True)
         sys.exit(EXIT_USER_ERROR)
     except (click.Abort, KeyboardInterrupt):
         click.echo("aborted", err=True)
@@ -610,6 +651,47 @@ def main() -> None:
         if debug:
             click.echo(redact(traceback.format_exc()), err=True)
         sys.exit(EXIT_FAILURE)
+
+
+def _usage_line(exc: click.ClickException) -> str:
+    """A usage error as one line: what is wrong and which ``--help`` lists the choices (Click's own message is
+    three lines: usage, a hint and the error)."""
+    if isinstance(exc, click.NoSuchOption):
+        message = f"no such option {exc.option_name}"
+        if exc.possibilities:
+            message += f"; did you mean {' or '.join(sorted(exc.possibilities))}?"
+    else:
+        message = " ".join(exc.format_message().split())
+        message = message[:1].lower() + message[1:]
+    if not isinstance(exc, click.UsageError):
+        return message
+    ctx = exc.ctx
+    if ctx is not None and not isinstance(ctx.command, click.Group):
+        where = f"{ctx.command_path} --help lists the options"
+    else:  # the group's own error (a mistyped command), or one raised before a command's context existed
+        command = next((arg for arg in sys.argv[1:] if arg in cli.commands), None)
+        where = (f"mpi-lidar {command} --help lists the options" if command and ctx is None
+                 else "mpi-lidar --help lists the commands")
+    return message.rstrip(".") + f" ({where})"
+
+
+def _quiet() -> None:
+    """Keep stderr for error lines, in this process and in the Dask worker processes it starts.
+
+    numpy's RuntimeWarnings (an infinite depth, an overflow in a pixel's arithmetic) concern pixels that the
+    validity stage flags and leaves out; they say nothing a user can act on. asyncio's and tornado's ERROR lines
+    ("Task was destroyed but it is pending!") come from Dask's event loop being torn down after an error that
+    has been reported already. Errors themselves are never silenced: they are exceptions, and each becomes one
+    ``error:`` line. ``--debug`` shows everything.
+    """
+    import logging
+    import warnings
+
+    warnings.filterwarnings("ignore", category=RuntimeWarning)
+    inherited = os.environ.get("PYTHONWARNINGS")
+    os.environ["PYTHONWARNINGS"] = ",".join(filter(None, (inherited, "ignore::RuntimeWarning")))  # worker processes
+    for name in ("asyncio", "tornado"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def _write_traceback() -> Path:

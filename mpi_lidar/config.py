@@ -34,6 +34,7 @@ from mpi_lidar.constants import (
     TABLE_SPEED_OF_LIGHT_M_PER_S,
 )
 from mpi_lidar.errors import ConfigError
+from mpi_lidar.safe_files import read_small_text
 from mpi_lidar.timing import whole_cycle_bins
 
 PAPER_FREQUENCIES_HZ = (12.5e6, 18.75e6, 25e6, 31.25e6)
@@ -46,10 +47,12 @@ MAX_CHUNK_ROWS = 10_000_000
 MAX_CHUNKS = 1_000_000
 MAX_BINS = 1_000_000  # time bins per integration window: the waveform simulator holds rows x bins values
 
-NonNegative = Annotated[float, Field(ge=0)]
-Positive = Annotated[float, Field(gt=0)]
-Unit = Annotated[float, Field(ge=0, le=1)]
-Interval = tuple[float, float]
+# Numbers are strict: TOML's true is no number of seconds, and "1e-6" no integration time.
+Number = Annotated[float, Field(strict=True)]
+NonNegative = Annotated[float, Field(ge=0, strict=True)]
+Positive = Annotated[float, Field(gt=0, strict=True)]
+Unit = Annotated[float, Field(ge=0, le=1, strict=True)]
+Interval = tuple[Number, Number]
 
 
 class _Frozen(BaseModel):
@@ -64,7 +67,7 @@ class SensorConfig(_Frozen):
     """
 
     gamma_r_v2: Positive = 0.1794
-    modulation_contrast: Annotated[float, Field(gt=0, le=1)] = 1.0
+    modulation_contrast: Annotated[float, Field(gt=0, le=1, strict=True)] = 1.0
     speed_of_light_m_per_s: Positive = TABLE_SPEED_OF_LIGHT_M_PER_S
     demodulation_amplitude_v: Positive = 0.4785
     tia_gain_v_per_a: Positive = 50e3
@@ -72,9 +75,9 @@ class SensorConfig(_Frozen):
     integration_time_s: Positive = 16e-6
     wavelength_m: Positive = 852e-9
     planck_j_s: Positive = TABLE_PLANCK_J_S
-    quantum_efficiency: Annotated[float, Field(gt=0, le=1)] = 0.67
-    avalanche_gain: Annotated[float, Field(ge=1)] = 50.0
-    excess_noise_factor: Annotated[float, Field(ge=1)] = 4.862
+    quantum_efficiency: Annotated[float, Field(gt=0, le=1, strict=True)] = 0.67
+    avalanche_gain: Annotated[float, Field(ge=1, strict=True)] = 50.0
+    excess_noise_factor: Annotated[float, Field(ge=1, strict=True)] = 4.862
     electron_charge_c: Positive = TABLE_ELECTRON_CHARGE_C
     apd_area_m2: NonNegative = 0.7854e-6
     dark_current_fom_a_per_m2: NonNegative = 1e-5
@@ -168,22 +171,22 @@ class SimulatorConfig(_Frozen):
     """Simulator fidelity and the noise terms the paper leaves open (all default 0)."""
 
     fidelity: Literal["moment", "waveform"] = "moment"
-    noise_scale: Annotated[float, Field(ge=0, le=100)] = 1.0
+    noise_scale: Annotated[float, Field(ge=0, le=100, strict=True)] = 1.0
     round_photons: StrictBool = True
     whole_cycles: StrictBool = False
-    background_mean_electrons: Annotated[float, Field(ge=0, le=1e9)] = 0.0
-    background_std_electrons: Annotated[float, Field(ge=0, le=1e9)] = 0.0
-    tia_noise_mean_electrons: Annotated[float, Field(ge=-1e9, le=1e9)] = 0.0
-    random_noise_std_v: Annotated[float, Field(ge=0, le=100)] = 0.0
+    background_mean_electrons: Annotated[float, Field(ge=0, le=1e9, strict=True)] = 0.0
+    background_std_electrons: Annotated[float, Field(ge=0, le=1e9, strict=True)] = 0.0
+    tia_noise_mean_electrons: Annotated[float, Field(ge=-1e9, le=1e9, strict=True)] = 0.0
+    random_noise_std_v: Annotated[float, Field(ge=0, le=100, strict=True)] = 0.0
 
 
 class DatasetConfig(_Frozen):
     """The sampling plan: how many rows, in chunks of how many, from which seed, and the test share."""
 
-    samples: Annotated[int, Field(ge=1, le=MAX_SAMPLES)] = 20_000
-    chunk_rows: Annotated[int, Field(ge=1, le=MAX_CHUNK_ROWS)] = 5_000
-    seed: Annotated[int, Field(ge=0)] = 20260101
-    test_fraction: Annotated[float, Field(gt=0, lt=1)] = 0.2
+    samples: Annotated[int, Field(ge=1, le=MAX_SAMPLES, strict=True)] = 20_000
+    chunk_rows: Annotated[int, Field(ge=1, le=MAX_CHUNK_ROWS, strict=True)] = 5_000
+    seed: Annotated[int, Field(ge=0, strict=True)] = 20260101
+    test_fraction: Annotated[float, Field(gt=0, lt=1, strict=True)] = 0.2
 
     @model_validator(mode="after")
     def _chunk_fits(self) -> DatasetConfig:
@@ -203,7 +206,7 @@ class Config(_Frozen):
     """Everything that determines a simulated dataset, byte for byte."""
 
     sensor: SensorConfig = SensorConfig()
-    frequencies_hz: tuple[float, ...] = PAPER_FREQUENCIES_HZ
+    frequencies_hz: tuple[Number, ...] = PAPER_FREQUENCIES_HZ
     prior: PriorConfig = WORKING_RANGE_PRIOR
     simulator: SimulatorConfig = SimulatorConfig()
     dataset: DatasetConfig = DatasetConfig()
@@ -289,18 +292,14 @@ def config_from_json(text: str) -> Config:
 def load_config(path: str | Path, base: Config | None = None) -> Config:
     """Read a TOML file whose tables (``[sensor]``, ``[prior]``, ...) override ``base`` (default: defaults).
 
-    Raises :class:`ConfigError` with one line naming the file and the offending field.
+    Only a regular file of at most :data:`mpi_lidar.safe_files.MAX_CONFIG_BYTES` is read. Raises
+    :class:`ConfigError` with one line naming the file and the offending field.
     """
     path = Path(path)
+    text = read_small_text(path, "config file", kind="TOML")  # a regular file of at most MAX_CONFIG_BYTES, UTF-8
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"config file {path} does not exist") from None
-    except IsADirectoryError:
-        raise ConfigError(f"config file {path} is a directory; give the path of a TOML file") from None
-    except OSError as exc:
-        raise ConfigError(f"config file {path} cannot be read: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
     return validate_overrides(data, base or Config(), source=str(path))
 

@@ -31,3 +31,16 @@ def two_path_scan(name: str, height: int = 24, width: int = 32, multipath: bool 
         azimuth_rad=np.linspace(-0.2, 0.2, width), elevation_rad=np.linspace(-0.15, 0.15, height),
         reference_depth=depth_true.astype(np.float32), reference_mask=np.ones((height, width), bool),
     )
+
+
+def inverse_variance_mean(scan: Scan, offsets_m: tuple[float, ...] | None = None) -> np.ndarray:
+    """Each pixel's frequencies' depths less their ``offsets_m`` (F,) [m], averaged with weights 1 / sd^2 of the
+    noise model at their amplitudes, (H, W) [m]: the fused depth, worked out here directly from the scan's maps."""
+    from mpi_lidar.config import SensorConfig
+    from mpi_lidar.physics.noise import depth_noise_m
+
+    f = len(scan.frequencies_hz)
+    depth = np.asarray(scan.depth, dtype=np.float64).reshape(f, -1).T - np.asarray(offsets_m or np.zeros(f))
+    amplitude = np.asarray(scan.amplitude, dtype=np.float64).reshape(f, -1).T
+    weight = 1.0 / depth_noise_m(SensorConfig(), tuple(scan.frequencies_hz), np.maximum(amplitude, 1e-12)) ** 2
+    return ((weight * depth).sum(1) / weight.sum(1)).reshape(scan.shape)

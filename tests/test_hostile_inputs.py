@@ -21,6 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mpi_lidar.config import Config, load_config
+from mpi_lidar.correction.options import MAX_FOOTPRINT_AREA_M2
+from mpi_lidar.correction.profile import read_profile
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, load_model
 from mpi_lidar.scans.importers import load_npz
@@ -108,6 +110,39 @@ def test_config_reader__hostile_toml(tmp_path_factory, monkeypatch, capsys, text
         assert code == 2
         assert_one_error_line(stderr)
         assert sorted(p.name for p in work.iterdir()) == ["hostile.toml"]
+
+
+# --- sensor profiles ---------------------------------------------------------------------------------------
+
+PROFILE_FIELDS = ["footprint_area_m2", "saturation_amplitude_v2", "min_amplitude_sigmas", "amplitude_scale",
+                  "frequencies_hz", "noise_scale", "range_m", "frequency_offsets_m", "bogus_field"]
+
+
+@st.composite
+def hostile_profile(draw) -> str:
+    lines = [] if draw(st.booleans()) else ['schema = "mpi-lidar/sensor@1"']
+    for name in draw(st.lists(st.sampled_from(PROFILE_FIELDS), unique=True, max_size=4)):
+        lines.append(f"{name} = {toml_value(draw(TOML_VALUES))}")
+    if draw(st.booleans()):
+        lines.append(f"footprint_area_m2 = {toml_value(draw(TOML_SCALARS))}")
+    return "\n".join(lines) + "\n"
+
+
+@hostile
+@given(text=hostile_profile())
+def test_profile_reader__hostile_toml(tmp_path_factory, text):
+    """Either a profile whose every number is a strict number within its physical bounds, or one line."""
+    path = tmp_path_factory.mktemp("profile") / "sensor.toml"
+    path.write_text(text)
+    try:
+        profile = read_profile(path)
+    except MpiLidarError as exc:
+        assert "\n" not in str(exc) and str(path) in str(exc)
+        return
+    assert 0 < profile.footprint_area_m2 <= MAX_FOOTPRINT_AREA_M2
+    assert not isinstance(profile.footprint_area_m2, bool)
+    assert all(f > 0 for f in profile.frequencies_hz or ())
+    assert profile.range_m is None or 0 < profile.range_m[0] < profile.range_m[1]
 
 
 # --- .npz imports ------------------------------------------------------------------------------------------

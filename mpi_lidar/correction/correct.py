@@ -30,13 +30,28 @@ from numpy.typing import NDArray
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
 from mpi_lidar.correction.gates import Gate, make_gate
-from mpi_lidar.correction.options import AUTO, CorrectionOptions, Flag, UnservedReason
+from mpi_lidar.correction.options import (
+    AUTO,
+    INVALID_FLAGS,
+    Baseline,
+    CorrectionOptions,
+    Estimate,
+    Flag,
+    UnservedReason,
+)
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
 from mpi_lidar.correction.sensor_scale import SensorScale, measure_sensor_scale
-from mpi_lidar.correction.validity import depth_rules_only, unwrapped_rows, usable_depth_of, validity_flags
+from mpi_lidar.correction.validity import (
+    UNUSABLE_FLAGS,
+    depth_rules_only,
+    unwrapped_rows,
+    usable_depth_of,
+    validity_flags,
+)
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
+from mpi_lidar.physics.noise import fused_depths
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores_by_rows
 
@@ -63,7 +78,10 @@ class Correction:
     scan (None where it could); ``measured_depth`` (H, W) the highest frequency's depth as measured [m],
     unwrapped into one range where the scan's depths were wrapped (as measured where the range is ambiguous),
     which is what correction compares with; ``unwrap_confidence`` (H, W) the unwrapping's confidence [1] (None
-    for a scan whose depths came unwrapped).
+    for a scan whose depths came unwrapped); ``estimate`` (H, W) which estimate each depth is
+    (:class:`~mpi_lidar.correction.options.Estimate`); ``uncertainty_m`` (H, W) each depth's 1-sigma
+    uncertainty [m] (NaN where it has none); ``frequency_offsets_m`` the frequencies' depth offsets relative to the
+    highest [m] that the fused depths had removed (None: none).
     """
 
     depth: NDArray[np.float32]
@@ -78,6 +96,9 @@ class Correction:
     unserved: Unserved | None = None
     measured_depth: NDArray[np.float32] | None = None
     unwrap_confidence: NDArray[np.float32] | None = None
+    estimate: NDArray[np.uint8] | None = None
+    uncertainty_m: NDArray[np.float32] | None = None
+    frequency_offsets_m: tuple[float, ...] | None = None
 
     def counts(self) -> dict[str, int]:
         found = np.bincount(self.flags.ravel(), minlength=len(Flag))
@@ -97,7 +118,7 @@ def in_depth_range(depth: NDArray, d_as_m: tuple[float, float], options: Correct
     return (depth >= nearest) & (depth <= high + options.range_tolerance_m)
 
 
-def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
+def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions | None = None,
                  sensor: SensorConfig | None = None) -> Correction:
     """Correct one scan in this process, in tiles of whole rows of about ``options.tile_pixels`` pixels.
 
@@ -108,9 +129,11 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     itself in tiles of whole blocks (its planes) and bands of rows (its potential), with only its facing pairs
     over the whole scan. ``scan`` may keep its maps in the store
     (:class:`mpi_lidar.scans.stored_map.StoredMap`). Every pixel gets exactly the value it gets from the whole scan
-    in memory at once (tests/correction/test_tiling.py, tests/scans/test_stored_maps.py).
+    in memory at once (tests/correction/test_tiling.py, tests/scans/test_stored_maps.py). ``options`` None: the
+    defaults.
     """
     started = time.perf_counter()
+    options = options or CorrectionOptions()
     clock = _StageClock()
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
     sensor = sensor or SensorConfig()
@@ -121,6 +144,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
         if not unit.significant:
             return _left_as_measured(scan, by_depth, unit, started)
         scan, unit_note = _in_v2(scan, unit.amplitude_scale), (unit_note_of(unit),)
+        options = _with_measured_noise(options, unit)
     elif options.amplitude_scale != 1.0:  # the scanner's unit to V^2, once, in memory
         scan = _in_v2(scan, options.amplitude_scale)
     with clock("validity"):
@@ -147,11 +171,108 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions,
     inference_s = 0.0
     if predict:
         gate_s, inference_s = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
+    with clock("validity"):
+        offsets_m, offset_notes = _frequency_offsets(measured, flags, bias_m, options)
+        estimate, uncertainty = _estimates(scan, sensor, tiles, flags, depth, measured.depth, options, offsets_m,
+                                           calibration, None if bias_m is None else bias_m.reshape(-1))
+    notes += offset_notes
     h, w = scan.shape
     unserved = unserved_reason(flags, model, options, served=predict)
     return Correction(depth.reshape(h, w), flags.reshape(h, w), inference_s, time.perf_counter() - started, gate_s,
                       bias_m, unit_note + notes, clock.seconds, calibration, unserved, measured.depth.reshape(h, w),
-                      None if measured.confidence is None else measured.confidence.reshape(h, w))
+                      None if measured.confidence is None else measured.confidence.reshape(h, w),
+                      estimate.reshape(h, w), uncertainty.reshape(h, w),
+                      None if offsets_m is None else tuple(float(o) for o in offsets_m))
+
+
+# Valid pixels the model leaves alone, whose depth is the baseline's: fused where the frequencies agree.
+BASELINE_FLAGS = (Flag.NOT_NEEDED, Flag.NO_MULTIPATH, Flag.UNCALIBRATED, Flag.OUT_OF_RANGE)
+
+
+def _frequency_offsets(measured: _Measured, flags: NDArray[np.uint8], bias_m: NDArray | None,
+                       options: CorrectionOptions) -> tuple[NDArray | None, tuple[str, ...]]:
+    """The frequencies' depth offsets relative to the highest (F,) [m] that the fused depth removes, and what the
+    report says of them: the options' (a sensor profile's) where they give them, else the scan's own, measured on
+    its valid pixels that the scene geometry expects free of multipath (``bias_m`` (H, W) [m]); none where it
+    has too few such pixels or no geometry."""
+    if Baseline(options.baseline) == Baseline.RAW:
+        return None, ()  # nothing is fused
+    if options.frequency_offsets_m is not None:
+        return np.asarray(options.frequency_offsets_m, dtype=np.float64), ()
+    if bias_m is None:
+        return None, ("frequency offsets: not measured (no scene geometry to find pixels free of multipath); "
+                      "none removed from the fused depths",)
+    quiet = np.isin(flags, [int(flag) for flag in BASELINE_FLAGS]) & (bias_m.reshape(-1) <= QUIET_BIAS_M)
+    offsets = measured.offsets.offsets_m(quiet)
+    if offsets is None:
+        return None, (f"frequency offsets: not measured (fewer than {MIN_OFFSET_PIXELS} sampled pixels free of "
+                      "multipath); none removed from the fused depths",)
+    listed = ", ".join(f"{1e3 * o:+.3f}" for o in offsets)
+    return offsets, (f"frequency offsets: {listed} mm relative to the highest frequency, measured on the pixels "
+                     "free of multipath, removed from the fused depths",)
+
+
+def _estimates(scan: Scan, sensor: SensorConfig, tiles: list[slice], flags: NDArray[np.uint8],
+               depth: NDArray[np.float32], measured_depth: NDArray[np.float32], options: CorrectionOptions,
+               offsets_m: NDArray | None, footprint: FootprintEstimate | None, bias_m: NDArray | None,
+               ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """Which estimate each pixel's depth is (:class:`Estimate`) and its 1-sigma uncertainty [m], (H*W,) each, tile
+    by tile; the baseline's pixels take the fused depth (:func:`fused_depths`, ``offsets_m`` removed) into
+    ``depth`` in place where ``options.baseline`` is fused and their frequencies agree within noise.
+
+    Uncertainty: the fused depth's sd under the noise model; the measured depth's sd, times the frequencies' Birge
+    ratio where they disagree beyond their noise (multipath or a flying pixel); for both, combined
+    with the multipath bias the scene geometry expects (``bias_m`` (H*W,) [m], below the gate's threshold, else
+    the pixel would be corrected); a corrected depth's, that measured sd and the share of its correction that the
+    footprint's own relative uncertainty leaves open (:func:`corrected_uncertainty_m`). NaN where there is no
+    depth, and where the range is ambiguous (its wrap count, metres, is not known).
+    """
+    fuse = Baseline(options.baseline) == Baseline.FUSED
+    estimate = np.full(flags.size, Estimate.NONE, dtype=np.uint8)
+    uncertainty = np.full(flags.size, np.nan, dtype=np.float32)
+    known = [int(flag) for flag in (*BASELINE_FLAGS, Flag.CORRECTED)]
+    for pixels, raw in _raw_tiles(scan, tiles):
+        def estimate_rows(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
+            where = slice(start + rows.start, start + rows.stop)
+            tile_flags = flags[where]
+            estimate[where] = np.where(np.isin(tile_flags, [int(flag) for flag in INVALID_FLAGS]), Estimate.NONE,
+                                       Estimate.MEASURED)
+            present = np.flatnonzero(np.isin(tile_flags, known))
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                fused = fused_depths(raw[rows][present], scan.frequencies_hz, sensor,
+                                     noise_scale=options.noise_scale, offsets_m=offsets_m)
+            # Frequencies that disagree beyond their noise (multipath, a flying pixel) widen the measured sd by
+            # their Birge ratio.
+            measured_sigma = fused.top_sigma_m * np.where(fused.consistent, 1.0, fused.birge_ratio)
+            index = where.start + present
+            corrected = tile_flags[present] == Flag.CORRECTED
+            expected = np.zeros(present.size) if bias_m is None else bias_m[index].astype(np.float64)
+            sigma = np.array(measured_sigma)
+            if fuse:
+                take = ~corrected & fused.consistent
+                depth[index[take]] = fused.depth_m[take]
+                sigma[take] = fused.sigma_m[take]
+                estimate[index[take]] = Estimate.FUSED
+            # A pixel left alone keeps the multipath bias its scene geometry expects (below the gate's threshold).
+            uncertainty[index] = np.hypot(sigma, expected)
+            uncertainty[index[corrected]] = corrected_uncertainty_m(
+                measured_sigma[corrected], depth[index[corrected]] - measured_depth[index[corrected]], footprint)
+            estimate[index[corrected]] = Estimate.CORRECTED
+
+        on_cores_by_rows(estimate_rows, raw.shape[0], PARALLEL_MIN_ROWS)
+    return estimate, uncertainty
+
+
+def corrected_uncertainty_m(measured_sigma_m: NDArray, correction_m: NDArray,
+                            footprint: FootprintEstimate | None) -> NDArray[np.float32]:
+    """1-sigma uncertainty [m] of corrected depths: the measured depth's sd (n,) [m] and the part of the correction
+    (n,) [m] that the footprint's relative uncertainty leaves open (the multipath bias scales with the footprint;
+    a given footprint, ``footprint`` None, adds nothing). The model's own error beyond these is not in it
+    (docs/results/noise-limit.md measures how much that leaves out)."""
+    relative = 0.0
+    if footprint is not None and np.isfinite(footprint.area_m2) and footprint.area_m2 > 0:
+        relative = float(footprint.sigma_m2 / footprint.area_m2)
+    return np.sqrt(np.square(measured_sigma_m) + np.square(relative * correction_m)).astype(np.float32)
 
 
 def _in_v2(scan: Scan, units_per_v2: float) -> Scan:
@@ -183,6 +304,17 @@ def _measured_unit(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
     return unit, by_depth
 
 
+def _with_measured_noise(options: CorrectionOptions, unit: SensorScale) -> CorrectionOptions:
+    """``options`` with the noise scale and frequency offsets a scan measured with its amplitude unit, where the
+    options carry none of their own (a profile's win); an offset not measured counts as none."""
+    update: dict[str, object] = {}
+    if options.noise_scale == 1.0 and np.isfinite(unit.noise_scale):
+        update["noise_scale"] = float(unit.noise_scale)
+    if options.frequency_offsets_m is None and np.isfinite(unit.offsets_m).all():
+        update["frequency_offsets_m"] = tuple(float(o) for o in unit.offsets_m)
+    return options.model_copy(update=update) if update else options
+
+
 def unit_note_of(unit: SensorScale) -> str:
     """What a report says of a scan's own amplitude unit."""
     if not unit.significant:
@@ -203,7 +335,11 @@ def _left_as_measured(scan: Scan, by_depth: _DepthValidity, unit: SensorScale, s
                    "(mpi-lidar correct --amplitude-scale, or a profile from mpi-lidar calibrate: --sensor)")
     return Correction(depth.reshape(h, w), flags.reshape(h, w), 0.0, time.perf_counter() - started,
                       notes=(unit_note_of(unit),), unserved=why, measured_depth=measured.depth.reshape(h, w),
-                      unwrap_confidence=None if measured.confidence is None else measured.confidence.reshape(h, w))
+                      unwrap_confidence=None if measured.confidence is None else measured.confidence.reshape(h, w),
+                      estimate=np.where(np.isin(flags, [int(flag) for flag in INVALID_FLAGS]), Estimate.NONE,
+                                        Estimate.MEASURED).astype(np.uint8).reshape(h, w),
+                      # The noise model needs the amplitudes' unit: no uncertainty without it.
+                      uncertainty_m=np.full((h, w), np.nan, dtype=np.float32))
 
 
 def _range_rule(flags: NDArray[np.uint8], usable_depth: NDArray[np.float32], model: CorrectionModel,
@@ -255,11 +391,55 @@ def unserved_reason(flags: NDArray[np.uint8], model: CorrectionModel, options: C
 class _Measured:
     """The highest frequency's depth of every pixel as measured (H*W,) [m], unwrapped into one range where the
     scan's depths were wrapped and the unwrapping is certain, the unwrapping's confidence (H*W,) [1] (None
-    for a scan whose depths came unwrapped), and whether any depth took a wrap count (``moved``)."""
+    for a scan whose depths came unwrapped), whether any depth took a wrap count (``moved``), and a sample of the
+    frequencies' depths less the highest one's (:class:`_OffsetSample`)."""
 
     depth: NDArray[np.float32]
     confidence: NDArray[np.float32] | None
+    offsets: _OffsetSample
     moved: bool = False
+
+
+# The frequencies' relative offsets are measured on at most about this many pixels, evenly spaced: beyond that
+# the median's noise is far below the offsets, a few tenths of a millimetre.
+OFFSET_SAMPLE_PIXELS = 100_000
+# ... and only with at least this many pixels free of multipath (else none is removed).
+MIN_OFFSET_PIXELS = 500
+# A pixel is free of multipath for the offsets where the scene geometry expects a bias below this [m].
+QUIET_BIAS_M = 2e-5
+
+
+@dataclass
+class _OffsetSample:
+    """Every ``stride``-th pixel's depth at each frequency less the highest frequency's (K, F) [m] (NaN where
+    invalid): what the frequencies' relative offsets are measured from, once the scene says which pixels are
+    free of multipath."""
+
+    stride: int
+    differences: NDArray[np.float32]
+
+    @classmethod
+    def empty(cls, pixels: int, frequencies: int) -> _OffsetSample:
+        stride = max(1, -(-pixels // OFFSET_SAMPLE_PIXELS))
+        return cls(stride, np.full((-(-pixels // stride), frequencies), np.nan, dtype=np.float32))
+
+    def fill(self, start: int, rows: NDArray, usable: NDArray) -> None:
+        """The sampled pixels among the rows (n, 2F) of unwrapped raw measurements that start at pixel ``start``
+        (``usable`` (n,): valid, of a known range)."""
+        first = -(-start // self.stride) * self.stride - start  # the first sampled pixel in these rows
+        picked = np.arange(first, rows.shape[0], self.stride)
+        f = self.differences.shape[1]
+        depth = rows[picked, :f]
+        self.differences[(start + picked) // self.stride] = np.where(
+            usable[picked, None], depth - depth[:, f - 1:f], np.nan)
+
+    def offsets_m(self, quiet: NDArray[np.bool_]) -> NDArray[np.float64] | None:
+        """The median difference of each frequency (F,) [m] over the sampled pixels that are ``quiet`` (H*W,),
+        or None with fewer than ``MIN_OFFSET_PIXELS`` of them."""
+        taken = quiet[:: self.stride] & np.isfinite(self.differences).all(1)
+        if taken.sum() < MIN_OFFSET_PIXELS:
+            return None
+        return np.median(self.differences[taken].astype(np.float64), axis=0)
 
 
 def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
@@ -270,13 +450,15 @@ def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
     flags = np.empty(scan.shape[0] * scan.shape[1], dtype=np.uint8)
     usable_depth = np.empty(flags.size, dtype=np.float32)
     measured = _Measured(np.empty(flags.size, dtype=np.float32),
-                         np.empty(flags.size, dtype=np.float32) if scan.depth_wrapped else None)
+                         np.empty(flags.size, dtype=np.float32) if scan.depth_wrapped else None,
+                         _OffsetSample.empty(flags.size, f))
     for pixels, raw in _raw_tiles(scan, tiles):
         def check(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
             part, confidence = _unwrapped(scan, raw[rows], sensor)
             part_flags = validity_flags(part, scan.frequencies_hz, options, sensor, confidence)
             where = slice(start + rows.start, start + rows.stop)
             flags[where] = part_flags
+            measured.offsets.fill(where.start, part, ~np.isin(part_flags, [int(flag) for flag in UNUSABLE_FLAGS]))
             usable_depth[where] = usable_depth_of(part, part_flags)
             measured.depth[where] = np.where(part_flags == Flag.AMBIGUOUS, raw[rows, f - 1], part[:, f - 1])
             if measured.confidence is not None and confidence is not None:

@@ -10,7 +10,7 @@ import zarr
 from numpy.typing import NDArray
 
 from mpi_lidar.correction.correct import Correction
-from mpi_lidar.correction.options import CORRECTED_SCHEMA, CorrectionOptions, Flag
+from mpi_lidar.correction.options import CORRECTED_SCHEMA, CorrectionOptions, Estimate, Flag
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import consolidate, store_fingerprints, write_described_arrays
 from mpi_lidar.storage.variables import CORRECTED, Store, attributes
@@ -33,13 +33,16 @@ def write_corrected_store(path: Path, scan: Scan, correction: Correction, identi
     written: tuple[tuple[str, NDArray | None], ...] = (
         ("corrected_depth", correction.depth), ("flags", correction.flags),
         ("measured_depth", correction.measured_depth), ("unwrap_confidence", correction.unwrap_confidence),
+        ("estimate", correction.estimate), ("depth_uncertainty", correction.uncertainty_m),
         ("multipath_bias_m", correction.multipath_bias_m),
         ("azimuth_rad", scan.azimuth_rad), ("elevation_rad", scan.elevation_rad))
     arrays = {name: (np.asarray(values), CORRECTED[name].dims) for name, values in written if values is not None}
     flags: dict[str, JSON] = {"flag_values": [int(f) for f in Flag],
                               "flag_meanings": " ".join(f.name.lower() for f in Flag)}
+    estimates: dict[str, JSON] = {"flag_values": [int(e) for e in Estimate],
+                                  "flag_meanings": " ".join(e.name.lower() for e in Estimate)}
     write_described_arrays(group, arrays, scan.shape, metadata=attributes(Store.CORRECTED),
-                           attributes={"flags": flags})
+                           attributes={"flags": flags, "estimate": estimates})
     # One metadata write: group.attrs.update would rewrite the group's metadata once per key.
     group.update_attributes({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
                              "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},

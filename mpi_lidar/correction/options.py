@@ -37,6 +37,29 @@ class Flag(IntEnum):
     AMBIGUOUS = 9
 
 
+class Estimate(IntEnum):
+    """Which estimate a pixel's output depth is (``estimate`` in ``corrected.zarr``).
+
+    none: no depth (NaN, an invalid pixel). measured: the highest frequency's depth as measured (unwrapped where
+    the scan's depths wrapped): under ``--baseline raw``, and where the frequencies disagree beyond their noise, the
+    range is ambiguous or the amplitudes' unit is not known. fused: the frequencies' depths fused by inverse
+    variance, for a valid pixel the model does not correct. corrected: the model's.
+    """
+
+    NONE = 0
+    MEASURED = 1
+    FUSED = 2
+    CORRECTED = 3
+
+
+class Baseline(StrEnum):
+    """What a valid pixel that the model does not correct gets: ``fused`` (default), the frequencies' depths fused by
+    inverse variance where they agree within noise; ``raw``, the highest frequency's depth as measured."""
+
+    FUSED = "fused"
+    RAW = "raw"
+
+
 INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
 
 class ScanStatus(StrEnum):
@@ -77,8 +100,21 @@ class UnservedReason(StrEnum):
 
 STATUS_ONLY_OPTIONS = frozenset({"max_invalid_share"})  # options that never change a pixel: not hashed
 
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
+# Physical bounds (docs/reference/configuration.md, "Physical bounds"): a value past them is a unit mistake or a
+# typo, refused before a pixel is touched. Numbers are strict: a boolean or a string is no number of metres.
+MAX_FOOTPRINT_AREA_M2 = 1.0  # no receiver footprint reaches a square metre (as the footprint fit's own bound)
+MAX_AMPLITUDE_V2 = 1e4  # a detector chain's amplitude [V^2]: volts squared, never ten thousand
+NO_SATURATION_V2 = 1e30  # the one larger saturation threshold: none (validity from the depths alone)
+AMPLITUDE_SCALE_BOUNDS = (1e-6, 1e9)  # a scanner's amplitude unit per V^2 that keeps float32 amplitudes finite
+MAX_SIGMAS = 100.0  # noise deviations
+MAX_DEPTH_M = 1000.0  # depths, spreads and tolerances: beyond any AMCW LiDAR's range
+MAX_BIAS_M = 1.0  # a multipath bias: millimetres to centimetres; a metre is no threshold of one
+MAX_BLOCK_M = 10.0  # a geometry block's side
+MAX_TILE_PIXELS = 1 << 30
+
+Positive = Annotated[float, Field(gt=0, strict=True)]
+NonNegative = Annotated[float, Field(ge=0, strict=True)]
+Fraction = Annotated[float, Field(gt=0, lt=1, strict=True)]
 
 
 class CorrectionOptions(BaseModel):
@@ -90,36 +126,45 @@ class CorrectionOptions(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     gate: GateName = GateName.GEOMETRY
-    min_amplitude_sigmas: NonNegative = 5.0
-    saturation_amplitude_v2: Positive = 0.7176  # a perfect reflector at 0.5 m; set it from your sensor
-    max_depth_spread_m: Positive = 0.3
+    min_amplitude_sigmas: Annotated[float, Field(ge=0, le=MAX_SIGMAS, strict=True)] = 5.0
+    # A perfect reflector at 0.5 m; set it from your sensor.
+    saturation_amplitude_v2: Annotated[float, Field(gt=0, le=NO_SATURATION_V2, strict=True)] = 0.7176
+    # (A sensor profile, the options' source, holds at most MAX_AMPLITUDE_V2.)
+    max_depth_spread_m: Annotated[float, Field(gt=0, le=MAX_DEPTH_M, strict=True)] = 0.3
     # Zero: near the far end of its prior the model pulls depths inwards, so beyond it raw depth is safer.
-    range_tolerance_m: NonNegative = 0.0
+    range_tolerance_m: Annotated[float, Field(ge=0, le=MAX_DEPTH_M, strict=True)] = 0.0
     # Multipath only lengthens a path, so a depth measured nearer than the prior's nearest d_AS is truly that
     # near, and down to 15 % nearer the model's error is that of the prior's own near end
     # (benchmarks/model_range.py): such depths are corrected, not left raw.
-    near_range_fraction: Annotated[float, Field(ge=0, lt=1)] = 0.15
-    consistency_p_value: Annotated[float, Field(gt=0, lt=1)] = 0.01
+    near_range_fraction: Annotated[float, Field(ge=0, lt=1, strict=True)] = 0.15
+    consistency_p_value: Fraction = 0.01
     # A wrapped scan's pixels whose wrap counts have a lower posterior probability than this are ambiguous:
     # left as measured (flag ambiguous). At 0.999 fewer than 0.1 % of the pixels kept are expected to be
     # unwrapped wrong where the noise model holds (mpi_lidar.physics.unwrap).
-    min_unwrap_confidence: Annotated[float, Field(gt=0, lt=1)] = MIN_UNWRAP_CONFIDENCE
-    min_multipath_bias_m: NonNegative = 0.004
-    geometry_block_m: Positive = geometry.DEFAULT_BLOCK_M
-    partner_range_m: Positive = geometry.DEFAULT_MAX_RANGE_M
+    min_unwrap_confidence: Fraction = MIN_UNWRAP_CONFIDENCE
+    min_multipath_bias_m: Annotated[float, Field(ge=0, le=MAX_BIAS_M, strict=True)] = 0.004
+    geometry_block_m: Annotated[float, Field(gt=0, le=MAX_BLOCK_M, strict=True)] = geometry.DEFAULT_BLOCK_M
+    partner_range_m: Annotated[float, Field(gt=0, le=MAX_DEPTH_M, strict=True)] = geometry.DEFAULT_MAX_RANGE_M
     # The receiver footprint A_fp [m^2] that scales the geometric coupling, or "auto": each scan estimates its
     # own from the depth and amplitude near its facing surfaces (mpi_lidar.correction.footprint).
-    footprint_area_m2: Positive | Literal["auto"] = AUTO
+    footprint_area_m2: Annotated[float, Field(gt=0, le=MAX_FOOTPRINT_AREA_M2, strict=True)] | Literal["auto"] = AUTO
     # The scanner's amplitude unit per V^2, the noise model's unit: a scan's amplitudes are divided by it before
     # anything reads them (thresholds, albedo, the model's inputs). 1: amplitudes in V^2. "auto": each scan
     # measures its own on its flat surfaces (mpi_lidar.correction.sensor_scale); where that is not significant
     # the scan's pixels are left as measured and it ends unserved (amplitude_units).
-    amplitude_scale: Positive | Literal["auto"] = 1.0
-    tile_pixels: Annotated[int, Field(ge=1)] = 262_144
+    amplitude_scale: (Annotated[float, Field(ge=AMPLITUDE_SCALE_BOUNDS[0], le=AMPLITUDE_SCALE_BOUNDS[1], strict=True)]
+                      | Literal["auto"]) = 1.0
+    # The sensor's depth noise over the noise model's and each frequency's depth offset relative to the highest
+    # [m] (from a sensor profile): the fused depth's weights, sds and offsets. None: no offsets.
+    noise_scale: Annotated[float, Field(gt=0, le=100)] = 1.0
+    frequency_offsets_m: tuple[Annotated[float, Field(ge=-1, le=1)], ...] | None = None
+    # What the pixels the model does not correct get (Baseline).
+    baseline: Baseline = Baseline.FUSED
+    tile_pixels: Annotated[int, Field(ge=1, le=MAX_TILE_PIXELS, strict=True)] = 262_144
     # Above this share of invalid pixels a scan is 'degraded', not 'corrected': past half the map the
     # outputs describe the sensor setup (gain, saturation level, range) more than the scene, and a batch
     # should say so rather than report success. It only names how a scan ended, never changes a pixel.
-    max_invalid_share: Annotated[float, Field(ge=0, le=1)] = 0.5
+    max_invalid_share: Annotated[float, Field(ge=0, le=1, strict=True)] = 0.5
     # The sensor profile (sensor.toml) the footprint and thresholds came from: the hash of its values.
     sensor_profile_sha256: str | None = None
 
@@ -136,6 +181,9 @@ class CorrectionOptions(BaseModel):
             del pixels["near_range_fraction"]
         if pixels["amplitude_scale"] == 1.0:  # V^2, as before the scale existed
             del pixels["amplitude_scale"]
+        for name, neutral in (("noise_scale", 1.0), ("frequency_offsets_m", None)):
+            if pixels[name] == neutral:  # the noise model's noise, no offsets: as before they existed
+                del pixels[name]
         return hashlib.sha256(json.dumps(pixels, sort_keys=True).encode()).hexdigest()
 
     @property
@@ -146,8 +194,8 @@ class CorrectionOptions(BaseModel):
     @classmethod
     def from_cli(cls, gate: str = "geometry", min_bias_mm: float | None = None,
                  footprint_area_m2: float | str | None = None, max_invalid_share: float | None = None,
-                 sensor_profile: dict[str, float | str] | None = None,
-                 amplitude_scale: float | str | None = None) -> CorrectionOptions:
+                 sensor_profile: dict[str, object] | None = None,
+                 amplitude_scale: float | str | None = None, baseline: str | None = None) -> CorrectionOptions:
         """The options of ``mpi-lidar correct`` and of the correction flow, in their units; None keeps a default.
 
         ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000);
@@ -163,6 +211,7 @@ class CorrectionOptions(BaseModel):
                                           "max_invalid_share": max_invalid_share,
                                           "amplitude_scale": _positive_or_auto("amplitude_scale", amplitude_scale,
                                                                                "units per V^2 (e.g. 4000)"),
+                                          "baseline": baseline,
                                           }.items() if v is not None}}
         try:
             return cls(gate=gate, **overrides)
@@ -171,16 +220,25 @@ class CorrectionOptions(BaseModel):
             raise MpiLidarError(f"invalid correction options ({problems})") from None
 
 
+# The physical bounds of the options that also take "auto": (lowest, highest, whether the lowest is allowed).
+_AUTO_BOUNDS = {"footprint_area_m2": (0.0, MAX_FOOTPRINT_AREA_M2, False),
+                "amplitude_scale": (*AMPLITUDE_SCALE_BOUNDS, True)}
+
+
 def _positive_or_auto(name: str, value: float | str | None, unit: str) -> float | str | None:
-    """An option given on a command line or in a flow parameter: "auto", a positive number, or None."""
+    """An option given on a command line or in a flow parameter: "auto", a number within its physical bounds
+    (:data:`_AUTO_BOUNDS`), or None. A boolean is no number."""
     if value is None:
         return None
     if isinstance(value, str) and value.strip().lower() == AUTO:
         return AUTO
     try:
-        number = float(value)
-    except (TypeError, ValueError):
+        number = float("nan") if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError, OverflowError):
         number = float("nan")
-    if not np.isfinite(number) or number <= 0:
-        raise MpiLidarError(f"{name} must be 'auto' or a positive number of {unit}, got {value!r}")
+    low, high, low_allowed = _AUTO_BOUNDS.get(name, (0.0, np.inf, False))
+    if not np.isfinite(number) or number < low or (number == low and not low_allowed) or number > high:
+        bounds = f"{'[' if low_allowed else '('}{low:g}, {high:g}]"
+        raise MpiLidarError(f"{name} must be 'auto' or a number of {unit} in {bounds} (its physical bounds, "
+                            f"docs/reference/configuration.md), got {value!r}")
     return number

@@ -29,15 +29,29 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Final, Literal, TypedDict
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from mpi_lidar.config import describe_validation_error
 from mpi_lidar.correction.footprint import FootprintEstimate
-from mpi_lidar.correction.options import CorrectionOptions
+from mpi_lidar.correction.options import (
+    AMPLITUDE_SCALE_BOUNDS,
+    MAX_AMPLITUDE_V2,
+    MAX_DEPTH_M,
+    MAX_FOOTPRINT_AREA_M2,
+    MAX_SIGMAS,
+    CorrectionOptions,
+)
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.safe_files import read_small_text
 from mpi_lidar.storage.atomic import atomic_path
 
 PROFILE_SCHEMA: Final = "mpi-lidar/sensor@1"
+FREQUENCY_BOUNDS_HZ = (1e3, 1e10)  # AMCW modulation: a kilohertz to ten gigahertz
+MAX_FREQUENCIES = 64
+MAX_OFFSET_M = 1.0  # a frequency's depth offset relative to the highest: millimetres, never a metre
+Frequency = Annotated[float, Field(ge=FREQUENCY_BOUNDS_HZ[0], le=FREQUENCY_BOUNDS_HZ[1], strict=True)]
+Depth = Annotated[float, Field(gt=0, le=MAX_DEPTH_M, strict=True)]
+Offset = Annotated[float, Field(ge=-MAX_OFFSET_M, le=MAX_OFFSET_M, strict=True)]
 _DEFAULTS = CorrectionOptions()
 # A model for a sensor is trained on its working range widened by this share at either end: the scans of
 # tomorrow reach a little nearer and farther than those it was calibrated on.
@@ -52,20 +66,41 @@ class SensorProfile(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     schema_: Literal["mpi-lidar/sensor@1"] = Field(PROFILE_SCHEMA, alias="schema")
-    footprint_area_m2: Annotated[float, Field(gt=0)]
-    saturation_amplitude_v2: Annotated[float, Field(gt=0)] = _DEFAULTS.saturation_amplitude_v2
-    min_amplitude_sigmas: Annotated[float, Field(ge=0)] = _DEFAULTS.min_amplitude_sigmas
-    amplitude_scale: Annotated[float, Field(gt=0)] = 1.0  # V^2
-    frequencies_hz: tuple[Annotated[float, Field(gt=0)], ...] | None = None
-    noise_scale: Annotated[float, Field(gt=0, le=100)] | None = None
-    range_m: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] | None = None
-    frequency_offsets_m: tuple[float, ...] | None = None
+    # Every number within its physical bounds (docs/reference/configuration.md, "Physical bounds"), strictly a
+    # number: TOML's true is no square metre.
+    footprint_area_m2: Annotated[float, Field(gt=0, le=MAX_FOOTPRINT_AREA_M2, strict=True)]
+    saturation_amplitude_v2: Annotated[float, Field(gt=0, le=MAX_AMPLITUDE_V2, strict=True)] = (
+        _DEFAULTS.saturation_amplitude_v2)
+    min_amplitude_sigmas: Annotated[float, Field(ge=0, le=MAX_SIGMAS, strict=True)] = _DEFAULTS.min_amplitude_sigmas
+    amplitude_scale: Annotated[float, Field(ge=AMPLITUDE_SCALE_BOUNDS[0], le=AMPLITUDE_SCALE_BOUNDS[1],
+                                            strict=True)] = 1.0  # V^2
+    frequencies_hz: Annotated[tuple[Frequency, ...], Field(min_length=1, max_length=MAX_FREQUENCIES)] | None = None
+    noise_scale: Annotated[float, Field(gt=0, le=100, strict=True)] | None = None
+    range_m: tuple[Depth, Depth] | None = None
+    frequency_offsets_m: Annotated[tuple[Offset, ...], Field(max_length=MAX_FREQUENCIES)] | None = None
     calibration: dict[str, str | int | float | bool | list[str] | None] | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SensorProfile:
+        if self.range_m is not None and not self.range_m[0] < self.range_m[1]:
+            raise ValueError(f"range_m must be [near, far] with near < far [m], got {list(self.range_m)}")
+        if self.frequencies_hz is not None and len(set(self.frequencies_hz)) != len(self.frequencies_hz):
+            raise ValueError(f"frequencies_hz has duplicates: {list(self.frequencies_hz)}")
+        if (self.frequencies_hz is not None and self.frequency_offsets_m is not None
+                and len(self.frequency_offsets_m) != len(self.frequencies_hz)):
+            raise ValueError(f"frequency_offsets_m has {len(self.frequency_offsets_m)} values for "
+                             f"{len(self.frequencies_hz)} frequencies_hz; give one per frequency")
+        return self
 
     def options(self) -> dict[str, float]:
         """The correction options this profile sets (:meth:`CorrectionOptions.from_cli`)."""
         return {"footprint_area_m2": self.footprint_area_m2, "saturation_amplitude_v2": self.saturation_amplitude_v2,
                 "min_amplitude_sigmas": self.min_amplitude_sigmas, "amplitude_scale": self.amplitude_scale}
+
+    def noise_options(self) -> dict[str, object]:
+        """The correction options of this profile's measured noise (the fused depth's weights and offsets)."""
+        measured = {"noise_scale": self.noise_scale, "frequency_offsets_m": self.frequency_offsets_m}
+        return {key: value for key, value in measured.items() if value is not None}
 
     def simulation(self) -> dict[str, object]:
         """The configuration sections (:meth:`mpi_lidar.config.Config.replace`) that simulate this sensor: its
@@ -99,12 +134,11 @@ class SensorProfile(BaseModel):
 def read_profile(path: str | Path) -> SensorProfile:
     """Read and check a sensor profile; every problem is one line naming the file."""
     path = Path(path)
+    if not path.exists() and not path.is_symlink():
+        raise MpiLidarError(f"sensor profile {path} does not exist; write one with mpi-lidar calibrate")
+    text = read_small_text(path, "sensor profile", kind="TOML")  # a regular file of at most 1 MiB, UTF-8
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise MpiLidarError(f"sensor profile {path} does not exist; write one with mpi-lidar calibrate") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MpiLidarError(f"cannot read sensor profile {path}: {exc}") from None
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MpiLidarError(f"sensor profile {path} is not valid TOML ({exc}); fix or rewrite it") from None
     try:
@@ -117,7 +151,7 @@ def read_profile(path: str | Path) -> SensorProfile:
 class ProfileOptions(TypedDict, total=False):
     """The :meth:`CorrectionOptions.from_cli` arguments a sensor profile sets."""
 
-    sensor_profile: dict[str, float | str]
+    sensor_profile: dict[str, object]
 
 
 def profile_options(path: str | Path | None) -> ProfileOptions:
@@ -125,7 +159,8 @@ def profile_options(path: str | Path | None) -> ProfileOptions:
     if path is None:
         return {}
     profile = read_profile(path)
-    return {"sensor_profile": {**profile.options(), "sensor_profile_sha256": str(profile.record()["sha256"])}}
+    return {"sensor_profile": {**profile.options(), **profile.noise_options(),
+                               "sensor_profile_sha256": str(profile.record()["sha256"])}}
 
 
 def write_profile(profile: SensorProfile, path: str | Path) -> Path:
@@ -148,6 +183,11 @@ def _toml(value: object) -> str:
     """A TOML value: JSON's strings, numbers, booleans and arrays of them are TOML too."""
     if isinstance(value, float):
         return repr(value)
+    if isinstance(value, str):
+        # TOML holds UTF-8 only: a path's byte that is not UTF-8 (a lone surrogate) is written as \xff; characters
+        # past U+FFFF as they are (JSON would escape them as surrogate pairs, which TOML refuses), DEL escaped.
+        text = value.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
     if isinstance(value, tuple | list):
         return "[" + ", ".join(_toml(item) for item in value) + "]"
     return json.dumps(value)

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
-import xgboost as xgb
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationError, model_validator
 
@@ -28,6 +27,7 @@ from mpi_lidar.storage.atomic import atomic_path
 
 if TYPE_CHECKING:
     import dask.array as da
+    import xgboost as xgb  # imported where a booster is loaded: importing XGBoost imports scikit-learn (~1 s)
 
 MODEL_SCHEMA = "mpi-lidar/model@1"
 MODEL_FILE = "model.ubj"
@@ -308,6 +308,8 @@ def load_model(model_dir: str | Path) -> CorrectionModel:
     card = read_card(card_path)
     if card.model_sha256 != file_sha256(model_path):
         raise MpiLidarError(f"{model_path} does not match the hash in its card; the model directory is damaged")
+    import xgboost as xgb
+
     booster = xgb.Booster()
     try:
         booster.load_model(str(model_path))

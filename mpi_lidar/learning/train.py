@@ -8,14 +8,16 @@ return the booster trimmed to its best iteration. The test split is never seen h
 
 from __future__ import annotations
 
+import ctypes
+import logging
 import time
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import xgboost as xgb
 from numpy.typing import NDArray
 
 from mpi_lidar.errors import MpiLidarError
@@ -35,6 +37,7 @@ from mpi_lidar.simulation import dataset
 
 if TYPE_CHECKING:
     import dask.array as da
+    import xgboost as xgb  # imported where a model is trained: importing XGBoost imports scikit-learn (~1 s)
     from distributed import Client
 
 VALIDATION_EVERY = 10
@@ -115,6 +118,8 @@ def train_arrays(
     tenth row is held out to stop on and the booster is trimmed to its best iteration; with None, all rows
     are fitted for ``num_boost_round`` rounds. ``wall_s`` is the fit's wall time, data preparation included.
     """
+    import xgboost as xgb
+
     full = xgb_params(params, nthread=nthread, seed=0)
     started = time.perf_counter()
     if not early_stopping_rounds:
@@ -161,6 +166,7 @@ def train_dask(
     if fit_rows == 0 or val_rows == 0:
         raise MpiLidarError(f"dataset {data_path} has no train rows to fit on; regenerate it with more samples")
     started = time.perf_counter()
+    quiet_native_log(client)
     dtrain = dxgb.DaskQuantileDMatrix(client, x_fit, y_fit)
     dval = dxgb.DaskQuantileDMatrix(client, x_val, y_val, ref=dtrain)
     output = dxgb.train(
@@ -168,6 +174,41 @@ def train_dask(
         evals=[(dval, "validation")], early_stopping_rounds=early_stopping_rounds, verbose_eval=False,
     )
     return _early_stopped(output["booster"], output["history"]["validation"], fit_rows, val_rows, started)
+
+
+_native_log: object | None = None  # the ctypes function, kept alive here: the library calls it for as long as it runs
+
+
+def _log_native(message: bytes) -> None:
+    text = message.decode(errors="replace").strip()
+    if "WARNING" in text:
+        warnings.warn(text, UserWarning, stacklevel=2)
+    else:
+        logging.getLogger("xgboost").info(text)
+
+
+def route_native_log() -> None:
+    """Send the XGBoost library's log lines of this thread to Python: warnings as warnings, the rest to the
+    ``xgboost`` logger (INFO) instead of stderr.
+
+    The library writes its console lines (such as each Dask worker's "Task ... got rank N" when training joins
+    the workers) straight to stderr from every thread that has not registered a log function; ``import
+    xgboost`` registers one only in the thread that imports it.
+    """
+    from xgboost.core import _LIB
+
+    global _native_log
+    if _native_log is None:
+        _native_log = ctypes.CFUNCTYPE(None, ctypes.c_char_p)(_log_native)
+    _LIB.XGBRegisterLogCallback(_native_log)
+
+
+def quiet_native_log(client: Client) -> None:
+    """:func:`route_native_log` in the task thread of every worker of ``client`` (a worker of the command line's
+    clusters has one), before training there."""
+    workers = list(client.scheduler_info()["workers"])
+    client.gather([client.submit(route_native_log, workers=[w], allow_other_workers=False, pure=False)
+                   for w in workers])
 
 
 def training_geometry_lazy(spec: FeatureSpec, lazy: dataset.LazyDataset) -> da.Array | None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -20,8 +21,9 @@ def batch_report(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path |
     Gated out: valid pixels left as measured because the gate found no need (no multipath potential, or
     not needed by a pixel-wise gate), as a share of all pixels. Invalid: pixels flagged not finite, no
     return, saturated or inconsistent, as a share of all pixels. A skipped scan shows the numbers of its
-    existing outputs, and its notes say the status those earned. With ``summary_dir`` (where the summary is
-    written) a last column links each scan's own report.
+    existing outputs, and its notes say the status those earned; a scan without a valid pixel says so in its
+    notes (its errors are left empty). With ``summary_dir`` (where the summary is
+    written) the second column links each scan's own report (in sight on a narrow page).
     """
     rows = []
     for o in outcomes:
@@ -31,13 +33,17 @@ def batch_report(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path |
         invalid = f"{100 * invalid_share(o.counts):.1f} %" if o.counts else ""
         whole, masked = o.metrics.get("whole map", {}), o.metrics.get("masked region", {})
         reason = f"{o.reason} ({o.kept_status})" if o.kept_status else o.reason
-        rows.append(tuple(_cell(c) for c in (
+        if o.counts and invalid_share(o.counts) >= 1.0:
+            reason = "; ".join(n for n in ("no valid pixel", reason) if n)
+        cells = tuple(_cell(c) for c in (
             o.name, o.status, not_needed, invalid, _mm(whole, "raw_mae_m"), _mm(whole, "corrected_mae_m"),
             _mm(masked, "raw_mae_m"), _mm(masked, "corrected_mae_m"), f"{o.seconds:.2f}",
-            "; ".join(n for n in (reason, *o.notes) if n), o.source)) + _report_link(o, summary_dir))
-    headers = ("scan", "status", "gated out", "invalid", "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]",
-               "masked corrected MAE [mm]", "seconds", "notes", "source")
-    table = Table(headers + (("report",) if summary_dir is not None else ()), tuple(rows))
+            "; ".join(n for n in (reason, *o.notes) if n), o.source))
+        rows.append(cells[:1] + _report_link(o, summary_dir) + cells[1:])
+    headers = ("scan", *(("report",) if summary_dir is not None else ()), "status", "gated out", "invalid",
+               "raw MAE [mm]", "corrected MAE [mm]", "masked raw MAE [mm]", "masked corrected MAE [mm]", "seconds",
+               "notes", "source")
+    table = Table(headers, tuple(rows))
     labels = {ScanStatus.SKIPPED: "already done"}
     counted = ", ".join(f"{sum(o.status == status for o in outcomes)} {labels.get(status, status.value)}"
                         for status in ScanStatus)
@@ -66,7 +72,7 @@ def _report_link(outcome: ScanOutcome, summary_dir: Path | None) -> tuple[str, .
 
 def _mm(metrics: dict[str, float], key: str) -> str:
     value = metrics.get(key) if isinstance(metrics, dict) else None
-    return f"{1e3 * value:.3f}" if isinstance(value, int | float) else ""
+    return f"{1e3 * value:.3f}" if isinstance(value, int | float) and math.isfinite(value) else ""
 
 
 def write_batch_report(outcomes: list[ScanOutcome], wall_s: float, out_dir: str | Path) -> Path:

@@ -93,9 +93,12 @@ def applied_correction_mm(scan: Scan, correction: Correction) -> np.ndarray:
 
 
 def metrics_table(metrics: dict[str, dict[str, float]]) -> Table:
-    """The metrics of :func:`scan_metrics` as a table, per region. [mm]"""
+    """The metrics of :func:`scan_metrics` as a table, per region [mm]; a region without a pixel says so."""
     rows = []
     for region, m in metrics.items():
+        if not m["pixels"]:
+            rows.append((region, "0", *["no pixel"] * 6))
+            continue
         rows.append((region, f"{m['pixels']:,}", f"{1e3 * m['raw_mae_m']:.3f}", f"{1e3 * m['corrected_mae_m']:.3f}",
                      f"{1e3 * m['raw_rmse_m']:.3f}", f"{1e3 * m['corrected_rmse_m']:.3f}",
                      f"{1e3 * m['raw_max_abs_m']:.2f}", f"{1e3 * m['corrected_max_abs_m']:.2f}"))

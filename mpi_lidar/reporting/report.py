@@ -8,6 +8,7 @@ or writing a report changes nothing of pyplot's global state (its backend, a use
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -75,7 +76,7 @@ def depth_error_histogram(store: str | Path, png: str | Path, frequency_index: i
     column = frequency_index % len(frequencies_hz)
     features, target = cast("zarr.Array", group["features"]), cast("zarr.Array", group["target"])
     error_mm = 1e3 * np.abs(np.asarray(features[:, column]).astype(np.float64) - np.asarray(target[:]))
-    fig = Figure(figsize=(6.4, 4.0))
+    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
     ax = fig.subplots()
     upper = float(np.quantile(error_mm, 0.995))
     ax.hist(error_mm, bins=120, range=(0, upper), color="#3b6ea5")
@@ -83,7 +84,7 @@ def depth_error_histogram(store: str | Path, png: str | Path, frequency_index: i
     ax.set_xlabel(f"absolute depth error at {frequency / 1e6:g} MHz [mm]")
     ax.set_ylabel("samples")
     ax.set_title(f"Raw depth error, {error_mm.size:,} samples (99.5% shown)")
-    ax.legend()
+    legend_below(fig)
     return save_figure(fig, png)
 
 
@@ -105,9 +106,24 @@ class Table:
         return "\n".join(lines)
 
     def html(self) -> str:
+        """The table in a box of the page's width: text cells wrap, numbers stay on one line (right-aligned)."""
         head = "".join(f"<th>{_inline(h)}</th>" for h in self.headers)
-        body = "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>" for row in self.rows)
-        return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+        body = "".join("<tr>" + "".join(_cell_html(c) for c in row) + "</tr>" for row in self.rows)
+        return f'<div class="table"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
+
+
+# A cell that is one number: signed, with thousands separators, a unit of %, s or x, "a / b" or "a (b)".
+_NUMBER = re.compile(r"[-+]?[\d,.]+(e[-+]?\d+)?( ?(%|s|x))?( / [-+]?[\d,.]+)?( \([-+]?[\d,.]+\))?")
+_LONG_WORD = 16  # characters: a cell with a longer word (a path, a scan name) may break it anywhere
+
+
+def _cell_html(text: str) -> str:
+    """One cell: a number right-aligned on one line, a long word breakable anywhere, other text wrapped."""
+    if _NUMBER.fullmatch(text.strip()):
+        return f'<td class="number">{_inline(text)}</td>'
+    if any(len(word) > _LONG_WORD for word in text.split()):
+        return f'<td class="long">{_inline(text)}</td>'
+    return f"<td>{_inline(text)}</td>"
 
 
 @dataclass(frozen=True)
@@ -203,19 +219,34 @@ def _not_a_report(path: Path) -> bool:
     return not (path / REPORT_MARKER).exists()
 
 
+def legend_below(fig: Figure) -> None:
+    """The legend of a figure's axes below them, under the axis label: never over bars or points, nor over a
+    title. The figure needs the constrained layout, which makes room for it."""
+    handles, labels = fig.axes[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncols=min(len(handles), 3), frameon=False)
+
+
 def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> Figure:
-    """Overlaid histograms of signed errors (e.g. before and after correction), MAE in the legend."""
-    fig = Figure(figsize=(6.4, 4.0))
+    """Overlaid histograms of signed errors (e.g. before and after correction), MAE in the legend below them.
+
+    An estimate without a finite error is named in the legend as such; without any, the axes say so."""
+    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
     ax = fig.subplots()
-    finite = np.concatenate([e[np.isfinite(e)] for e in errors_mm.values()])
-    limit = float(np.quantile(np.abs(finite), 0.995)) if finite.size else 1.0
-    for label, e in errors_mm.items():
-        e = e[np.isfinite(e)]
-        ax.hist(e, bins=120, range=(-limit, limit), histtype="stepfilled", alpha=0.45,
-                label=f"{label}: MAE {np.abs(e).mean():.3f} mm")
+    finite = {label: e[np.isfinite(e)] for label, e in errors_mm.items()}
+    every = np.concatenate(list(finite.values())) if finite else np.zeros(0)
+    limit = max(float(np.quantile(np.abs(every), 0.995)), 1e-3) if every.size else 1.0
+    for label, e in finite.items():
+        if e.size:
+            ax.hist(e, bins=120, range=(-limit, limit), histtype="stepfilled", alpha=0.45,
+                    label=f"{label}: MAE {np.abs(e).mean():.3f} mm")
+        else:
+            ax.plot([], [], label=f"{label}: no finite error")
+    if not every.size:
+        ax.text(0.5, 0.5, "no pixel with a finite error", ha="center", va="center", transform=ax.transAxes)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("samples")
-    ax.legend()
+    legend_below(fig)
     return fig
 
 

@@ -16,9 +16,9 @@ from matplotlib.figure import Figure
 from mpi_lidar.correction import Correction, CorrectionOptions
 from mpi_lidar.correction.corrected_store import write_corrected_store
 from mpi_lidar.reporting.figures import (
-    PLOTLY_JS,
     VIEW_3D_FALLBACK,
     maps_figure,
+    plotly_js_src,
     point_cloud_figure,
     point_cloud_view_3d,
     thumbnail_image,
@@ -42,22 +42,25 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
                        metrics: dict[str, dict[str, float]] | Future[dict[str, dict[str, float]]],
                        identity: dict[str, str], options: CorrectionOptions, outputs: str = "full",
                        cpu_s: dict[str, float] | None = None,
-                       point_clouds: tuple[str, ...] | list[str] | None = None) -> list[str]:
+                       point_clouds: tuple[str, ...] | list[str] | None = None,
+                       bundle_dir: Path | None = None) -> list[str]:
     """One scan's outputs at level ``outputs``, written into a staging directory and swapped in at the end.
 
-    ``data``: ``corrected.zarr`` and ``metrics.json`` (counts, metrics, notes, the outputs written);
-    ``light``: those, ``report.md``/``report.html`` and ``thumbnail.png`` (corrected depth and flags, at most
-    :data:`~mpi_lidar.reporting.figures.THUMBNAIL_PX` pixels wide); ``full``: those but the thumbnail, plus
-    the maps, the error histogram, the point-cloud views, an interactive 3-D view in report.html (with
-    ``plotly.min.js`` beside it) and the point clouds. ``point_clouds``: the formats written at any level
+    ``data``: ``corrected.zarr`` and ``metrics.json`` (counts, metrics, notes, the outputs written); ``light``:
+    those, ``report.md``/``report.html`` and ``thumbnail.png`` (corrected depth and flags, at most
+    :data:`~mpi_lidar.reporting.figures.THUMBNAIL_PX` pixels wide); ``full``: those but the thumbnail, plus the
+    maps, the error histogram, the point-cloud views, an interactive 3-D view in report.html (linking one shared
+    ``plotly.min.js`` in ``bundle_dir``, by default the folder holding ``target``: one per batch) and the point
+    clouds. ``point_clouds``: the formats written at any level
     (:data:`~mpi_lidar.reporting.point_cloud_files.POINT_CLOUD_FILES`: ``ply`` writes ``raw.ply`` and
     ``corrected.ply``, ``las``/``laz`` ``corrected.las``/``.laz``, every file with the named fields of
-    :func:`mpi_lidar.scans.pointcloud.correction_fields`); None: ``ply`` and ``las`` at level full, none
-    below. ``metrics`` are :func:`~mpi_lidar.reporting.metrics.scan_metrics`, or a future of them (the store
-    is written while they are worked out). Returns the notes for the batch summary; ``cpu_s``, if given, gets
-    the CPU seconds of this process spent on ``write`` (store, point clouds, report, and a future's metrics)
-    and ``figures`` (drawing and encoding PNGs, the 3-D view). Nothing of pyplot's global state is touched:
-    the figures are drawn on figures of their own.
+    :func:`mpi_lidar.scans.pointcloud.correction_fields`, and the uncertainty where the correction has one;
+    :func:`~mpi_lidar.reporting.point_cloud_files.write_point_clouds` says what each holds); None: ``ply`` and
+    ``las`` at level full, none below. ``metrics`` are :func:`~mpi_lidar.reporting.metrics.scan_metrics`, or a
+    future of them (the store is written while they are worked out). Returns the notes for the batch summary;
+    ``cpu_s``, if given, gets the CPU seconds of this process spent on ``write`` (store, point clouds, report, and a
+    future's metrics) and ``figures`` (drawing and encoding PNGs, the 3-D view). Nothing of pyplot's global state is
+    touched: the figures are drawn on figures of their own.
     """
     level = check_outputs(outputs)
     formats = point_cloud_formats(outputs, point_clouds)
@@ -91,25 +94,21 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
                          "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
         rays = scan.rays() if level == OutputLevel.FULL or formats else None
         if rays is not None:
-            from mpi_lidar.scans.pointcloud import correction_fields
-
+            measured = measured_depth(scan, correction)
             with _cpu(cpu_s, "write"):
-                raw_points = geometry.point_cloud(
-                    np.where(np.isfinite(correction.depth), measured_depth(scan, correction), np.nan), rays)
-                corrected_points = geometry.point_cloud(correction.depth, rays)
-                del rays
-                fields = correction_fields(measured_depth(scan, correction), correction.depth, correction.flags,
-                                           scan.amplitude[-1])
-                files += write_point_clouds(staging, formats, raw_points, corrected_points, fields)
+                files += write_point_clouds(staging, formats, rays, measured, correction.depth, correction.flags,
+                                            scan.amplitude[-1], getattr(correction, "uncertainty_m", None))
             if level == OutputLevel.FULL:
                 with _cpu(cpu_s, "figures"):
+                    raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), measured, np.nan), rays)
+                    corrected_points = geometry.point_cloud(correction.depth, rays)
                     figures["point_cloud.png"] = point_cloud_figure(raw_points, corrected_points)
+                    bundle = write_plotly_js(target.parent if bundle_dir is None else bundle_dir)
                     embeds.append(Embed(point_cloud_view_3d(raw_points, corrected_points,
-                                                            fields["correction_mm"]),
-                                        fallback=VIEW_3D_FALLBACK, scripts=(PLOTLY_JS,)))
-                    write_plotly_js(staging)
-                    files.append(PLOTLY_JS)
-            del raw_points, corrected_points, fields
+                                                            1e3 * (correction.depth - measured)),
+                                        fallback=VIEW_3D_FALLBACK, scripts=(plotly_js_src(bundle, target),)))
+                    del raw_points, corrected_points
+            del rays
         elif level == OutputLevel.FULL:
             notes.append("no scan geometry: point clouds and views skipped")
         elif formats:

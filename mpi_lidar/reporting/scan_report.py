@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mpi_lidar.correction import Correction
+from mpi_lidar.correction import INVALID_FLAGS, Correction
 from mpi_lidar.correction.corrected_store import footprint_record
 from mpi_lidar.reporting.metrics import metrics_table
 from mpi_lidar.reporting.output_levels import OutputLevel
@@ -31,19 +31,23 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
     blocks: list[Block] = [f"Scan `{scan.name}`, {scan.shape[0]} x {scan.shape[1]} pixels at "
                            + ", ".join(f"{f / 1e6:g}" for f in scan.frequencies_hz) + " MHz. "
                            f"Correction {correction.total_s:.2f} s (gate {correction.gate_s:.2f} s, inference "
-                           f"{correction.inference_s:.2f} s).", flags]
+                           f"{correction.inference_s:.2f} s).", *_in_words(counts), flags]
     if correction.unserved is not None:
         blocks.insert(1, f"Unserved ({correction.unserved.reason}): {correction.unserved.message}.")
-    if metrics:
+    valid = _valid_pixels(counts)
+    if valid and any(m.get("pixels") for m in metrics.values()):
         blocks.append(metrics_table(metrics))
+    elif valid and metrics:
+        blocks.append("No valid pixel has a reference depth: no errors to show.")
     files = sorted(files if files is not None else ["corrected.zarr", *figures, "metrics.json", "report.html",
                                                     "report.md"])
     more = _MORE[OutputLevel(outputs)]
     blocks += [*notes, f"Outputs (level {outputs}): {', '.join(files)}.{more}"]
-    for name in figures:
+    # Without a valid pixel every map, histogram and view would be empty: the words above say why instead.
+    for name in figures if valid else []:
         blocks += [captions[name]] if captions and name in captions else []
         blocks.append(Path(name))
-    blocks += embeds or []
+    blocks += (embeds or []) if valid else []
     return Report(title=f"Correction of {scan.name}", blocks=blocks,
                   data={"scan": scan.name, "counts": counts, "metrics": metrics, "notes": notes,
                         "outputs": {"level": str(outputs), "files": files},
@@ -51,3 +55,25 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                                     "inference": correction.inference_s},
                         **({} if correction.calibration is None else {"footprint": footprint_record(correction)}),
                         **({} if correction.unserved is None else {"unserved": correction.unserved.to_dict()})})
+
+
+def _valid_pixels(counts: dict[str, int]) -> int:
+    return sum(counts.values()) - sum(counts.get(flag.name.lower(), 0) for flag in INVALID_FLAGS)
+
+
+def _named(counts: dict[str, int], flags: tuple[str, ...]) -> str:
+    return ", ".join(f"{name.replace('_', ' ')} {counts[name]:,}" for name in flags if counts.get(name))
+
+
+def _in_words(counts: dict[str, int]) -> list[str]:
+    """A scan without a valid pixel, or without a corrected one, says so (instead of empty maps and NaN)."""
+    invalid = tuple(flag.name.lower() for flag in INVALID_FLAGS)
+    if not _valid_pixels(counts):
+        return [f"**No valid pixel**: every pixel was flagged invalid ({_named(counts, invalid)}), so nothing was "
+                "corrected and there are no maps, errors or point clouds to show. Check the scan's amplitudes "
+                "(their unit and saturation) and depths."]
+    if not counts.get("corrected"):
+        left = tuple(name for name in counts if name not in invalid and name != "corrected")
+        return [f"**No pixel was corrected**: the model corrected none of the {_valid_pixels(counts):,} valid "
+                f"pixels ({_named(counts, left)})."]
+    return []

@@ -8,7 +8,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from mpi_lidar.learning.baselines import PAPER_RAW_MAE_MM, PAPER_TABLE2, Table2
-from mpi_lidar.reporting.report import Report, Table
+from mpi_lidar.reporting.report import Report, Table, legend_below
 
 
 def table2_table(result: Table2) -> Table:
@@ -39,7 +39,7 @@ def table2_report(result: Table2) -> tuple[Report, dict[str, Figure]]:
 
 def table2_figure(result: Table2) -> Figure:
     """Test MAE of every method, ours against the paper's."""
-    fig = Figure(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4.4), layout="constrained")
     ax = fig.subplots()
     names = [row.name for row in result.rows]
     ax.bar(np.arange(len(names)) - 0.2, [1e3 * row.mae_test for row in result.rows], 0.4, label="ours")
@@ -47,6 +47,5 @@ def table2_figure(result: Table2) -> Figure:
     ax.bar(np.arange(len(names)) + 0.2, paper, 0.4, label="paper")
     ax.set_xticks(np.arange(len(names)), names, rotation=30, ha="right")
     ax.set_ylabel("test MAE [mm]")
-    ax.legend()
-    fig.tight_layout()
+    legend_below(fig)
     return fig

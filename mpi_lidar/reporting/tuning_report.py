@@ -9,7 +9,7 @@ import optuna
 from matplotlib.figure import Figure
 from optuna.trial import TrialState
 
-from mpi_lidar.reporting.report import Report, Table
+from mpi_lidar.reporting.report import Report, Table, legend_below
 
 
 def history_figure(study: optuna.Study) -> Figure:
@@ -17,7 +17,7 @@ def history_figure(study: optuna.Study) -> Figure:
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     numbers = np.array([t.number for t in complete])
     values = 1e3 * np.array([t.value for t in complete])
-    fig = Figure(figsize=(6.4, 4.0))
+    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
     ax = fig.subplots()
     ax.scatter(numbers, values, s=14, label="trial")
     if values.size:
@@ -25,7 +25,7 @@ def history_figure(study: optuna.Study) -> Figure:
     ax.set_xlabel("trial")
     ax.set_ylabel("validation MAE [mm]")
     ax.set_title(f"Optimisation history of {study.study_name}")
-    ax.legend()
+    legend_below(fig)
     return fig
 
 
@@ -34,13 +34,12 @@ def importance_figure(study: optuna.Study) -> Figure | None:
     if len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))) < 2:
         return None
     importances = optuna.importance.get_param_importances(study)
-    fig = Figure(figsize=(6.4, 4.0))
+    fig = Figure(figsize=(6.4, 4.0), layout="constrained")
     ax = fig.subplots()
     names = list(importances)[::-1]
     ax.barh(names, [importances[n] for n in names], color="#3b6ea5")
     ax.set_xlabel("importance (fANOVA)")
     ax.set_title("Hyperparameter importance")
-    fig.tight_layout()
     return fig
 
 

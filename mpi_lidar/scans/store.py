@@ -6,7 +6,8 @@ Store (``*.scan.zarr``, Zarr v3, schema ``mpi-lidar/scan@1``): ``depth`` and ``a
 demodulated; optional geometry: ``azimuth_rad`` (W,) and ``elevation_rad`` (H,) of the scan grid, or
 ``ray_directions`` (H, W, 3) unit vectors; optional ``reference_depth`` (H, W) [m] and ``reference_mask``
 (H, W) bool for evaluation. Root attributes: ``schema``, ``frequencies_hz``, ``name``, free ``scene``
-metadata and the chunk fingerprints ``chunk_sha256``. Every array is declared in
+metadata and the chunk fingerprints ``chunk_sha256`` (required: a scan without them, or without some array's,
+is damaged; see :mod:`mpi_lidar.storage.integrity`). Every array is declared in
 :mod:`mpi_lidar.storage.variables` (``docs/reference/stores.md``).
 
 For xarray (``xr.open_zarr``) the store also holds the coordinate ``frequency_hz`` (F,) [Hz] of the frequency
@@ -32,7 +33,15 @@ from mpi_lidar.errors import StoreError
 from mpi_lidar.scans.scan import OPTIONAL_ARRAYS, Scan, ScanError, from_taps, scan_extras, validate
 from mpi_lidar.scans.stored_map import StoredMap
 from mpi_lidar.storage.atomic import atomic_path
-from mpi_lidar.storage.integrity import fingerprint_hex, verified_chunks, verify_array
+from mpi_lidar.storage.integrity import (
+    IntegrityError,
+    check_chunk_files,
+    check_store_files,
+    fingerprint_hex,
+    recorded_fingerprints,
+    verified_chunks,
+    verify_array,
+)
 from mpi_lidar.storage.variables import SCAN, Store, attributes
 from mpi_lidar.threads import on_cores
 
@@ -55,6 +64,11 @@ COORDINATE_ARRAYS = tuple(v.name for v in SCAN.values() if v.coordinate)
 ARRAY_METADATA: dict[str, tuple[str, str]] = {**attributes(Store.SCAN), **attributes(Store.CORRECTED)}
 # The maps a large scan keeps in its store, and the axis of their rows.
 _MAP_ROW_AXES = {"depth": 1, "amplitude": 1, "ray_directions": 0}
+
+
+class DamagedScanError(ScanError, IntegrityError):
+    """A scan store whose files, fingerprints or arrays are not those written: both a scan that cannot be read
+    and an integrity failure."""
 
 
 def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
@@ -145,6 +159,11 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
     path = Path(path)
     if not path.exists():
         raise ScanError(f"scan {path} does not exist")
+    # Links, FIFOs and devices inside the store, and oversized metadata, are refused before zarr opens a file.
+    try:
+        files = check_store_files(path) if path.is_dir() else {}
+    except IntegrityError as exc:
+        raise DamagedScanError(str(exc)) from None
     try:
         # Each array's own metadata, not the consolidated copy: that is what the chunks were written with.
         group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
@@ -158,20 +177,25 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
     try:
         _check_declared_sizes(path, arrays)
         frequencies = tuple(float(f) for f in attrs["frequencies_hz"])
-        fingerprints = attrs.get("chunk_sha256")  # absent in scans written before fingerprints existed
-        fingerprints = fingerprints if isinstance(fingerprints, dict) else {}
+        try:
+            check_chunk_files(path, files, arrays)
+            # Every array's, as every scan of this schema records them: a scan without them is damaged, not old.
+            fingerprints = recorded_fingerprints(path, attrs.get("chunk_sha256"), arrays)
+        except IntegrityError as exc:
+            raise DamagedScanError(str(exc)) from None
 
         in_store = {"depth", "amplitude"} <= members and stored_above_bytes < 4 * sum(
             np.prod(arrays[name].shape, dtype=np.float64) for name in _MAP_ROW_AXES if name in members)
 
         def read(name: str) -> NDArray:
             if in_store and name in _MAP_ROW_AXES:
-                for _ in verified_chunks(arrays[name], fingerprints.get(name), str(path), name):
+                for _ in verified_chunks(arrays[name], fingerprints[name], str(path), name):
                     pass
                 # The maps come as float32 (as validate makes them), ray directions as stored.
                 return _standing_in(StoredMap(arrays[name], _MAP_ROW_AXES[name],
-                                              None if name == "ray_directions" else np.float32))
-            return verify_array(arrays[name], fingerprints.get(name), str(path), name)
+                                              None if name == "ray_directions" else np.float32,
+                                              fingerprints[name], str(path), name))
+            return verify_array(arrays[name], fingerprints[name], str(path), name)
 
         optional = {name: read(name) for name in OPTIONAL_ARRAYS if name in members}
         coordinates = {name: read(name) for name in COORDINATE_ARRAYS if name in members}

@@ -28,7 +28,15 @@ from numpy.typing import NDArray
 from zarr.codecs import BloscCodec
 
 from mpi_lidar import __version__
-from mpi_lidar.config import Config, config_from_json, config_json, config_sha256
+from mpi_lidar.config import (
+    MAX_CHUNK_ROWS,
+    MAX_CHUNKS,
+    MAX_SAMPLES,
+    Config,
+    config_from_json,
+    config_json,
+    config_sha256,
+)
 from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import SensorModel, make_sensor
 from mpi_lidar.physics.demod import unambiguous_range
@@ -36,7 +44,14 @@ from mpi_lidar.physics.noise import unwrapped_rows
 from mpi_lidar.scans.store import consolidate
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.storage.atomic import atomic_path
-from mpi_lidar.storage.integrity import FINGERPRINT_BYTES, check_fingerprint, fingerprint, read_chunk
+from mpi_lidar.storage.integrity import (
+    FINGERPRINT_BYTES,
+    check_chunk_files,
+    check_fingerprint,
+    check_store_files,
+    fingerprint,
+    read_chunk,
+)
 from mpi_lidar.storage.variables import DATASET
 
 if TYPE_CHECKING:
@@ -242,6 +257,8 @@ def open_store(path: str | Path, mode: Literal["r", "r+"] = "r") -> zarr.Group:
     path = Path(path)
     if not path.exists():
         raise StoreError(f"dataset store {path} does not exist; create it with 'mpi-lidar simulate --out {path}'")
+    # Links, FIFOs and devices inside the store, and oversized metadata, are refused before zarr opens a file.
+    files = check_store_files(path) if path.is_dir() else {}
     try:
         group = zarr.open_group(store=str(path), mode=mode, use_consolidated=False)
         attrs = dict(group.attrs)
@@ -251,25 +268,33 @@ def open_store(path: str | Path, mode: Literal["r", "r+"] = "r") -> zarr.Group:
         raise StoreError(f"{path} is not an mpi-lidar dataset (schema {attrs.get('schema')!r}, "
                          f"expected {SCHEMA!r})")
     _check_layout(path, group, attrs)
+    check_chunk_files(path, files, {name: _array(group, name) for name in ARRAYS})
     return group
 
 
 def _check_layout(path: Path, group: zarr.Group, attrs: Mapping[str, Any]) -> None:
+    """Every array (the fingerprints ``chunk_sha256`` included: every dataset of this schema has them) of the
+    shape, dtype and row chunks the attributes give, which are within the configuration's bounds; checked from
+    the metadata alone, before anything is read or allocated."""
     try:
-        n, width = int(attrs["samples"]), 2 * len(attrs["frequencies_hz"])
-        chunks = -(-n // int(attrs["chunk_rows"]))
+        n, width, chunk_rows = int(attrs["samples"]), 2 * len(attrs["frequencies_hz"]), int(attrs["chunk_rows"])
+        if not (1 <= n <= MAX_SAMPLES and 1 <= chunk_rows <= MAX_CHUNK_ROWS and -(-n // chunk_rows) <= MAX_CHUNKS):
+            raise StoreError(f"dataset {path} declares {n:,} samples in chunks of {chunk_rows:,} rows, beyond what "
+                             "a dataset may hold; the store is damaged: regenerate it")
+        chunks = -(-n // chunk_rows)
         expected = {
-            "features": ((n, width), np.float32), "target": ((n,), np.float64),
-            "theta": ((n, len(THETA_NAMES)), np.float64), "split": ((n,), np.uint8),
-            "chunk_done": ((chunks,), np.uint8),
+            "features": ((n, width), np.float32, chunk_rows), "target": ((n,), np.float64, chunk_rows),
+            "theta": ((n, len(THETA_NAMES)), np.float64, chunk_rows), "split": ((n,), np.uint8, chunk_rows),
+            "chunk_done": ((chunks,), np.uint8, 1),
+            "chunk_sha256": ((chunks, len(DATA_ARRAYS), FINGERPRINT_BYTES), np.uint8, 1),
         }
-        if "chunk_sha256" in group:
-            expected["chunk_sha256"] = ((chunks, len(DATA_ARRAYS), FINGERPRINT_BYTES), np.uint8)
-        for name, (shape, dtype) in expected.items():
+        for name, (shape, dtype, rows) in expected.items():
             array = _array(group, name)
-            if array.shape != shape or array.dtype != dtype:
-                raise StoreError(f"dataset {path}: array {name!r} is {array.dtype}{array.shape}, "
-                                 f"expected {np.dtype(dtype)}{shape}; the store is damaged: regenerate it")
+            if array.shape != shape or array.dtype != dtype or array.shards or tuple(array.chunks) != (
+                    min(rows, shape[0]), *shape[1:]):
+                raise StoreError(f"dataset {path}: array {name!r} is {array.dtype}{array.shape} in chunks of "
+                                 f"{array.chunks}, expected {np.dtype(dtype)}{shape} in chunks of "
+                                 f"{(min(rows, shape[0]), *shape[1:])}; the store is damaged: regenerate it")
     except KeyError as exc:
         raise StoreError(f"dataset {path} lacks {exc}; the store is truncated: regenerate it") from None
     except (TypeError, ValueError) as exc:
@@ -324,11 +349,9 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
     _array(group, "target")[rows] = chunk.target
     _array(group, "theta")[rows] = chunk.theta
     _array(group, "split")[rows] = chunk.split
-    if "chunk_sha256" in group:  # stores written before fingerprints existed have none
-        _array(group, "chunk_sha256")[index] = np.stack([
-            np.frombuffer(fingerprint(np.asarray(getattr(chunk, name), dtype=_array(group, name).dtype)),
-                          dtype=np.uint8)
-            for name in DATA_ARRAYS])
+    _array(group, "chunk_sha256")[index] = np.stack([
+        np.frombuffer(fingerprint(np.asarray(getattr(chunk, name), dtype=_array(group, name).dtype)), dtype=np.uint8)
+        for name in DATA_ARRAYS])
     _array(group, "chunk_done")[index] = 1
     return True
 
@@ -411,9 +434,10 @@ def read_lazy(path: str | Path) -> LazyDataset:
     return LazyDataset(info=info, **arrays)
 
 
-def chunk_fingerprints(group: zarr.Group) -> NDArray[np.uint8] | None:
-    """The fingerprints (chunks, arrays, 32) recorded by :func:`write_chunk`; None for older stores."""
-    return _read_whole(group, "chunk_sha256") if "chunk_sha256" in group else None
+def chunk_fingerprints(group: zarr.Group) -> NDArray[np.uint8]:
+    """The fingerprints (chunks, arrays, 32) recorded by :func:`write_chunk` (every dataset has them:
+    :func:`open_store` refuses one without)."""
+    return _read_whole(group, "chunk_sha256")
 
 
 def _verified_lazy(path: str | Path, array: zarr.Array, k: int, fingerprints: NDArray | None) -> da.Array:
@@ -459,9 +483,12 @@ def read_verified(path: str | Path, names: tuple[str, ...] = DATA_ARRAYS,
     group = open_store(path)
     fingerprints = chunk_fingerprints(group)
     done = completed_chunks(group)
+    if not done.all():  # an unfinished chunk has no fingerprint: its rows would be read as fill values
+        raise StoreError(f"dataset {path} is incomplete ({int(done.sum())} of {done.size} chunks); finish it with "
+                         f"'mpi-lidar simulate --out {path}' and the same configuration")
     parts: dict[str, list[NDArray]] = {name: [] for name in names}
     for index in range(done.size):
-        chunk = read_verified_chunk(path, group, index, fingerprints if done[index] else None, names)
+        chunk = read_verified_chunk(path, group, index, fingerprints, names)
         if on_chunk is not None:
             chunk = on_chunk(chunk)
         for name in names:

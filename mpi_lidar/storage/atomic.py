@@ -12,6 +12,9 @@ Crash-safety contract of :func:`atomic_path` (the one way this project writes an
 - An exception, a crash or a kill leaves the target as it was; the staging (and a retired) path left by a
   killed process is recognised by :data:`STAGING_NAME` and removed by :func:`remove_interrupted_staging`.
 - Nothing is overwritten unless ``replace`` is set; then ``keep`` may refuse a target that is not ours.
+- A directory whose staging holds an empty output marker (``.mpi-lidar-report``) gets the manifest of its files
+  written into that marker before it is published (:mod:`mpi_lidar.storage.manifest`), so the manifest
+  appears together with the files it lists.
 - ``OSError`` (no space, no permission) becomes one :class:`~mpi_lidar.errors.MpiLidarError` line naming
   the target.
 
@@ -30,6 +33,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.storage.manifest import unsealed, write_manifest
 
 STAGING_NAME = re.compile(r"^\..+\.(writing|old)-[0-9a-f]{8}$")
 
@@ -69,6 +73,8 @@ def atomic_path(target: str | Path, *, replace: bool = False, what: str = "outpu
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         yield staging
+        if staging.is_dir() and not staging.is_symlink() and unsealed(staging):
+            write_manifest(staging)  # the outputs' manifest, published with them
         _publish(staging, target)
     except MpiLidarError:  # already one line (a StoreError is also an OSError): not a failed write
         raise

@@ -122,6 +122,12 @@ VARIABLES: tuple[Variable, ...] = (
     Variable("unwrap_confidence", Store.CORRECTED, ("y", "x"), "f", "float32", "1",
              "posterior probability of the chosen wrap counts",
              note="Written for scans whose depths came wrapped; 0 where a measurement is not finite."),
+    Variable("estimate", Store.CORRECTED, ("y", "x"), "u", "uint8", "1", "which estimate the corrected depth is",
+             note="CF flag_values and flag_meanings name the codes: none, measured, fused, corrected."),
+    Variable("depth_uncertainty", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
+             "1-sigma uncertainty of the corrected depth",
+             note="From the noise model (measured and fused depths) and the footprint's uncertainty (corrected "
+                  "depths); NaN where the depth or the range is not known."),
     Variable("multipath_bias_m", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
              "expected multipath bias (geometry gate)", note="Written by the geometry gate only."),
     Variable("azimuth_rad", Store.CORRECTED, ("x",), "f", "as given", "rad", "azimuth of the pixel column",
@@ -144,7 +150,8 @@ VARIABLES: tuple[Variable, ...] = (
     Variable("chunk_done", Store.DATASET, ("chunk",), "u", "uint8", "1", "chunk completion mark", required=True,
              note="1 once the chunk's rows and fingerprints are written."),
     Variable("chunk_sha256", Store.DATASET, ("chunk", "array", "byte"), "u", "uint8", "1",
-             "SHA-256 of each data array's rows of the chunk", note="Absent in stores written before fingerprints."),
+             "SHA-256 of each data array's rows of the chunk", required=True,
+             note="Written with the chunk's completion mark; a dataset without it is damaged."),
 )
 
 

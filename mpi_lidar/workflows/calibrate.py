@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -119,11 +120,19 @@ def calibrate_scans(inputs: list[str], out: str | Path, options: CorrectionOptio
                                    "frequencies_hz": next(iter(frequencies)) if frequencies else None}
     measured.update(pool_scales([r.scale for r in results if r.scale is not None]))
     depths = np.concatenate([r.depths_m for r in results]) if results else np.zeros(0)
-    if depths.size:
-        measured["range_m"] = (float(np.quantile(depths, 0.01)), float(np.quantile(depths, 0.99)))
-    profile = SensorProfile.from_estimate(pooled, sources, **measured)
+    near, far = (float(np.quantile(depths, 0.01)), float(np.quantile(depths, 0.99))) if depths.size else (0, 0)
+    if 0 < near < far:  # a working range only where the depths span one
+        measured["range_m"] = (near, far)
+    profile = SensorProfile.from_estimate(pooled, [printable_path(source) for source in sources], **measured)
     write_profile(profile, out)
     return profile, results
+
+
+def printable_path(path: str | Path) -> str:
+    """A path as text that any UTF-8 file holds: a byte of a file name that is not UTF-8 (which Python keeps as a
+    lone surrogate, ``\\udcff``) becomes ``\\xff``. The profile's ``calibration.sources`` record where its
+    scans were, for people; TOML cannot hold a lone surrogate, and the profile must read back."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")
 
 
 def pool_scales(scales: list[SensorScale]) -> dict[str, object]:

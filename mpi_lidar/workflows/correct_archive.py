@@ -14,7 +14,12 @@ scan in every report). Each scan's directory is built under a staging name and r
 (:mod:`mpi_lidar.storage.atomic`), so a scan's outputs are all there or not at all.
 
 A scan already corrected by the same model with the same options (same content hashes) is skipped, and its
-counts, metrics and notes are read back from its ``metrics.json``. A written scan is ``corrected``,
+counts, metrics and notes are read back from its ``metrics.json``, but only if every file its outputs' manifest
+lists (``corrected.zarr``'s metadata and chunks, ``metrics.json``, the report, images and point clouds) is
+still the file written there (:mod:`mpi_lidar.storage.manifest`); outputs with a file missing, edited or
+replaced are corrected again, with a note saying why. A batch holds its output directory for as long as it
+runs (:func:`output_lock`): a second batch into the same ``out_dir`` at the same time is refused with one
+line naming the run that holds it. A written scan is ``corrected``,
 ``unchanged`` (no pixel corrected) or ``degraded`` (more invalid pixels than ``max_invalid_share``), see
 :func:`mpi_lidar.correction.outcome.scan_status`. The loop runs on an executor
 (:mod:`mpi_lidar.workflows.executor`): in this process, as one Dask task per scan, or as one Prefect task per
@@ -24,13 +29,17 @@ scan in the flow; the command line, the pipeline and the Prefect flow all call :
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import glob
 import json
 import os
 import re
+import socket
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, TypedDict
@@ -48,6 +57,7 @@ from mpi_lidar.reporting.point_cloud_files import point_cloud_files, point_cloud
 from mpi_lidar.reporting.scan_outputs import write_scan_outputs
 from mpi_lidar.scans.store import SCAN_SUFFIX, STORED_MAPS_ABOVE_BYTES, read_scan
 from mpi_lidar.storage.atomic import remove_interrupted_staging
+from mpi_lidar.storage.manifest import unsealed, verify_manifest, write_manifest
 from mpi_lidar.workflows.executor import Executor, as_executor
 
 if TYPE_CHECKING:
@@ -57,6 +67,7 @@ SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")  # fullmatch: "$" wo
 SUMMARY_NAME = "summary"  # <out>/summary/: the batch summary (mpi_lidar.reporting.batch_report)
 RESERVED_SUFFIX = ".scan"  # a scan whose output would be <out>/summary/ goes to <out>/summary.scan/ instead
 MAX_REASON_CHARS = 500
+LOCK_FILE = ".mpi-lidar-correct.lock"  # <out>/: held by the batch writing there (output_lock)
 
 
 def safe_scan_name(name: str, what: str = "scan name", fix: str = "rename the scan") -> str:
@@ -132,6 +143,15 @@ def _already_done(target: Path, scan_sha: str, model_sha: str, options_sha: str,
     written = attrs.get("outputs")  # absent in outputs written before output levels existed
     return (attrs.get("scan_sha256"), attrs.get("model_sha256"), attrs.get("options_sha256")) == (
         scan_sha, model_sha, options_sha) and covers(written if isinstance(written, str) else None, outputs)
+
+
+def _outputs_damage(target: Path) -> str | None:
+    """None where every file the manifest of ``target`` lists is the file written there; else why not."""
+    try:
+        verify_manifest(target)
+    except OSError as exc:  # IntegrityError (a StoreError), or a file that vanished while it was read
+        return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return None
 
 
 class _Existing(TypedDict):
@@ -250,9 +270,12 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
     model_sha, options_sha = model.card.model_sha256, options.sha256()
+    damage = None
     if (target / "corrected.zarr").exists() or not scan.in_memory():
         scan_sha = scan.content_sha256()
-        done = _already_done(target, scan_sha, model_sha, options_sha, outputs) and all(
+        # What is skipped is verified first: every file the outputs' manifest lists, as written.
+        damage = _outputs_damage(target) if (target / "corrected.zarr").exists() else None
+        done = damage is None and _already_done(target, scan_sha, model_sha, options_sha, outputs) and all(
             (target / name).is_file() for name in point_cloud_files(scan, outputs, point_clouds))
         existing = _existing_results(target) if done else None
         if existing is not None:
@@ -279,6 +302,10 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
         notes = write_scan_outputs(target, scan, correction, metrics if measuring is None else measuring, identity,
                                    options, outputs, point_clouds=point_clouds)
         metrics = metrics if measuring is None else measuring.result()
+    if unsealed(target):  # atomic_path wrote the manifest with the outputs; a marker left empty gets it now
+        write_manifest(target)
+    if damage is not None:
+        notes = [*notes, f"existing outputs were damaged, corrected again ({damage})"]
     counts = correction.counts()
     reason = None if correction.unserved is None else correction.unserved.reason
     return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share, reason),
@@ -363,17 +390,105 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
-    for folder in sorted({PurePosixPath(output).parent for output in directories.values()}):
-        if ".." not in folder.parts:
-            remove_interrupted_staging(out_dir.joinpath(*folder.parts))
-    calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options,
-              "output": directories[source], "outputs": level, "point_clouds": point_clouds} for source in sources]
-    outcomes: list[ScanOutcome] = []
-    for _call, outcome in as_executor(executor if executor is not None else client).map(process_scan, calls):
-        outcomes.append(outcome)
-        if on_scan:
-            on_scan(outcome)
+    with output_lock(out_dir):  # a second batch into out_dir is refused while this one runs
+        for folder in sorted({PurePosixPath(output).parent for output in directories.values()}):
+            if ".." not in folder.parts:
+                remove_interrupted_staging(out_dir.joinpath(*folder.parts))
+        calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options,
+                  "output": directories[source], "outputs": level, "point_clouds": point_clouds}
+                 for source in sources]
+        outcomes: list[ScanOutcome] = []
+        for _call, outcome in as_executor(executor if executor is not None else client).map(process_scan, calls):
+            outcomes.append(outcome)
+            if on_scan:
+                on_scan(outcome)
     return sorted(outcomes, key=lambda o: o.source)
+
+
+# --- one batch per output directory -----------------------------------------------------------------------
+
+_held: dict[tuple[str, int], int] = {}  # (real path, thread) -> depth of nesting, of the holds of this process
+_held_lock = threading.Lock()
+
+
+@contextmanager
+def output_lock(out_dir: str | Path) -> Iterator[None]:
+    """Hold ``out_dir`` for one batch: a second batch (another process) into it is refused with one line.
+
+    The lock is an exclusive ``flock`` on ``<out_dir>/.mpi-lidar-correct.lock``, which names the holder (process,
+    host, start); the kernel releases it when the holder ends, even killed, so a lock is never stale.
+    The file is removed when the batch ends (a run that was killed leaves it, and the next run takes it over).
+    Nested holds in one thread (a command around :func:`correct_archive` and its batch summary) are one hold;
+    a batch in another thread of the same process is refused like one in another process.
+    Works where the file system supports ``flock`` across its clients (local disks; NFSv4 on Linux).
+    """
+    key = (os.path.realpath(out_dir), threading.get_ident())
+    with _held_lock:
+        if key in _held:
+            _held[key] += 1
+            nested = True
+        else:
+            nested = False
+    if nested:
+        try:
+            yield
+        finally:
+            with _held_lock:
+                _held[key] -= 1
+        return
+    path = Path(out_dir) / LOCK_FILE
+    descriptor = _take_lock(path, Path(out_dir))
+    with _held_lock:
+        _held[key] = 1
+    try:
+        yield
+    finally:
+        with _held_lock:
+            del _held[key]
+        try:
+            path.unlink(missing_ok=True)  # while still held: a run waiting on this file retries on a fresh one
+        finally:
+            os.close(descriptor)  # releases the flock
+
+
+def _take_lock(path: Path, out_dir: Path) -> int:
+    """The descriptor of ``path``, exclusively locked and naming this process; refused if another holds it."""
+    for _ in range(100):  # the file may be replaced between open and lock (its holder removed it): open again
+        try:
+            descriptor = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        except OSError as exc:
+            raise MpiLidarError(f"cannot lock output directory {out_dir} ({path.name}: {exc.strerror or exc}); "
+                                "check its permissions or choose another --out") from None
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = _holder(descriptor)
+            os.close(descriptor)
+            raise MpiLidarError(f"output directory {out_dir} is being written by another correct run ({holder}); "
+                                "wait for it to finish or choose another --out") from None
+        try:
+            same = os.fstat(descriptor).st_ino == os.stat(path, follow_symlinks=False).st_ino
+        except OSError:
+            same = False
+        if same:
+            # Who and since when; never its command line, which may carry a secret (a scheduler's password).
+            started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
+            os.ftruncate(descriptor, 0)
+            os.pwrite(descriptor, f"pid {os.getpid()} on {socket.gethostname()}, started {started}\n"
+                      .encode(errors="replace"), 0)
+            return descriptor
+        os.close(descriptor)
+    raise MpiLidarError(f"cannot lock output directory {out_dir}: its lock file keeps changing; choose another --out")
+
+
+def _holder(descriptor: int) -> str:
+    """Who holds a lock, as its file says (one line, printable), or that it does not say."""
+    try:
+        text = os.pread(descriptor, 400, 0).decode(errors="replace").splitlines()
+    except OSError:
+        text = []
+    line = "".join(ch for ch in (text[0] if text else "") if ch.isprintable()).strip()
+    return line or "a process that has not yet named itself"
 
 
 # --- which outcomes fail a batch --------------------------------------------------------------------------

@@ -7,13 +7,18 @@ Layout of ``out_dir``: ``dataset.zarr``, ``optuna.db`` (the study), ``model/``, 
 scenes rendered into ``scenes/`` and corrected into ``corrected/``. Every step is resumable: a complete
 dataset is not regenerated, the study resumes to its trial budget, a model whose card matches the dataset
 and the study's best parameters is reused, existing scene scans are kept and corrected scans are skipped.
+
+:class:`ClusterSteps` reports its progress through a :data:`StepDisplay` (the command line's shows a progress
+display on a terminal and occasional lines in a log): the dataset's chunks, the study's trials, training and
+evaluation (no count: XGBoost reports no rounds across processes) and the demo scans.
 """
 
 from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +31,7 @@ from mpi_lidar.learning import tune
 from mpi_lidar.learning.evaluate import Evaluation, evaluate_model
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.learning.model import CARD_FILE, load_model, read_card
-from mpi_lidar.learning.train import train_and_save, xgb_params
+from mpi_lidar.learning.train import DEFAULT_ROUNDS, train_and_save, xgb_params
 from mpi_lidar.reporting.batch_report import write_batch_report
 from mpi_lidar.reporting.report import Report, evaluation_report, write_report
 from mpi_lidar.scans.store import SCAN_SUFFIX
@@ -37,6 +42,16 @@ from mpi_lidar.workflows.executor import DaskExecutor
 from mpi_lidar.workflows.generate import GenerationReport, generate
 
 STUDY = "xgboost"  # the pipeline's study in its storage
+
+# ``display(description, total)`` shows a step while its block runs and yields the function that counts one of
+# its ``total`` items done (None: a step without a count).
+StepDisplay = Callable[[str, "int | None"], AbstractContextManager[Callable[[], None]]]
+
+
+@contextmanager
+def no_display(description: str, total: int | None = None) -> Iterator[Callable[[], None]]:
+    """The :data:`StepDisplay` that shows nothing."""
+    yield lambda: None
 
 
 @dataclass(frozen=True)
@@ -87,27 +102,42 @@ class PipelineSteps(ABC):
 class ClusterSteps(PipelineSteps):
     """Every step on one Dask client: chunks, trials, training and scans are its tasks."""
 
-    def __init__(self, client: Client) -> None:
+    def __init__(self, client: Client, display: StepDisplay = no_display) -> None:
         self.client = client
         self.executor = DaskExecutor(client)
+        self.display = display
 
     def generate(self, data: Path, config: Config) -> GenerationReport:
-        return generate(data, config, self.executor)
+        todo = len(dataset.incomplete_chunks(dataset.create_store(data, config)))
+        with self.display("simulating dataset chunks", todo) as advance:
+            return generate(data, config, self.executor, on_chunk=lambda _index: advance())
 
     def tune(self, storage: str, study: str, settings: tune.TuneSettings, trials: int) -> tune.TuneReport:
-        return tune.tune(self.client, storage, study, settings, trials)
+        todo = max(0, trials - tune.count(tune.open_study(storage, study, settings), *tune.FINISHED))
+        with self.display("tuning: Optuna trials", todo) as advance:
+            return tune.tune(self.client, storage, study, settings, trials, on_trial=lambda _number: advance())
 
     def train(self, data: Path, model_dir: Path, spec: FeatureSpec, params: dict[str, object], storage: str,
               study: str) -> None:
-        train_and_save(self.client, data, model_dir, spec, params)
+        with self.display(f"training the model (early-stopped, up to {DEFAULT_ROUNDS} rounds)", None):
+            train_and_save(self.client, data, model_dir, spec, params)
 
     def evaluate(self, data: Path, model_dir: Path, report_dir: Path) -> Evaluation:
-        return evaluate_to_report(data, model_dir, report_dir)[0]
+        with self.display("evaluating on the test split", None):
+            return evaluate_to_report(data, model_dir, report_dir)[0]
+
+    def demo_scans(self, scene_dir: Path, config: Config) -> list[Path]:
+        if not _missing_scenes(scene_dir):
+            return demo_scans(scene_dir, config)
+        with self.display("rendering the demo scenes", None):
+            return demo_scans(scene_dir, config)
 
     def correct(self, scans: list[Path], model_dir: Path, out_dir: Path,
                 options: CorrectionOptions) -> list[ScanOutcome]:
         started = time.perf_counter()
-        outcomes = correct_archive([str(p) for p in scans], model_dir, out_dir, options, self.executor)
+        with self.display("correcting the demo scenes", len(scans)) as advance:
+            outcomes = correct_archive([str(p) for p in scans], model_dir, out_dir, options, self.executor,
+                                       on_scan=lambda _outcome: advance())
         write_batch_report(outcomes, time.perf_counter() - started, out_dir)
         return outcomes
 
@@ -157,10 +187,14 @@ def evaluate_to_report(data: str | Path, model_dir: str | Path, report_dir: str 
 
 def demo_scans(scene_dir: Path, config: Config) -> list[Path]:
     """The demo scenes as scans, rendered once (existing scans are kept)."""
-    missing = tuple(name for name in DEMO_SCENES if not (scene_dir / f"{name}{SCAN_SUFFIX}").exists())
+    missing = _missing_scenes(scene_dir)
     if missing:
         render_scenes(scene_dir, missing, config)
     return [scene_dir / f"{name}{SCAN_SUFFIX}" for name in DEMO_SCENES]
+
+
+def _missing_scenes(scene_dir: Path) -> tuple[str, ...]:
+    return tuple(name for name in DEMO_SCENES if not (scene_dir / f"{name}{SCAN_SUFFIX}").exists())
 
 
 def _matching_model(model_dir: Path, data: Path, params: dict[str, object], spec: FeatureSpec) -> bool:

@@ -1,70 +1,98 @@
-"""``mpi-lidar verify``: check datasets, scans and corrected outputs chunk by chunk against their fingerprints."""
+"""``mpi-lidar verify``: check datasets, scans and corrected outputs chunk by chunk against their fingerprints.
+
+Every store of a current schema version must record its fingerprints (:mod:`mpi_lidar.storage.integrity`):
+one without them, or without some array's, is damaged. A scan's output directory is checked whole: its
+``corrected.zarr`` chunk by chunk, and every file its manifest lists (:mod:`mpi_lidar.storage.manifest`).
+Declared shapes and chunk files are checked before anything is read, and the arrays are read one chunk at a
+time, so a store whose metadata declares 100000 x 100000 values is refused without allocating them.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
 
 import zarr
 
 from mpi_lidar.correction import CORRECTED_SCHEMA
 from mpi_lidar.errors import StoreError
-from mpi_lidar.scans.store import SCAN_SCHEMA, read_scan
+from mpi_lidar.scans.store import MAX_ARRAY_VALUES, SCAN_SCHEMA, read_scan
 from mpi_lidar.simulation import dataset
-from mpi_lidar.storage.integrity import IntegrityError, verify_array
+from mpi_lidar.storage.integrity import (
+    IntegrityError,
+    check_chunk_files,
+    check_dimensions,
+    check_store_files,
+    recorded_fingerprints,
+    verified_chunks,
+)
+from mpi_lidar.storage.manifest import is_output_directory, verify_manifest
+from mpi_lidar.storage.variables import CORRECTED
 
 CORRECTED_STORE = "corrected.zarr"
 
 
 @dataclass(frozen=True)
 class Verified:
-    """A store that passed: what it is, how many chunks were checked, and whether it had fingerprints at all."""
+    """A store that passed: what it is, how many chunks (and listed files) were checked, and whether it had
+    fingerprints (always, now: a store without them is damaged)."""
 
     path: str
     kind: str
     chunks: int
-    fingerprinted: bool
+    fingerprinted: bool = True
+    files: int = 0
 
 
 def verify_store(path: str | Path) -> Verified:
     """Check one store (a dataset, a scan, a corrected store or a scan's output directory); raise on damage."""
     path = Path(path)
-    if path.is_dir() and (path / CORRECTED_STORE).is_dir():
-        path = path / CORRECTED_STORE
+    if path.is_dir() and (is_output_directory(path) or (path / CORRECTED_STORE).is_dir()):
+        path = path / CORRECTED_STORE  # a scan's output directory: its files, then its store
+    outputs = path.parent if path.name == CORRECTED_STORE and is_output_directory(path.parent) else None
+    listed = 0 if outputs is None else len(verify_manifest(outputs))
     schema = _schema(path)
     if schema == dataset.SCHEMA:
-        return Verified(str(path), "dataset", dataset.verify_dataset(path),
-                        "chunk_sha256" in zarr.open_group(store=str(path), mode="r", use_consolidated=False))
+        return Verified(str(path), "dataset", dataset.verify_dataset(path))
     if schema == SCAN_SCHEMA:
         read_scan(path)
         return _verified_arrays(path, "scan", check=False)
     if schema == CORRECTED_SCHEMA:
-        return _verified_arrays(path, "corrected output", check=True)
+        return _verified_arrays(path, "corrected output", check=True, files=listed)
     raise StoreError(f"{path} is not an mpi-lidar dataset, scan or corrected output (schema {schema!r})")
 
 
 def _schema(path: Path) -> object:
     if not path.exists():
         raise StoreError(f"{path} does not exist")
+    if path.is_dir():
+        check_store_files(path)  # links, FIFOs and oversized metadata refused before zarr opens a file
     try:
         return zarr.open_group(store=str(path), mode="r").attrs.get("schema")
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
         raise StoreError(f"{path} is not a readable Zarr store ({type(exc).__name__})") from None
 
 
-def _verified_arrays(path: Path, kind: str, check: bool) -> Verified:
-    """Count (and, with ``check``, verify) every chunk of every array against the store's recorded fingerprints."""
-    group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
-    fingerprints = group.attrs.get("chunk_sha256")
-    fingerprints = fingerprints if isinstance(fingerprints, dict) else None
-    chunks = 0
-    for name in sorted(group.array_keys()):
-        array = cast("zarr.Array", group[name])
-        expected = None if fingerprints is None else fingerprints.get(name)
-        if fingerprints is not None and expected is None:
-            raise IntegrityError(f"{path}: array {name!r} has no recorded fingerprints; the store was altered")
-        if check:
-            verify_array(array, expected, str(path), name)
-        chunks += array.nchunks
-    return Verified(str(path), kind, chunks, fingerprints is not None)
+def _verified_arrays(path: Path, kind: str, check: bool, files: int = 0) -> Verified:
+    """Count (and, with ``check``, verify one chunk at a time) every chunk of every array against the store's
+    recorded fingerprints, after its files, declared chunks and shapes passed."""
+    found = check_store_files(path)
+    try:
+        group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
+        arrays = dict(group.arrays())
+        attrs = dict(group.attrs)
+    except Exception as exc:  # zarr raises several types for foreign or broken metadata
+        raise IntegrityError(f"{path}: its metadata cannot be read ({type(exc).__name__}); the store is damaged: "
+                             "restore or regenerate it") from None
+    check_chunk_files(path, found, arrays)
+    fingerprints = recorded_fingerprints(path, attrs.get("chunk_sha256"), arrays)
+    if check:
+        missing = sorted(name for name, v in CORRECTED.items() if v.required and name not in arrays)
+        if missing:
+            raise IntegrityError(f"{path}: array {missing[0]!r} is gone; the store is damaged: restore it or "
+                                 "correct the scan again")
+        check_dimensions(path, arrays, {name: v.dims for name, v in CORRECTED.items()}, MAX_ARRAY_VALUES)
+        for name, array in sorted(arrays.items()):
+            for _ in verified_chunks(array, fingerprints[name], str(path), name):
+                pass
+    return Verified(str(path), kind, sum(array.nchunks for array in arrays.values()), files=files)

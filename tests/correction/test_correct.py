@@ -12,13 +12,14 @@ from click.testing import CliRunner
 from mpi_lidar.cli import cli
 from mpi_lidar.config import Config
 from mpi_lidar.correction import NO_GEOMETRY_NOTE, CorrectionOptions, Flag, ScanStatus, correct_scan
+from mpi_lidar.correction.options import Estimate
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
 from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
-from tests.scan_factory import two_path_scan
+from tests.scan_factory import inverse_variance_mean, two_path_scan
 
 # The command line's output level: what these tests read (corrected.zarr, metrics.json, report.md); the figures
 # and point clouds of "full" are tests/reporting's.
@@ -71,7 +72,7 @@ def test_correct_scan__multipath_region_improves(small_model):
 
 def test_consistency_gate__skips_about_all_pixels_without_multipath(small_model):
     scan = two_path_scan("clean", height=60, width=60, multipath=False)
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(gate="consistency"))
+    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(gate="consistency", baseline="raw"))
     skipped = (correction.flags == Flag.NOT_NEEDED).mean()
     assert skipped > 0.97  # chi^2 at p = 0.01: about 1 % false alarms
     untouched = correction.flags == Flag.NOT_NEEDED
@@ -187,19 +188,27 @@ def test_geometry_gate__flat_wall_is_left_exactly_as_measured(small_model):
     valid = ~np.isin(correction.flags, [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT])
     assert (correction.flags[valid] == Flag.NO_MULTIPATH).mean() > 0.99
     gated = correction.flags == Flag.NO_MULTIPATH
-    np.testing.assert_array_equal(correction.depth[gated], scan.depth[-1][gated])
+    fused = correction.estimate == Estimate.FUSED
+    assert fused[gated].mean() > 0.99, "a flat wall's frequencies agree within noise: nearly every pixel is fused"
+    assert correction.frequency_offsets_m is not None, "a flat wall measures its frequencies' offsets"
+    expected = inverse_variance_mean(scan, correction.frequency_offsets_m)
+    np.testing.assert_allclose(correction.depth[fused], expected[fused], rtol=0, atol=2e-6)
     raw_mae = np.abs(scan.depth[-1] - scan.reference_depth)[valid].mean()
     corrected_mae = np.abs(correction.depth - scan.reference_depth)[valid].mean()
-    assert corrected_mae <= raw_mae + 1e-9
+    assert corrected_mae <= 0.8 * raw_mae, "four frequencies fused: about 0.7 of the highest one's noise"
+    raw = correct_scan(scan, model, CorrectionOptions(baseline="raw"))
+    np.testing.assert_array_equal(raw.depth[gated], scan.depth[-1][gated])
+    assert (raw.estimate[gated] == Estimate.MEASURED).all()
     pixelwise = correct_scan(scan, model, CorrectionOptions(gate="all"))
     assert (pixelwise.flags[valid] == Flag.CORRECTED).all()
     assert correction.multipath_bias_m is not None and float(correction.multipath_bias_m.max()) == 0.0
-    assert correction.notes == ()
+    assert len(correction.notes) == 1 and correction.notes[0].startswith("frequency offsets: ")
+    assert raw.notes == (), "nothing fused, no offsets measured"
 
 
 def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
+    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(baseline="raw"))
     row = correction.flags[20]
     assert (row[40:56] == Flag.CORRECTED).all(), "the edge is at the centre column"
     assert correction.counts()["corrected"] > 0.2 * row.size * 40
@@ -212,7 +221,8 @@ def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
 def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model, tmp_path):
     scan = replace(two_path_scan("nogeo"), azimuth_rad=None, elevation_rad=None)
     correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
-    assert correction.notes == (NO_GEOMETRY_NOTE,)
+    assert correction.notes[0] == NO_GEOMETRY_NOTE and correction.frequency_offsets_m is None
+    assert "no scene geometry" in correction.notes[1]
     assert (correction.flags == Flag.CORRECTED).all() and correction.multipath_bias_m is None
     write_scan(scan, tmp_path / "nogeo.scan.zarr")
     outcome = process_scan(tmp_path / "nogeo.scan.zarr", small_model, tmp_path / "out", CorrectionOptions(),
@@ -284,5 +294,5 @@ def test_correction_options__amplitude_scale_auto_or_a_positive_number():
     assert CorrectionOptions().amplitude_scale == 1.0
     assert CorrectionOptions(amplitude_scale=4000.0).sha256() != CorrectionOptions().sha256()
     for bad in ("-1", "0", "nan", "many"):
-        with pytest.raises(MpiLidarError, match="amplitude_scale must be 'auto' or a positive number"):
+        with pytest.raises(MpiLidarError, match="amplitude_scale must be 'auto' or a number of units per V\^2"):
             CorrectionOptions.from_cli(amplitude_scale=bad)

@@ -91,8 +91,10 @@ def test_on_demand_deployments__tune_train_correct_with_cluster_parameters(monke
     deployments = on_demand_deployments(workers=3, scheduler="tcp://dask:8786")
     assert [d.entrypoint for d in deployments] == [
         "flows/tune.py:tune_flow", "flows/train.py:train_flow", "flows/correct.py:correct_archive_flow"]
-    assert all(d.parameters == {"workers": 3, "scheduler": "tcp://dask:8786"} and not d.schedules
-               for d in deployments)
+    assert [d.parameters for d in deployments] == [{"workers": 3, "scheduler": "tcp://dask:8786"}] * 2 + [
+        {"scheduler": "tcp://dask:8786"}], "correction runs in the flow's process unless told, as mpi-lidar correct"
+    assert not any(d.schedules for d in deployments)
+    assert on_demand_deployments(workers=3)[2].parameters == {}
     in_yaml = {d["name"]: d["entrypoint"] for d in prefect_yaml_deployments()}
     assert {d.entrypoint for d in deployments} <= set(in_yaml.values())
 

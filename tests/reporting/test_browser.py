@@ -1,5 +1,6 @@
-"""The HTML reports in a real headless browser: they render, raise no console error, and every image loads and
-fits the page width. Chromium comes from the distribution, installed by `make system-deps`, never by a test."""
+"""The HTML reports in a real headless browser: every report kind renders, raises no console error, loads its
+images and fits a 1280-pixel window (no sideways overflow of the page or of any table). Chromium comes from the
+distribution, installed by `make system-deps`, never by a test."""
 
 from __future__ import annotations
 
@@ -7,29 +8,52 @@ import json
 import re
 import shutil
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+import optuna
 import pytest
 
+from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
+from mpi_lidar.learning.baselines import PAPER_TABLE2, Row, Table2
+from mpi_lidar.learning.evaluate import Evaluation, error_metrics
+from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.batch_report import write_batch_report
+from mpi_lidar.reporting.figures import PLOTLY_JS
+from mpi_lidar.reporting.report import evaluation_report, write_report
+from mpi_lidar.reporting.table2 import table2_report
+from mpi_lidar.reporting.tuning_report import tuning_report
 from mpi_lidar.scans.store import write_scan
+from mpi_lidar.simulation.scenes import cornered_board, flat_wall, render
+from mpi_lidar.workflows.bench import BenchPlan, BenchResult, BenchRow, CurvePoint, OutOfRange, write_bench
 from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.slow  # one small input per report kind: a batch, a study, a model, about a minute
+
+WINDOW_PX = 1280
+
 PROBE = """<script>
 window.__problems = [];
-window.addEventListener("error", e => window.__problems.push("error: " + e.message), true);
+window.addEventListener("error", e => window.__problems.push("error: " + (e.message || e.target.src)), true);
 const consoleError = console.error;
 console.error = (...args) => { window.__problems.push("console: " + args.join(" ")); consoleError(...args); };
 window.addEventListener("load", () => setTimeout(() => {
   const width = document.documentElement.clientWidth;
+  const box = el => el.getBoundingClientRect();
   const images = [...document.images].map(img => ({src: img.getAttribute("src"), loaded: img.complete &&
-    img.naturalWidth > 0, right: img.getBoundingClientRect().right}));
+    img.naturalWidth > 0, right: box(img).right}));
+  const tables = [...document.querySelectorAll("table")].map(t => ({width: box(t).width, right: box(t).right,
+    scrolls: t.scrollWidth > t.clientWidth + 1 || t.parentElement.scrollWidth > t.parentElement.clientWidth + 1}));
+  const plots = [...document.querySelectorAll(".js-plotly-plot")].map(p => ({right: box(p).right,
+    height: box(p).height, svg: p.querySelectorAll(".main-svg").length}));
   const out = document.createElement("pre");
   out.id = "probe";
-  out.textContent = JSON.stringify({width, images, problems: window.__problems,
+  out.textContent = JSON.stringify({width, images, tables, plots, problems: window.__problems,
+                                    text: document.body.innerText,
                                     scrollWidth: document.documentElement.scrollWidth});
   document.body.appendChild(out);
 }, 500));
@@ -46,45 +70,146 @@ def chromium() -> str:
     return found
 
 
-def browse(chromium: str, page: Path, tmp_path: Path) -> dict[str, object]:
-    """Load a copy of ``page`` (beside its images) with the probe; the probe's findings and a screenshot."""
+def browse(chromium: str, page: Path, screenshot: Path | None = None, height_px: int = 2000) -> dict:
+    """Load a copy of ``page`` (beside its images) with the probe in a 1280-pixel window: the probe's findings,
+    and with ``screenshot`` a PNG of the page's first ``height_px`` pixels."""
     probed = page.with_name(f".probed-{page.name}")
     probed.write_text(page.read_text().replace("<head>", "<head>" + PROBE, 1))
     flags = [chromium, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-             "--allow-file-access-from-files", "--window-size=1280,2000", "--virtual-time-budget=10000"]
+             "--hide-scrollbars", "--allow-file-access-from-files", "--virtual-time-budget=10000"]
     try:
-        dom = subprocess.run([*flags, "--dump-dom", probed.as_uri()], capture_output=True, text=True, timeout=120)
-        shot = tmp_path / f"{page.parent.name}.png"
-        subprocess.run([*flags, f"--screenshot={shot}", probed.as_uri()], capture_output=True, timeout=120)
+        dom = subprocess.run([*flags, f"--window-size={WINDOW_PX},2000", "--dump-dom", probed.as_uri()],
+                             capture_output=True, text=True, timeout=120)
+        if screenshot is not None:
+            subprocess.run([*flags, f"--window-size={WINDOW_PX},{height_px}", f"--screenshot={screenshot}",
+                            probed.as_uri()], capture_output=True, timeout=120)
     finally:
         probed.unlink()
     match = re.search(r'<pre id="probe">(.*?)</pre>', dom.stdout, flags=re.S)
     assert match, f"the page did not finish loading: {dom.stderr[-2000:]}"
-    findings = json.loads(match.group(1).replace("&quot;", '"').replace("&amp;", "&"))
-    findings["screenshot_bytes"] = shot.stat().st_size if shot.exists() else 0
-    return findings
+    text = match.group(1)
+    for entity, char in (("&quot;", '"'), ("&lt;", "<"), ("&gt;", ">"), ("&amp;", "&")):
+        text = text.replace(entity, char)
+    return json.loads(text)
+
+
+# --- one small input per report kind ----------------------------------------------------------------------
+
+LONG_NAME = "corridor_north_wing_2026-11-25_station_0001"  # long names must wrap, not widen the page
+
+
+def _no_valid_pixel(name: str):
+    """A scan whose every pixel is below the no-light noise: finite depths, no return anywhere."""
+    scan = two_path_scan(name, height=12, width=16)
+    return replace(scan, amplitude=np.full_like(scan.amplitude, 1e-12))
+
+
+def _batch(work: Path, model: Path) -> dict[str, Path]:
+    """A batch at level full: a corrected scan, a flat wall (nothing corrected), a scan without a valid pixel."""
+    scans = work / "scans"
+    board = render(cornered_board(height=40, width=56), Config(), np.random.default_rng(3))
+    write_scan(replace(board, name=LONG_NAME), scans / f"{LONG_NAME}.scan.zarr")
+    wall = render(flat_wall(height=24, width=32), Config(), np.random.default_rng(1))
+    write_scan(wall, scans / "flat_wall.scan.zarr")
+    write_scan(_no_valid_pixel("dark"), scans / "dark.scan.zarr")
+    out = work / "batch"
+    outcomes = correct_archive([str(scans)], model, out, CorrectionOptions(gate="geometry"), outputs="full")
+    statuses = {o.name: o.status for o in outcomes}
+    assert statuses[LONG_NAME] == "corrected" and statuses["flat_wall"] == "unchanged", outcomes
+    write_batch_report(outcomes, 1.0, out)
+    return {"scan-full": out / LONG_NAME / "report.html", "scan-flat-wall": out / "flat_wall" / "report.html",
+            "scan-no-valid-pixel": out / "dark" / "report.html", "batch": out / "summary" / "report.html"}
+
+
+def _light(work: Path, model: Path) -> dict[str, Path]:
+    scans = work / "light-scans"
+    write_scan(two_path_scan("frame", height=24, width=32), scans / "frame.scan.zarr")
+    out = work / "light"
+    correct_archive([str(scans)], model, out, CorrectionOptions(gate="all"), outputs="light")
+    return {"scan-light": out / "frame" / "report.html"}
+
+
+def _evaluation(work: Path, model: Path) -> dict[str, Path]:
+    rng = np.random.default_rng(0)
+    truth = rng.uniform(1.4, 2.4, 2_000)
+    raw, corrected = truth + rng.normal(0.01, 0.01, truth.size), truth + rng.normal(0.0, 0.004, truth.size)
+    evaluation = Evaluation("runs/quick/dataset.zarr", "test", {
+        "raw depth 31.25 MHz": error_metrics(raw, truth), "corrected (XGBoost)": error_metrics(corrected, truth)},
+        raw - truth, corrected - truth, "raw depth 31.25 MHz")
+    report, figures = evaluation_report(evaluation, load_model(model).card)
+    return {"evaluation": write_report(report, work / "evaluation", figures) / "report.html"}
+
+
+def _tuning(work: Path) -> dict[str, Path]:
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(study_name="xgboost", sampler=optuna.samplers.TPESampler(seed=0))
+    study.optimize(lambda t: 0.006 + 1e-3 * (t.suggest_float("learning_rate", 0.01, 0.3, log=True) - 0.1) ** 2
+                   + 1e-4 * t.suggest_int("max_depth", 2, 10) + 1e-5 * t.suggest_float("subsample", 0.5, 1.0),
+                   n_trials=12)
+    report, figures = tuning_report(study, "sqlite:///runs/quick/optuna.db")
+    return {"tuning": write_report(report, work / "tuning", figures) / "report.html"}
+
+
+def _table2(work: Path) -> dict[str, Path]:
+    rows = [Row(name, *(1e-3 * v for v in values[:4]), float(values[4]), 100_000) for name, values in
+            PAPER_TABLE2.items()]
+    report, figures = table2_report(Table2(rows, ["SVM fitted on 20,000 rows (an RBF SVM is quadratic in rows)."]))
+    return {"table2": write_report(report, work / "table2", figures) / "report.html"}
+
+
+def _bench(work: Path) -> dict[str, Path]:
+    rows = [BenchRow(f"XGBoost {trees} x {depth}", "xgboost", 50_000, 25_000, 0.02 * trees, 1e6 / trees,
+                     6.0 + 10 / trees, 8.0 + 10 / trees) for trees, depth in ((50, 4), (200, 6), (800, 8))]
+    curve = [CurvePoint("train rows", 1.0, n, 200, 0.1, 9.8, 9.1, 6.0 + 1e3 / n) for n in (1_000, 10_000, 50_000)]
+    noise = [CurvePoint("noise", s, 50_000, 200, 0.1, 9.8 * s, 9.1 * s, 5.9 * s) for s in (0.5, 1.0, 2.0)]
+    result = BenchResult(BenchPlan(), "engineered", "residual", rows, curve, noise,
+                         OutOfRange((2.4, 3.0), 20_000, 10.0, 14.0, 10.0, 10.0, 0.2), 12.0)
+    return {"bench": write_bench(result, work / "bench") / "report.html"}
+
+
+def build_reports(work: Path) -> dict[str, Path]:
+    """Every report kind the project writes as HTML, built small: report kind -> its report.html."""
+    model = tiny_model(work / "model")
+    return {**_batch(work, model), **_light(work, model), **_evaluation(work, model), **_tuning(work),
+            **_table2(work), **_bench(work)}
 
 
 @pytest.fixture(scope="module")
-def reports(tmp_path_factory) -> list[Path]:
-    work = tmp_path_factory.mktemp("browser")
-    model = tiny_model(work / "model")
-    write_scan(two_path_scan("frame", height=24, width=32), work / "scans" / "frame.scan.zarr")
-    outcomes = correct_archive([str(work / "scans")], model, work / "out", CorrectionOptions(gate="all"),
-                               outputs="full")
-    assert [o.status for o in outcomes] == ["corrected"], outcomes
-    write_batch_report(outcomes, 1.0, work / "out")
-    return [work / "out" / "frame" / "report.html", work / "out" / "summary" / "report.html"]
+def reports(tmp_path_factory) -> dict[str, Path]:
+    return build_reports(tmp_path_factory.mktemp("browser"))
 
 
-@pytest.mark.slow
-def test_reports__render_in_chromium_without_errors_and_images_fit(chromium, reports, tmp_path):
-    for page in reports:
-        findings = browse(chromium, page, tmp_path)
-        assert findings["problems"] == [], (page, findings["problems"])
-        assert findings["scrollWidth"] <= findings["width"] + 1, (page, findings)  # no horizontal overflow
+# --- the checks -------------------------------------------------------------------------------------------
+
+
+def test_batch__one_shared_plotly_bundle_linked_relatively(reports):
+    batch = reports["batch"].parent.parent
+    assert (batch / PLOTLY_JS).is_file()
+    assert not list(batch.glob(f"*/{PLOTLY_JS}")), "no copy of plotly.js in a scan's folder"
+    assert f'src="../{PLOTLY_JS}"' in reports["scan-full"].read_text()
+
+
+def test_scan_reports__no_valid_or_no_corrected_pixel_said_in_words(reports):
+    dark = reports["scan-no-valid-pixel"].read_text()
+    assert "No valid pixel" in dark and not re.search(r"\bnan\b", dark.lower())
+    assert '<img src="maps.png"' not in dark and PLOTLY_JS not in dark  # no empty panels, no 3-D view
+    flat = reports["scan-flat-wall"].read_text()
+    assert "No pixel was corrected" in flat
+
+
+def test_reports__every_kind_fits_a_1280_pixel_window_in_chromium(chromium, reports):
+    seen = {kind: browse(chromium, page) for kind, page in reports.items()}  # one page per report kind
+    for kind, findings in seen.items():
+        width = findings["width"]
+        assert findings["problems"] == [], (kind, findings["problems"])
+        assert width <= WINDOW_PX and findings["scrollWidth"] <= WINDOW_PX, (kind, findings["scrollWidth"])
+        for table in findings["tables"]:
+            assert table["width"] <= width and table["right"] <= width + 1, (kind, table)
+            assert not table["scrolls"], (kind, table)  # wrapped to fit, not hidden off to the side
         for image in findings["images"]:
-            assert image["loaded"], (page, image)
-            assert image["right"] <= findings["width"] + 1, (page, image)
-        assert findings["screenshot_bytes"] > 10_000, page  # a rendered page, not a blank one
-    assert browse(chromium, reports[0], tmp_path)["images"], "the scan report shows its figures"
+            assert image["loaded"] and image["right"] <= width + 1, (kind, image)
+        for plot in findings["plots"]:
+            assert plot["svg"] and plot["right"] <= width + 1 and plot["height"] >= 400, (kind, plot)
+        assert "nan" not in re.findall(r"[a-z]+", findings["text"].lower()), kind
+    assert seen["scan-full"]["plots"] and seen["scan-full"]["images"], "the full report shows its figures"
+    assert not seen["scan-no-valid-pixel"]["images"] and not seen["scan-no-valid-pixel"]["plots"]

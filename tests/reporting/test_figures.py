@@ -54,7 +54,7 @@ def test_maps_figure__archived_scan_shows_what_correction_did_in_degrees(model_d
     fig = maps_figure(scan, correction)
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
     assert not any("skipped" in t for t in texts), texts
-    titles = [ax.get_title() for ax in fig.axes]
+    titles = [" ".join(ax.get_title().split()) for ax in fig.axes]  # long titles wrap onto two lines
     assert any(t.startswith("applied correction [mm]") for t in titles)
     assert "expected multipath bias [mm]" in titles and "what was done per pixel" in titles
     maps = [ax for ax in fig.axes if ax.images]
@@ -107,3 +107,38 @@ def test_thumbnail_image__at_most_512_pixels_depth_left_flags_right():
     assert tuple(big[10, half + 2]) == tuple(int(FLAG_COLOURS[Flag.CORRECTED][i:i + 2], 16) for i in (1, 3, 5))
     assert tuple(big[10, -2]) == tuple(int(FLAG_COLOURS[Flag.NO_MULTIPATH][i:i + 2], 16) for i in (1, 3, 5))
     assert tuple(big[0, 0]) == (255, 255, 255), "invalid pixels are white"
+
+
+def test_point_cloud_figure__flat_wall_top_view_is_a_box_not_a_line():
+    """A wall 1 m wide and 2 mm deep: its top view keeps its axes to scale in a box at least half as deep as
+    wide, with a few ticks per axis, and every row has its points."""
+    x, y = np.meshgrid(np.linspace(-0.5, 0.5, 60), np.linspace(-0.3, 0.3, 40))
+    rng = np.random.default_rng(0)
+    wall = np.stack([x, y, 2.0 + 0.002 * rng.random(x.shape)], axis=-1)
+    fig = point_cloud_figure(wall, wall)
+    top, side = fig.axes[0], fig.axes[2]
+    for ax in (top, side):
+        left, right, bottom, up = ax.images[0].get_extent()
+        assert 0.5 - 1e-9 <= min(right - left, up - bottom) / max(right - left, up - bottom) <= 1.0
+        assert ax.get_aspect() == 1.0  # to scale: the box is widened, never stretched
+        assert 3 <= len(ax.get_xticks()) <= 8 and 3 <= len(ax.get_yticks()) <= 8
+        assert np.isfinite(ax.images[0].get_array()).any()
+    assert "2,400 points" in top.get_title()
+
+
+def test_point_cloud_view_3d__a_flat_wall_keeps_a_box_of_sensible_proportions():
+    x, y = np.meshgrid(np.linspace(-0.5, 0.5, 30), np.linspace(-0.3, 0.3, 20))
+    wall = np.stack([x, y, np.full_like(x, 2.0)], axis=-1)
+    html = point_cloud_view_3d(wall, wall, np.zeros(x.shape))
+    assert '"aspectmode":"manual"' in html
+    assert '"aspectratio":{"x":1.0,"y":0.5,"z":0.6' in html  # x widest, the wall's depth widened to half
+    assert '"text":"z (forward) [m]"},"range":[1.75,2.25]' in html  # to scale: a plane mid-box
+
+
+def test_maps_figure__no_corrected_pixel_says_so_instead_of_an_empty_map():
+    scan = two_path_scan("untouched")
+    flags = np.full(scan.shape, int(Flag.NO_MULTIPATH), np.uint8)
+    fig = maps_figure(scan, Correction(depth=scan.depth[-1].copy(), flags=flags, inference_s=0.0, total_s=0.0))
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    assert any("no pixel was corrected" in t for t in texts), texts
+    assert not any(ax.get_title().startswith("applied correction") for ax in fig.axes)

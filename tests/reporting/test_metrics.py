@@ -31,3 +31,13 @@ def test_scan_metrics__bands_of_rows_sum_to_the_whole_scan(monkeypatch):
     error = np.abs(correction.depth.astype(np.float64) - scan.reference_depth).ravel()[1:]
     assert whole["whole map"]["corrected_mae_m"] == pytest.approx(error.mean(), rel=1e-9)
     assert metrics_table(whole).headers[:3] == ("region", "pixels", "raw MAE [mm]")
+
+
+def test_metrics_table__a_region_without_a_pixel_says_so_not_nan():
+    scan = two_path_scan("dark")
+    flags = np.full(scan.shape, int(Flag.NO_RETURN), np.uint8)
+    empty = scan_metrics(scan, Correction(depth=np.full(scan.shape, np.nan, np.float32), flags=flags,
+                                          inference_s=0.0, total_s=0.0))
+    assert empty["whole map"]["pixels"] == 0
+    rows = metrics_table(empty).rows
+    assert rows[0][:3] == ("whole map", "0", "no pixel") and not any("nan" in cell for row in rows for cell in row)

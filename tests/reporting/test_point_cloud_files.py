@@ -11,7 +11,13 @@ from mpi_lidar.cli import correct as correct_command
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.figures import PLOTLY_JS
-from mpi_lidar.reporting.point_cloud_files import FULL_POINT_CLOUDS, POINT_CLOUD_FILES, point_cloud_formats
+from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OutputLevel
+from mpi_lidar.reporting.point_cloud_files import (
+    FULL_POINT_CLOUDS,
+    LEVEL_POINT_CLOUDS,
+    POINT_CLOUD_FILES,
+    point_cloud_formats,
+)
 from mpi_lidar.scans.pointcloud import POINT_CLOUD_FORMATS, PointCloudFormat
 from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
 
@@ -21,6 +27,10 @@ FIELDS = {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitud
 def test_point_cloud_format__one_closed_set():
     assert POINT_CLOUD_FORMATS == ("las", "laz", "ply") == tuple(PointCloudFormat)
     assert set(POINT_CLOUD_FILES) == set(PointCloudFormat) and FULL_POINT_CLOUDS == ("ply", "las")
+    assert set(LEVEL_POINT_CLOUDS) == set(OutputLevel) and LEVEL_POINT_CLOUDS[OutputLevel.FULL] == FULL_POINT_CLOUDS
+    # a level holds what the next one holds (each format once); LAZ waits for 20 % (docs/results/point-clouds.md)
+    assert set(LEVEL_POINT_CLOUDS["light"]) <= set(LEVEL_POINT_CLOUDS["full"]) and LEVEL_POINT_CLOUDS["data"] == ()
+    assert point_cloud_formats(DEFAULT_OUTPUTS) == LEVEL_POINT_CLOUDS[OutputLevel(DEFAULT_OUTPUTS)]
     option = next(p for p in correct_command.params if p.name == "point_clouds")
     assert tuple(option.type.choices) == POINT_CLOUD_FORMATS, "the command line offers every format"
 

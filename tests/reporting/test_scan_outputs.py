@@ -66,7 +66,8 @@ def level_outputs(model_dir, board_store, tmp_path_factory):
 def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full_outputs, archived):
     scan = archived[0]
     names = {p.name for p in full_outputs.iterdir()}
-    assert {"maps.png", "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las", PLOTLY_JS} <= names
+    assert {"maps.png", "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las"} <= names
+    assert PLOTLY_JS not in names, "one plotly.js per batch, in the folder above the scans' own"
     assert "error_hist.png" not in names
     raw, corrected = (PlyData.read(str(full_outputs / name))["vertex"] for name in ("raw.ply", "corrected.ply"))
     assert {p.name for p in corrected.properties} == {"x", "y", "z"} | FIELDS
@@ -83,12 +84,12 @@ def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full
     assert set(las.point_format.extra_dimension_names) >= FIELDS
     np.testing.assert_allclose(np.asarray(las["raw_range_m"]), scan.depth[-1][las["row"], las["column"]])
     html = (full_outputs / "report.html").read_text()
-    assert 'class="plotly-graph-div"' in html and f'<script src="{PLOTLY_JS}"></script>' in html
+    assert 'class="plotly-graph-div"' in html and f'<script src="../{PLOTLY_JS}"></script>' in html
     assert "cdn.plot.ly" not in html and "https://" not in html.split("<body>")[0], "no CDN: archives are offline"
-    assert (full_outputs / PLOTLY_JS).stat().st_size > 1_000_000
+    assert (full_outputs.parent / PLOTLY_JS).stat().st_size > 1_000_000
     assert VIEW_3D_FALLBACK in (full_outputs / "report.md").read_text()
     files = json.loads((full_outputs / "metrics.json").read_text())["outputs"]["files"]
-    assert {"corrected.las", "raw.ply", "corrected.ply", PLOTLY_JS} <= set(files)
+    assert {"corrected.las", "raw.ply", "corrected.ply"} <= set(files) and PLOTLY_JS not in files
 
 
 # --- output levels ----------------------------------------------------------------------------------------
@@ -97,9 +98,9 @@ FILES = {
     "data": {"corrected.zarr", "metrics.json"},
     "light": {"corrected.zarr", "metrics.json", "report.md", "report.html", "thumbnail.png"},
     "full": {"corrected.zarr", "metrics.json", "report.md", "report.html", "maps.png", "error_hist.png",
-             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las", "plotly.min.js"},
+             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las"},
 }
-GEOMETRY_FILES = {"point_cloud.png", "raw.ply", "corrected.ply", "corrected.las", "plotly.min.js"}
+GEOMETRY_FILES = {"point_cloud.png", "raw.ply", "corrected.ply", "corrected.las"}
 
 
 def _listing(path: Path) -> set[str]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import laspy
 import numpy as np
 import pytest
@@ -9,14 +11,25 @@ from plyfile import PlyData
 
 from mpi_lidar.scans.geometry import point_cloud
 from mpi_lidar.scans.pointcloud import (
+    INTENSITY_MAX,
+    LAS_CLASS_LOW_NOISE,
+    LAS_CLASS_UNCLASSIFIED,
+    LAS_METADATA_RECORD_ID,
+    LAS_METADATA_USER_ID,
     LAS_SCALE_M,
     POINT_CLOUD_FORMATS,
     correction_fields,
+    generator,
+    intensity_counts,
+    intensity_scale,
+    las_metadata,
     write_las,
     write_ply,
     write_point_cloud,
 )
 from tests.scan_factory import two_path_scan
+
+FIELDS = ("raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2")
 
 
 @pytest.fixture
@@ -49,32 +62,111 @@ def test_write_las__laspy_reads_points_and_every_field(tmp_path, cloud, suffix):
     np.testing.assert_allclose(las.header.scales, LAS_SCALE_M)
     xyz = np.stack([las.x, las.y, las.z], axis=1)
     np.testing.assert_allclose(xyz, points[keep], atol=LAS_SCALE_M / 2 + 1e-9)
-    assert set(las.point_format.extra_dimension_names) == {"raw_range_m", "corrected_range_m", "correction_mm",
-                                                           "flag", "amplitude_v2", "row", "column"}
+    assert set(las.point_format.extra_dimension_names) == {*FIELDS, "row", "column"}
     np.testing.assert_array_equal(las.row, rows)
     np.testing.assert_array_equal(las.column, columns)
     assert las.row.dtype == np.uint32 and las.flag.dtype == np.uint8
-    for name in ("raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2"):
+    for name in FIELDS:
         np.testing.assert_array_equal(np.asarray(las[name]), fields[name][keep], err_msg=name)
     np.testing.assert_allclose(las.correction_mm, -4.0, atol=1e-3)
     descriptions = {p.name: p.description for p in las.point_format.extra_dimensions}
-    assert descriptions["raw_range_m"] == "raw range [m]" and descriptions["amplitude_v2"] == "amplitude [V^2]"
+    assert descriptions["raw_range_m"] == "raw range [m]" and descriptions["amplitude_v2"].startswith("amplitude [V^2]")
+    assert all(len(text) <= 31 for text in descriptions.values())
+    # one return each, nothing withheld, every point unclassified
+    assert set(las.return_number) == {1} and set(las.number_of_returns) == {1}
+    assert not np.any(las.withheld) and set(las.classification) == {LAS_CLASS_UNCLASSIFIED}
 
 
-def test_write_ply__plyfile_reads_named_fields(tmp_path, cloud):
+def test_write_las__intensity_is_the_amplitude_scaled_to_16_bits_with_the_scale_recorded(tmp_path, cloud):
     points, fields = cloud
-    path = write_ply(tmp_path / "scan.ply", points, fields)
+    las = laspy.read(write_las(tmp_path / "scan.laz", points, fields))
+    keep = np.isfinite(points).all(axis=-1)
+    amplitude = fields["amplitude_v2"][keep].astype(np.float64)
+    record = las_metadata(tmp_path / "scan.laz")
+    scale = record["intensity"]["per_count"]
+    assert record["intensity"]["field"] == "amplitude_v2"
+    assert scale == pytest.approx(amplitude.max() / INTENSITY_MAX, rel=1e-12)
+    intensity = np.asarray(las.intensity)
+    assert intensity.max() == INTENSITY_MAX and intensity.min() > 0, "blank intensity is what viewers showed before"
+    np.testing.assert_allclose(intensity * scale, amplitude, atol=scale / 2 * (1 + 1e-9))
+    description = next(p.description for p in las.point_format.extra_dimensions if p.name == "amplitude_v2")
+    assert f"{scale:.2e}" in description
+
+
+def test_write_las__withheld_points_kept_as_noise(tmp_path, cloud):
+    points, fields = cloud
+    placed = points.copy()
+    placed[3, 5] = point_cloud(fields["raw_range_m"], np.ones((6, 8, 3)) / np.sqrt(3))[3, 5]
+    withheld = np.zeros((6, 8), bool)
+    withheld[3, 5] = withheld[0, 0] = True
+    las = laspy.read(write_las(tmp_path / "scan.laz", placed, fields, withheld=withheld))
+    assert las.header.point_count == 48, "the invalid pixel's point is kept"
+    assert np.asarray(las.withheld).sum() == 2
+    marked = (np.asarray(las.row), np.asarray(las.column))
+    assert set(zip(*(m[np.asarray(las.withheld, bool)] for m in marked), strict=True)) == {(0, 0), (3, 5)}
+    assert np.array_equal(np.asarray(las.classification) == LAS_CLASS_LOW_NOISE, np.asarray(las.withheld, bool))
+    with pytest.raises(ValueError, match="withheld must have shape"):
+        write_las(tmp_path / "bad.laz", placed, fields, withheld=np.zeros((2, 2), bool))
+
+
+def test_write_las__generator_json_record_and_descriptions(tmp_path, cloud):
+    points, fields = cloud
+    path = write_las(tmp_path / "scan.las", points, fields, descriptions={"flag": "0C 1N 2F"},
+                     metadata={"frame": {"x": "right"}})
+    las = laspy.read(path)
+    assert las.header.generating_software == generator() and generator().startswith("mpi-lidar")
+    records = [v for v in las.header.vlrs if v.user_id == LAS_METADATA_USER_ID]
+    assert [v.record_id for v in records] == [LAS_METADATA_RECORD_ID]
+    record = json.loads(bytes(records[0].record_data).decode())
+    assert record == las_metadata(path)
+    assert record["generator"] == generator() and record["frame"] == {"x": "right"}
+    assert record["fields"]["flag"] == "0C 1N 2F" and record["fields"]["row"] == "pixel row of the scan grid"
+    assert "withheld" in record
+    assert {p.name: p.description for p in las.point_format.extra_dimensions}["flag"] == "0C 1N 2F"
+
+
+def test_correction_fields__uncertainty_an_extra_field_when_given(tmp_path, cloud):
+    points, fields = cloud
+    assert "uncertainty_m" not in fields
+    sigma = np.full((6, 8), 0.002, np.float32)
+    with_sigma = correction_fields(fields["raw_range_m"], fields["corrected_range_m"], fields["flag"],
+                                   fields["amplitude_v2"], sigma)
+    las = laspy.read(write_las(tmp_path / "scan.laz", points, with_sigma))
+    np.testing.assert_array_equal(las.uncertainty_m, np.float32(0.002))
+    assert {p.name: p.description for p in las.point_format.extra_dimensions}["uncertainty_m"].endswith("[m]")
+
+
+def test_intensity_scale__nan_and_dark_inputs():
+    assert intensity_scale(np.array([np.nan, 2.0, np.inf, 1.0])) == pytest.approx(2.0 / INTENSITY_MAX)
+    assert intensity_scale(np.array([np.nan, 0.0])) == 1.0 and intensity_scale(np.array([])) == 1.0
+    counts = intensity_counts(np.array([np.nan, -1.0, 1.0, 2.0, 5.0]), 2.0 / INTENSITY_MAX)
+    np.testing.assert_array_equal(counts, [0, 0, 32768, INTENSITY_MAX, INTENSITY_MAX])
+
+
+def test_write_ply__plyfile_reads_scalar_fields_and_colours(tmp_path, cloud):
+    points, fields = cloud
+    colors = np.zeros((6, 8, 3), np.uint8)
+    colors[..., 0] = 200
+    path = write_ply(tmp_path / "scan.ply", points, fields, colors, comments=("hello",))
     keep, rows, columns = _expected(points)
     ply = PlyData.read(str(path))
     assert not ply.text and ply.byte_order == "<"
+    assert ply.comments == [f"generated by {generator()}", "hello"]
     vertex = ply["vertex"]
-    assert [p.name for p in vertex.properties] == ["x", "y", "z", "raw_range_m", "corrected_range_m",
-                                                   "correction_mm", "flag", "amplitude_v2", "row", "column"]
+    assert [p.name for p in vertex.properties] == [
+        "x", "y", "z", "red", "green", "blue", "scalar_raw_range_m", "scalar_corrected_range_m",
+        "scalar_correction_mm", "scalar_flag", "scalar_amplitude_v2", "scalar_row", "scalar_column"]
+    assert {vertex[c].dtype for c in ("red", "green", "blue")} == {np.dtype("u1")}
+    assert set(vertex["red"]) == {200} and set(vertex["green"]) == {0}
     np.testing.assert_allclose(np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1), points[keep], rtol=1e-6)
-    np.testing.assert_array_equal(vertex["row"], rows)
-    np.testing.assert_array_equal(vertex["column"], columns)
-    for name in ("raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2"):
-        np.testing.assert_array_equal(vertex[name], fields[name][keep], err_msg=name)
+    np.testing.assert_array_equal(vertex["scalar_row"], rows)
+    np.testing.assert_array_equal(vertex["scalar_column"], columns)
+    for name in FIELDS:
+        np.testing.assert_array_equal(vertex[f"scalar_{name}"], fields[name][keep], err_msg=name)
+    plain = PlyData.read(str(write_ply(tmp_path / "plain.ply", points, fields)))
+    assert [p.name for p in plain["vertex"].properties][:4] == ["x", "y", "z", "scalar_raw_range_m"]
+    with pytest.raises(ValueError, match="colors must be uint8"):
+        write_ply(tmp_path / "bad.ply", points, fields, colors.astype(np.float32))
 
 
 @pytest.mark.parametrize("fmt", POINT_CLOUD_FORMATS)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config
+from mpi_lidar.errors import StoreError
 from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.integrity import IntegrityError, array_fingerprints, fingerprint
@@ -85,13 +86,15 @@ def test_damaged_scan_chunk__refused_when_read(tmp_path, how):
         verify_store(path)
 
 
-def test_old_store_without_fingerprints__still_read(store, tmp_path):
+@pytest.mark.parametrize("consumer", sorted(CONSUMERS))
+def test_dataset_without_fingerprints__damaged_for_every_consumer(store, tmp_path, consumer):
+    """Its schema version records fingerprints: without them (and a chunk gone) the store is damaged, not old."""
     copy = tmp_path / "old.zarr"
     shutil.copytree(store, copy)
-    shutil.rmtree(copy / "chunk_sha256")  # as a store written before fingerprints existed
-    result = verify_store(copy)
-    assert (result.chunks, result.fingerprinted) == (4, False)
-    assert dataset.read_subsample(copy, "test").features.shape[0] > 0
+    shutil.rmtree(copy / "chunk_sha256")
+    (copy / "features" / "c" / "2" / "0").unlink()
+    with pytest.raises(StoreError, match="lacks 'chunk_sha256'"):
+        CONSUMERS[consumer](copy)
 
 
 def test_two_swapped_scan_chunks__the_first_in_c_order_is_named(tmp_path, monkeypatch):

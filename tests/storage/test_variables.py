@@ -57,6 +57,8 @@ def test_registry__attributes_the_stores_have_always_written():
         # new arrays (2026-11-25): those above keep what they were
         "measured_depth": ("m", "measured range along the ray at the highest frequency"),
         "unwrap_confidence": ("1", "posterior probability of the chosen wrap counts"),
+        "estimate": ("1", "which estimate the corrected depth is"),
+        "depth_uncertainty": ("m", "1-sigma uncertainty of the corrected depth"),
     }
     assert {name: (v.units, v.long_name) for name, v in CORRECTED.items()}.items() <= ARRAY_METADATA.items()
     assert {name: v.dims for name, v in DATASET.items()} == {

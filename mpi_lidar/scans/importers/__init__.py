@@ -7,20 +7,32 @@ The interface every importer keeps is :class:`~mpi_lidar.scans.importers.base.Sc
 
 from __future__ import annotations
 
+import contextlib
 import glob
-from collections.abc import Callable, Mapping, Sequence
+import os
+import shutil
+import uuid
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from mpi_lidar.scans.importers.base import SCAN_VARIABLES, ScanImporter, check_variables, import_arrays
+from mpi_lidar.scans.importers.base import (
+    MAX_FILE_BYTES,
+    SCAN_VARIABLES,
+    ScanImporter,
+    check_regular_file,
+    check_variables,
+    import_arrays,
+    select_variables,
+)
 from mpi_lidar.scans.importers.netcdf import NetcdfImporter, load_netcdf
 from mpi_lidar.scans.importers.npz import NpzImporter, load_npz
 from mpi_lidar.scans.scan import Scan, ScanError
-from mpi_lidar.scans.store import MAX_SCAN_BYTES, SCAN_SUFFIX, write_scan
+from mpi_lidar.scans.store import MAX_SCAN_BYTES, SCAN_SUFFIX, read_scan, write_scan
 
-__all__ = ["IMPORTERS", "IMPORT_SUFFIXES", "SCAN_VARIABLES", "ScanImporter", "check_variables", "find_scan_files",
-           "import_arrays", "import_files", "importer_for", "load_netcdf", "load_npz", "load_scan_file",
-           "plan_import"]
+__all__ = ["IMPORTERS", "IMPORT_SUFFIXES", "MAX_FILE_BYTES", "SCAN_VARIABLES", "ScanImporter", "check_regular_file",
+           "check_variables", "find_scan_files", "import_arrays", "import_files", "importer_for", "load_netcdf",
+           "load_npz", "load_scan_file", "plan_import", "select_variables"]
 
 # The importers, in the order their suffixes are listed to the user.
 IMPORTERS: tuple[ScanImporter, ...] = (NpzImporter(), NetcdfImporter())
@@ -35,7 +47,11 @@ def importer_for(path: Path) -> ScanImporter | None:
 
 def load_scan_file(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
                    variables: Mapping[str, str] | None = None) -> Scan:
-    """Import one file by its suffix: ``.npz`` (:func:`load_npz`), ``.nc``/``.h5``/``.hdf5`` (:func:`load_netcdf`)."""
+    """Import one file by its suffix: ``.npz`` (:func:`load_npz`), ``.nc``/``.h5``/``.hdf5`` (:func:`load_netcdf`).
+
+    Only a regular file of at most :data:`MAX_FILE_BYTES` is opened (every importer checks it with
+    :func:`check_regular_file` first).
+    """
     path = Path(path)
     importer = importer_for(path)
     if importer is None:
@@ -47,7 +63,9 @@ def load_scan_file(path: str | Path, frequencies_hz: tuple[float, ...] | None = 
 def find_scan_files(sources: Sequence[str | Path]) -> list[Path]:
     """The files named directly, found in a directory (not recursively) or matched by a glob, in order, once.
 
-    A source that names nothing importable is an error, so a mistyped path or pattern is never silently empty.
+    A source that names nothing importable is an error, so a mistyped path or pattern is never silently empty;
+    so is any path found that is not a regular file within :data:`MAX_FILE_BYTES` (:func:`check_regular_file`:
+    a FIFO, a device or a link to one), before any file is opened.
     """
     found: list[Path] = []
     for source in sources:
@@ -62,6 +80,8 @@ def find_scan_files(sources: Sequence[str | Path]) -> list[Path]:
             raise ScanError(f"{source} does not exist")
         if not matches:
             raise ScanError(f"{source} holds or matches no {', '.join(IMPORT_SUFFIXES)} file")
+        for match in matches:
+            check_regular_file(match)
         found += matches
     unique: dict[Path, Path] = {}
     for path in found:
@@ -70,7 +90,8 @@ def find_scan_files(sources: Sequence[str | Path]) -> list[Path]:
 
 
 def _importable(path: Path) -> bool:
-    return path.is_file() and path.suffix.lower() in IMPORT_SUFFIXES and not path.name.startswith(".")
+    """A name to import (then checked to be a regular file): an import suffix, not hidden."""
+    return path.suffix.lower() in IMPORT_SUFFIXES and not path.name.startswith(".")
 
 
 def plan_import(files: Sequence[Path], out: str | Path) -> list[tuple[Path, Path]]:
@@ -107,7 +128,13 @@ def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float,
 
     Every file is read and validated before the first store is written, so one bad file refuses the whole
     import with its error and nothing is written. Scans that fit :data:`MAX_SCAN_BYTES` together are kept
-    from the first pass; the others are read again to be written. ``on_scan(scan, store)`` after each write.
+    from the first pass; the others are read again to be written. Each store is written under a staging name
+    beside its target (``.<name>.writing-<8 hex>``, which
+    :func:`~mpi_lidar.storage.atomic.remove_interrupted_staging` recognises), and only when all are written
+    are they renamed into place; a failure on the way (a write, a rename, a target that appeared meanwhile)
+    removes the stagings, the stores already renamed and the directories this call created, so the import
+    leaves all its stores or none. ``on_scan(scan, store)`` for each store once all are in place (a scan not
+    kept from the first pass is read back from its store for it).
     """
     loaded: list[Scan | None] = []
     held = 0
@@ -117,11 +144,56 @@ def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float,
         keep = held + size <= MAX_SCAN_BYTES
         held += size if keep else 0
         loaded.append(scan if keep else None)
-    written = []
-    for (source, target), kept in zip(plan, loaded, strict=True):
-        scan = kept if kept is not None else load_scan_file(source, frequencies_hz, variables)
-        scan = replace(scan, depth_wrapped=depth_wrapped)
-        written.append(write_scan(scan, target))
-        if on_scan is not None:
-            on_scan(scan, target)
-    return written
+    for _, target in plan:
+        if target.exists() or target.is_symlink():
+            raise ScanError(f"{target} already exists; choose another --out or remove it")
+    created = _missing_directories(target.parent for _, target in plan)
+    staged: list[tuple[Path, Path]] = []
+    published: list[Path] = []
+    try:
+        for (source, target), kept in zip(plan, loaded, strict=True):
+            scan = kept if kept is not None else load_scan_file(source, frequencies_hz, variables)
+            staging = target.parent / f".{target.name}.writing-{uuid.uuid4().hex[:8]}"
+            staged.append((staging, target))
+            try:
+                write_scan(replace(scan, depth_wrapped=depth_wrapped), staging)
+            except ScanError as exc:  # name the store the user asked for, not its staging name
+                raise ScanError(str(exc).replace(str(staging), str(target))) from None
+        for staging, target in staged:
+            if target.exists() or target.is_symlink():
+                raise ScanError(f"{target} appeared while importing; nothing was imported: choose another --out "
+                                "or remove it")
+            try:
+                os.rename(staging, target)
+            except OSError as exc:
+                raise ScanError(f"cannot write scan {target}: {exc.strerror or exc}; choose a writable path with "
+                                "free space") from None
+            published.append(target)
+    except BaseException:
+        for path in [*published, *(staging for staging, _ in staged)]:
+            _remove_tree(path)
+        for directory in reversed(created):
+            with contextlib.suppress(OSError):  # only if nothing else was put there meanwhile
+                directory.rmdir()
+        raise
+    if on_scan is not None:
+        for (_, target), kept in zip(plan, loaded, strict=True):
+            on_scan(kept if kept is not None else read_scan(target, stored_above_bytes=0), target)
+    return published
+
+
+def _missing_directories(parents: Iterable[Path]) -> list[Path]:
+    """The directories of ``parents`` and their ancestors that do not exist yet, outermost first."""
+    missing: list[Path] = []
+    for parent in parents:
+        for directory in reversed([parent, *parent.parents]):
+            if not directory.exists() and directory not in missing:
+                missing.append(directory)
+    return missing
+
+
+def _remove_tree(path: Path) -> None:
+    if path.is_symlink() or path.is_file():
+        path.unlink(missing_ok=True)
+    elif path.exists():
+        shutil.rmtree(path, ignore_errors=True)

@@ -1,10 +1,15 @@
-"""The interface of a scan importer, and what every importer shares: the names a file's arrays may map to,
-and the building of a validated :class:`~mpi_lidar.scans.scan.Scan` from plain arrays."""
+"""The interface of a scan importer, and what every importer shares: which of a file's variables become
+which scan array (:func:`select_variables`: mapped, picked up by name, or refused), the checks of the file
+itself (:func:`check_regular_file`) and of its angles and frequencies, and the building of a validated
+:class:`~mpi_lidar.scans.scan.Scan` from plain arrays (:func:`import_arrays`)."""
 
 from __future__ import annotations
 
+import os
+import stat
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
@@ -13,9 +18,25 @@ from numpy.typing import NDArray
 
 from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.scans.scan import OPTIONAL_ARRAYS, Scan, ScanError, from_taps, scan_extras, validate
+from mpi_lidar.scans.store import MAX_SCAN_BYTES
 
-# The names a file's variables can be mapped to (``--var NAME=VARIABLE``).
+# The names a file's variables can be mapped to (``--var NAME=VARIABLE``): the scan store's own.
 SCAN_VARIABLES = ("depth", "amplitude", *OPTIONAL_ARRAYS, "frequencies_hz")
+# Other names of the same arrays, picked up in a file and accepted by ``--var``: the plain angle names (in
+# radians, or in the unit a NetCDF ``units`` attribute declares) and the store's frequency coordinate.
+ALIASES: dict[str, str] = {"azimuth": "azimuth_rad", "elevation": "elevation_rad", "frequency_hz": "frequencies_hz"}
+# Angle names whose values are degrees, converted to radians on import.
+DEGREE_NAMES: dict[str, str] = {"azimuth_deg": "azimuth_rad", "elevation_deg": "elevation_rad"}
+# ``--var ignore=VARIABLE[,VARIABLE...]``: variables of the file deliberately left out of the scan.
+IGNORE = "ignore"
+VARIABLE_NAMES = (*SCAN_VARIABLES, *ALIASES, *DEGREE_NAMES)
+# The largest file an importer opens [bytes]: twice the arrays a scan may hold in memory
+# (:data:`~mpi_lidar.scans.store.MAX_SCAN_BYTES`, 1 GiB), room for float64 copies and the format's overhead.
+MAX_FILE_BYTES = 2 * MAX_SCAN_BYTES
+# The angles of a scan grid in radians lie within these bounds [rad]; larger values are degrees.
+ANGLE_LIMITS_RAD = {"azimuth_rad": 2 * np.pi, "elevation_rad": np.pi / 2}
+# How far a ray direction's length may be from 1.
+RAY_NORM_TOLERANCE = 1e-3
 
 
 class ScanImporter(ABC):
@@ -73,7 +94,10 @@ def import_arrays(
             raise ScanError(f"{source}: {str(exc).removeprefix(f'{name}: ')}") from None
     else:
         raise ScanError(f"{source}: needs arrays 'depth' and 'amplitude' (F, H, W), or 'taps' (F, 4, H, W)")
-    return validate(scan, source)
+    scan = validate(scan, source)  # shapes and dtypes first: the geometry's values are checked on valid arrays
+    check_geometry({name: value for name in ("azimuth_rad", "elevation_rad", "ray_directions")
+                    if (value := getattr(scan, name)) is not None}, source)
+    return scan
 
 
 # The lowest modulation frequency taken as one [Hz]: an AMCW scanner modulates at MHz; a value below this is
@@ -107,13 +131,135 @@ def stored_frequencies(path: Path, stored: NDArray) -> NDArray:
 
 
 def check_variables(variables: Mapping[str, str] | None) -> dict[str, str]:
-    """A mapping of scan array names to a file's variable names, checked: known names, one variable each."""
+    """A mapping of scan array names to a file's variable names, checked: known names (:data:`VARIABLE_NAMES`,
+    or :data:`IGNORE` with a comma-separated list), one variable each, each scan array mapped once."""
     variables = dict(variables or {})
-    unknown = sorted(set(variables) - set(SCAN_VARIABLES))
+    unknown = sorted(set(variables) - {*VARIABLE_NAMES, IGNORE})
     if unknown:
-        raise ScanError(f"--var names {unknown}, which are not scan arrays; map some of {list(SCAN_VARIABLES)}")
-    shared = sorted({v for v in variables.values() if list(variables.values()).count(v) > 1})
+        raise ScanError(f"--var names {unknown}, which are not scan arrays; map some of {list(VARIABLE_NAMES)}, "
+                        f"or leave variables out with --var {IGNORE}=VARIABLE[,VARIABLE...]")
+    named = [v for k, v in variables.items() if k != IGNORE] + _ignored(variables)
+    shared = sorted({v for v in named if named.count(v) > 1})
     if shared:
         raise ScanError(f"--var maps several scan arrays to the variable(s) {shared}; map each variable once")
+    canonical = [_canonical(k) for k in variables if k != IGNORE]
+    twice = sorted({k for k in canonical if canonical.count(k) > 1})
+    if twice:
+        raise ScanError(f"--var maps {twice[0]} twice (under two of its names); map it once")
     return variables
+
+
+@dataclass(frozen=True)
+class Selected:
+    """A file's variable chosen for a scan array."""
+
+    variable: str  # its name in the file
+    degrees: bool = False  # it holds degrees (a name of DEGREE_NAMES): converted to radians
+
+
+def select_variables(source: str, held: Collection[str], variables: Mapping[str, str] | None = None,
+                     metadata: Collection[str] = ()) -> dict[str, Selected]:
+    """Which of a file's variables (``held``) become which scan array: scan name -> :class:`Selected`.
+
+    Every variable is accounted for: mapped by ``variables`` (``--var``), picked up by its own name (a name of
+    :data:`SCAN_VARIABLES`, :data:`ALIASES` or :data:`DEGREE_NAMES`), left out with ``--var ignore=...``, or one
+    of ``metadata`` (what the format documents as not data, e.g. a NetCDF dimension coordinate). Any other
+    variable is refused with one line naming it and the ``--var`` that maps or leaves it out, so nothing a file
+    holds is dropped silently.
+    """
+    variables = check_variables(variables)
+    ignored = set(_ignored(variables))
+    mapped = {name: v for name, v in variables.items() if name != IGNORE}
+    missing = sorted([f"{name}={v}" for name, v in mapped.items() if v not in held]
+                     + [f"{IGNORE}={v}" for v in ignored if v not in held])
+    if missing:
+        raise ScanError(f"{source} has no variable for --var {', '.join(missing)}; it holds {sorted(held)}")
+    chosen = {_canonical(name): Selected(v, name in DEGREE_NAMES) for name, v in mapped.items()}
+    taken = set(mapped.values()) | ignored
+    clash, unknown = [], []
+    for variable in sorted(held):
+        if variable in taken:
+            continue
+        if variable in VARIABLE_NAMES:
+            name = _canonical(variable)
+            if name not in chosen:
+                chosen[name] = Selected(variable, variable in DEGREE_NAMES)
+                continue
+            if chosen[name].variable in mapped.values():
+                clash.append(variable)
+                continue
+            raise ScanError(f"{source} holds both {chosen[name].variable!r} and {variable!r} for {name}; choose one "
+                            f"with --var {IGNORE}={variable} (or --var {IGNORE}={chosen[name].variable})")
+        if variable not in metadata:
+            unknown.append(variable)
+    if clash:
+        raise ScanError(f"{source} holds {clash} itself and --var maps other arrays to them; remove one or the "
+                        f"other, or leave it out with --var {IGNORE}={','.join(clash)}")
+    if unknown:
+        what = (f"variable {unknown[0]!r} is not a scan array" if len(unknown) == 1
+                else f"variables {unknown} are not scan arrays")
+        raise ScanError(f"{source}: {what} and would be dropped; map it with --var NAME="
+                        f"{unknown[0]} (NAME: {', '.join(VARIABLE_NAMES)}) or leave it out with --var "
+                        f"{IGNORE}={','.join(unknown)}")
+    return chosen
+
+
+def _canonical(name: str) -> str:
+    return ALIASES.get(name) or DEGREE_NAMES.get(name) or name
+
+
+def _ignored(variables: Mapping[str, str]) -> list[str]:
+    return [v.strip() for v in variables.get(IGNORE, "").split(",") if v.strip()]
+
+
+def check_geometry(arrays: Mapping[str, NDArray], source: str) -> None:
+    """Refuse scan-grid angles that are not finite radians, and ray directions that are not unit vectors.
+
+    :func:`import_arrays` calls it on a validated scan (the arrays have their declared shapes and dtypes).
+    Angles in radians lie within :data:`ANGLE_LIMITS_RAD` (azimuth within +-2 pi, elevation within +-pi/2);
+    beyond that they are degrees written as radians, and the line says how to import them as degrees. Degrees
+    of a narrow field of view (within +-1.57) cannot be told from radians: declare them (a ``_deg`` name or a
+    NetCDF ``units`` attribute).
+    """
+    for name, limit in ANGLE_LIMITS_RAD.items():
+        if name not in arrays:
+            continue
+        values = np.asarray(arrays[name], dtype=np.float64)
+        if not np.isfinite(values).all():
+            raise ScanError(f"{source}: {name} has values that are not finite; every pixel row and column needs "
+                            "its angle")
+        largest = float(np.abs(values).max(initial=0.0))
+        if largest > limit * (1 + 1e-9):
+            degrees = name.replace("_rad", "_deg")
+            raise ScanError(f"{source}: {name} reaches {largest:g}, beyond the {limit:.4g} rad an angle of the scan "
+                            f"grid can be, so it is in degrees; import it with --var {degrees}=VARIABLE (or a "
+                            "NetCDF units attribute 'degrees')")
+    if "ray_directions" in arrays:
+        rays = np.asarray(arrays["ray_directions"], dtype=np.float64)
+        if rays.ndim == 3 and rays.shape[-1] == 3:
+            norms = np.sqrt((rays**2).sum(axis=-1))
+            off = np.abs(norms[np.isfinite(norms)] - 1)
+            if off.size and off.max() > RAY_NORM_TOLERANCE:
+                raise ScanError(f"{source}: ray_directions are not unit vectors (lengths up to "
+                                f"{1 + float(off.max()):.4g}); divide each by its length before importing")
+
+
+def check_regular_file(path: Path) -> None:
+    """Refuse, before anything is opened, a path that is not a regular file (a directory, a FIFO, a device
+    such as /dev/zero, or a symbolic link to one) or that is larger than :data:`MAX_FILE_BYTES`."""
+    try:
+        info = os.stat(path)  # follows links; never blocks on a FIFO
+    except FileNotFoundError:
+        raise ScanError(f"{path} does not exist") from None
+    except OSError as exc:
+        raise ScanError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(info.st_mode):
+        kind = ("a directory" if stat.S_ISDIR(info.st_mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(info.st_mode)
+                else "a socket" if stat.S_ISSOCK(info.st_mode) else "a device")
+        link = ", through a symbolic link," if path.is_symlink() else ""
+        raise ScanError(f"{path} is{link} {kind}, not a regular file; import-scan reads regular files only: copy "
+                        "the scan into a file")
+    if info.st_size > MAX_FILE_BYTES:
+        raise ScanError(f"{path} is {info.st_size / 2**30:.1f} GiB, more than the {MAX_FILE_BYTES / 2**30:g} GiB "
+                        "an imported file may be; split the scan into smaller files")
 

@@ -10,10 +10,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.scans.importers.base import (
-    SCAN_VARIABLES,
     ScanImporter,
+    check_regular_file,
     check_variables,
     import_arrays,
+    select_variables,
     stored_frequencies,
 )
 from mpi_lidar.scans.scan import Scan, ScanError
@@ -46,19 +47,24 @@ class NetcdfImporter(ScanImporter):
 
 def load_netcdf(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
                 variables: Mapping[str, str] | None = None) -> Scan:
-    """Import a NetCDF (3 or 4) or HDF5 file through xarray: its variables named as in the scan store, or
-    mapped by ``variables`` (``{"depth": "range_m", "amplitude": "intensity"}``); other variables are ignored.
+    """Import a NetCDF (3 or 4) or HDF5 file through xarray: its variables named as in the scan store (or an
+    alias: ``azimuth``, ``elevation``, ``azimuth_deg``, ``elevation_deg``, ``frequency_hz``), or mapped by
+    ``variables`` (``{"depth": "range_m", "amplitude": "intensity", "azimuth_deg": "az"}``).
 
-    The frequencies come from ``frequencies_hz``, else the variable ``frequencies_hz`` (or ``frequency_hz``),
-    else the global attribute ``frequencies_hz``. CF decoding applies (``_FillValue`` becomes NaN,
-    ``scale_factor``), and a ``units`` attribute is converted (mm, cm or km to m, degrees to rad, kHz, MHz
-    or GHz to Hz; other units are refused). Each variable's dtype and declared size are checked against the
-    memory budget before anything is read.
+    Every variable is accounted for (:func:`~mpi_lidar.scans.importers.base.select_variables`): a variable that
+    is neither a scan array, nor left out with ``{"ignore": "a,b"}``, nor metadata (a dimension coordinate, a
+    variable named like its only dimension, or a scalar) is refused. The frequencies come from
+    ``frequencies_hz``, else the variable ``frequencies_hz`` (or ``frequency_hz``), else the global attribute
+    ``frequencies_hz``; either way they are checked to be Hz (not MHz). CF decoding applies (``_FillValue``
+    becomes NaN, ``scale_factor``), and a ``units`` attribute is converted (mm, cm or km to m, degrees to rad,
+    kHz, MHz or GHz to Hz; other units are refused); a ``_deg`` name without ``units`` holds degrees. Each
+    variable's dtype and declared size are checked against the memory budget before anything is read.
     """
     import xarray as xr
 
     path = Path(path)
-    variables = check_variables(variables)
+    check_variables(variables)  # a mistyped --var before the file is opened
+    check_regular_file(path)
     hdf5 = _is_hdf5(path)
     try:
         if hdf5:  # plain HDF5 datasets have no dimension names
@@ -69,18 +75,15 @@ def load_netcdf(path: str | Path, frequencies_hz: tuple[float, ...] | None = Non
     except Exception as exc:  # h5netcdf, h5py and scipy raise many types for foreign or damaged files
         raise ScanError(f"{path} is not a readable NetCDF/HDF5 file ({_reason(exc)})") from None
     with ds:
-        missing = sorted(f"{name}={v}" for name, v in variables.items() if v not in ds.variables)
-        if missing:
-            raise ScanError(f"{path} has no variable for --var {', '.join(missing)}; it holds "
-                            f"{sorted(map(str, ds.variables))}")
-        chosen = {name: variables.get(name, name) for name in SCAN_VARIABLES
-                  if variables.get(name, name) in ds.variables}
-        if "frequencies_hz" not in chosen and "frequency_hz" in ds.variables:
-            chosen["frequencies_hz"] = "frequency_hz"
+        held = [str(v) for v in ds.variables]
+        metadata = [v for v in held if ds[v].ndim == 0 or ds[v].dims == (v,)]
+        selection = select_variables(str(path), held, variables, metadata)
+        chosen = {name: selected.variable for name, selected in selection.items()}
         _check_variable_sizes(path, ds, chosen)
         try:
-            arrays = {name: _in_store_units(path, name, ds[v].attrs.get("units"), ds[v].values)
-                      for name, v in chosen.items()}
+            arrays = {name: _in_store_units(path, name, ds[s.variable].attrs.get("units"), ds[s.variable].values,
+                                            s.degrees)
+                      for name, s in selection.items()}
         except ScanError:
             raise
         except Exception as exc:  # a damaged chunk or a failing filter while reading
@@ -125,8 +128,14 @@ def _check_variable_sizes(path: Path, ds: xr.Dataset, chosen: Mapping[str, str])
     check_memory_budget(path, [(f"variable {v!r}", ds[v].shape, ds[v].dtype) for v in chosen.values()])
 
 
-def _in_store_units(path: Path, name: str, units: object, values: NDArray) -> NDArray:
-    """``values`` converted from their declared ``units`` to the unit of the scan store (see :data:`UNITS`)."""
+def _in_store_units(path: Path, name: str, units: object, values: NDArray, degrees: bool = False) -> NDArray:
+    """``values`` converted from their declared ``units`` to the unit of the scan store (see :data:`UNITS`);
+    with ``degrees`` (a ``_deg`` name) the values are degrees, and a ``units`` attribute must agree."""
+    if degrees:
+        if units is not None and _RADIANS.get(str(units).strip().lower()) != _RADIANS["degrees"]:
+            raise ScanError(f"{path}: {name} is mapped as degrees but its variable has units {units!r}; map it as "
+                            f"{name} instead")
+        units = "degrees"
     if name not in UNITS or units is None:
         return values
     unit, factors = UNITS[name]
@@ -135,4 +144,3 @@ def _in_store_units(path: Path, name: str, units: object, values: NDArray) -> ND
         raise ScanError(f"{path}: {name} has units {units!r}; give it in {unit} or one of "
                         f"{', '.join(sorted(factors))}")
     return values if factor == 1.0 else values * factor
-

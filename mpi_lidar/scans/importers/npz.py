@@ -12,8 +12,10 @@ from numpy.typing import DTypeLike, NDArray
 
 from mpi_lidar.scans.importers.base import (
     ScanImporter,
+    check_regular_file,
     check_variables,
     import_arrays,
+    select_variables,
     stored_frequencies,
 )
 from mpi_lidar.scans.scan import Scan, ScanError
@@ -34,20 +36,29 @@ def load_npz(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
              variables: Mapping[str, str] | None = None) -> Scan:
     """Import an ``.npz`` archive (arrays named as in the scan store; frequencies_hz inside or given).
 
-    ``variables`` maps scan array names to the archive's member names (``{"depth": "range_m"}``); members
-    it does not name must be named as in the scan store. Every member's header is checked (dtype, declared
+    ``variables`` maps scan array names to the archive's member names (``{"depth": "range_m"}``,
+    ``{"azimuth_deg": "az"}`` for degrees, ``{"ignore": "notes"}`` to leave members out); members it does not
+    name must be named as in the scan store (or an alias: ``azimuth``, ``elevation`` in radians,
+    ``azimuth_deg``, ``elevation_deg``), and any other member is refused
+    (:func:`~mpi_lidar.scans.importers.base.select_variables`). Every member's header is checked (dtype, declared
     size against the memory budget) before any array is read, so a damaged or hostile archive is refused
     without allocating what it claims.
     """
     path = Path(path)
-    variables = check_variables(variables)
+    check_variables(variables)  # a mistyped --var before the file is opened
+    check_regular_file(path)
     _check_npz_headers(path)
     try:
         with np.load(path, allow_pickle=False) as archive:
-            arrays = {key: archive[key] for key in archive.files}
+            chosen = select_variables(str(path), archive.files, variables)
+            arrays = {name: archive[selected.variable] for name, selected in chosen.items()}
+    except ScanError:
+        raise
     except Exception as exc:  # zipfile, numpy and OS errors of a damaged archive
         raise ScanError(f"{path} is not a readable .npz archive ({type(exc).__name__}: {exc})") from None
-    arrays = _renamed(path, arrays, variables)
+    for name, selected in chosen.items():
+        if selected.degrees:
+            arrays[name] = np.radians(np.asarray(arrays[name], dtype=np.float64))
     stored = arrays.pop("frequencies_hz", None)
     if frequencies_hz is not None:
         freqs: tuple[float, ...] | NDArray = frequencies_hz
@@ -78,15 +89,3 @@ def _check_npz_headers(path: Path) -> None:
     except Exception as exc:  # not a zip, a member without an .npy header, a damaged header
         raise ScanError(f"{path} is not a readable .npz archive ({type(exc).__name__}: {exc})") from None
     check_memory_budget(path, declared)
-
-
-def _renamed(path: Path, arrays: dict[str, NDArray], variables: Mapping[str, str]) -> dict[str, NDArray]:
-    missing = sorted(f"{name}={member}" for name, member in variables.items() if member not in arrays)
-    if missing:
-        raise ScanError(f"{path} has no array for --var {', '.join(missing)}; it holds {sorted(arrays)}")
-    rest = {key: value for key, value in arrays.items() if key not in set(variables.values())}
-    clash = sorted(set(rest) & set(variables))
-    if clash:
-        raise ScanError(f"{path} holds {clash} itself and --var maps other arrays to them; remove one or the other")
-    return {**rest, **{name: arrays[member] for name, member in variables.items()}}
-

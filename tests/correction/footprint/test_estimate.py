@@ -268,7 +268,8 @@ def test_pool__is_the_inverse_variance_mean():
 
 def test_correct__auto_on_a_flat_wall_keeps_every_raw_depth(tiny_geometric_model):
     scan = rendered(flat_wall(20.0), 0.041)
-    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto"))
+    correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto",
+                                                                            baseline="raw"))
     valid = correction.flags != Flag.NOT_FINITE
     assert np.array_equal(correction.depth[valid], scan.depth[-1][valid])
     assert correction.counts()["corrected"] == 0
@@ -278,7 +279,8 @@ def test_correct__an_estimate_that_is_not_significant_leaves_its_pixels_as_measu
     # A dark corner (albedo 0.1) at high noise: the multipath is too weak to measure the footprint on.
     scan = rendered(corner(90.0, 2.0, 0.1), 0.041, noise=3.0)
     correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto",
-                                                                           min_multipath_bias_m=1e-4))
+                                                                           min_multipath_bias_m=1e-4,
+                                                                           baseline="raw"))
     assert correction.calibration is not None and not correction.calibration.significant
     assert correction.counts()["corrected"] == 0 and correction.counts()["uncalibrated"] > 0
     left = np.isin(correction.flags, [Flag.UNCALIBRATED, Flag.NO_MULTIPATH])
@@ -504,9 +506,11 @@ def test_correct_scan__amplitude_unit_auto_measures_each_scans_own(tiny_geometri
 
     model = load_model(tiny_geometric_model_dir)
     scan = rendered(room_corner(height=64, width=86), 0.02, seed=1)
-    in_v2 = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=0.02))
+    # The raw baseline isolates the unit: the fused baseline also takes the noise and offsets the scan measured.
+    in_v2 = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=0.02, baseline="raw"))
     counts = replace(scan, amplitude=(scan.amplitude * 4000).astype(np.float32))
-    auto = correct_scan(counts, model, CorrectionOptions(footprint_area_m2=0.02, amplitude_scale="auto"))
+    auto = correct_scan(counts, model, CorrectionOptions(footprint_area_m2=0.02, amplitude_scale="auto",
+                                                         baseline="raw"))
     assert auto.unserved is None and auto.notes[0].startswith("amplitude unit auto: ")
     assert 3600 < float(auto.notes[0].split()[3]) < 4400  # the unit, within 10 %
     difference = np.abs(auto.depth - in_v2.depth)

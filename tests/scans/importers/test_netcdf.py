@@ -36,8 +36,8 @@ def test_load_netcdf__plain_hdf5_with_store_names(tmp_path):
         f["reference_depth"] = scan.reference_depth
         f["reference_mask"] = scan.reference_mask.astype(np.uint8)
         f["frequencies_hz"] = np.asarray(FREQS)
-        f["notes"] = np.zeros(3)  # not a scan array: ignored
-    imported = load_scan_file(tmp_path / "plain.h5")
+        f["notes"] = np.zeros(3)  # not a scan array: left out explicitly (refused otherwise)
+    imported = load_scan_file(tmp_path / "plain.h5", variables={"ignore": "notes"})
     np.testing.assert_array_equal(imported.depth, scan.depth)
     np.testing.assert_array_equal(imported.reference_mask, scan.reference_mask)
     assert imported.reference_mask.dtype == np.bool_

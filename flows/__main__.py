@@ -1,0 +1,227 @@
+"""Run one flow in this process, on its embedded defaults: ``python -m flows <flow> [--<parameter> VALUE]...``.
+
+Every parameter of the flow is an option, spelled as the parameter with dashes (``min_bias_mm`` is
+``--min-bias-mm``); a list takes one or more values and may be repeated (``--scans a b --scans c``), a
+boolean is ``--name`` / ``--no-name``. The options are read from the flow's own signature, so they and
+their defaults are the flow's, which are ``mpi-lidar``'s (:data:`CLI_SPELLINGS` adds the CLI's spelling where
+a parameter is named otherwise). At the end the flow run's id, final state and result are printed as one JSON
+object on stdout; a flow run that fails prints one ``error:`` line (its state's message) and exits 1, a bad
+option exits 2.
+
+Without ``PREFECT_API_URL`` the run reports to a temporary Prefect server of its own, started while the
+flow's modules import. The console shows warnings and errors only (the flow and task runs' INFO lines still
+reach the API); ``PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL=INFO`` shows them, and an error's traceback only
+with ``--debug``. Nothing reports usage to Prefect's public endpoint (see :mod:`flows`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import inspect
+import json
+import logging
+import os
+import sys
+import types
+import typing
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import wait as wait_all
+from typing import Any, Literal
+
+# Quiet console for a run from the terminal, set before anything imports Prefect or Dask (their worker processes
+# inherit it); the environment wins where it says otherwise.
+QUIET_ENVIRONMENT = {
+    "PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL": "WARNING",  # flow and task runs still log INFO to the API
+    "DASK_LOGGING__DISTRIBUTED": "error",  # the LocalCluster's start, stop and worker-restart chatter
+    # The temporary server's first start in a new PREFECT_HOME creates its database: on a busy machine that
+    # takes longer than Prefect's 20 s, and a second server would then be started on the same port.
+    "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
+}
+
+# Each flow under its Prefect name (as in deployments: 'tune/tune'): module and attribute.
+FLOWS = {
+    "generate-dataset": "flows.generate_dataset:generate_dataset_flow",
+    "regenerate-dataset": "flows.regenerate:regenerate_dataset_flow",
+    "tune": "flows.tune:tune_flow",
+    "train": "flows.train:train_flow",
+    "evaluate": "flows.evaluate:evaluate_flow",
+    "table-2": "flows.evaluate:table2_flow",
+    "correct-archive": "flows.correct:correct_archive_flow",
+    "pipeline": "flows.pipeline:pipeline_flow",
+}
+SUMMARIES = {
+    "generate-dataset": "generate (or resume) a labelled dataset store, as mpi-lidar simulate",
+    "regenerate-dataset": "the dataset of this configuration and code version under a root, as scheduled nightly",
+    "tune": "the Optuna study, as mpi-lidar tune",
+    "train": "the final model, as mpi-lidar train",
+    "evaluate": "test-split metrics and report, as mpi-lidar evaluate",
+    "table-2": "the paper's Table II with its baselines, as mpi-lidar table2",
+    "correct-archive": "batch correction of scans, as mpi-lidar correct",
+    "pipeline": "the main job, as mpi-lidar pipeline",
+}
+# The command line's other spellings of a flow parameter: mpi-lidar correct --point-cloud, evaluate --out.
+CLI_SPELLINGS = {"point_clouds": ["--point-cloud"], "report": ["--out"]}
+
+
+def quiet_environment() -> None:
+    """Set :data:`QUIET_ENVIRONMENT` where the environment does not set it already."""
+    for name, value in QUIET_ENVIRONMENT.items():
+        os.environ.setdefault(name, value)
+
+
+def load_flow(name: str) -> Any:
+    module, attribute = FLOWS[name].split(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def _without_none(annotation: Any) -> Any:
+    """The annotation without ``None`` (``str | None`` is ``str``): a missing option is the default."""
+    if isinstance(annotation, types.UnionType) or typing.get_origin(annotation) is typing.Union:
+        args = [a for a in typing.get_args(annotation) if a is not type(None)]
+        return args[0] if len(args) == 1 else typing.Union[tuple(args)]  # noqa: UP007 (built at run time)
+    return annotation
+
+
+def _converter(annotation: Any) -> tuple[Callable[[str], object], list[str] | None]:
+    """How one value of the annotation is read from text, and its choices (a ``Literal``'s values)."""
+    if typing.get_origin(annotation) is Literal:
+        return str, [str(v) for v in typing.get_args(annotation)]
+    members = typing.get_args(annotation) if typing.get_origin(annotation) in (typing.Union, types.UnionType) else ()
+    if members:  # e.g. float | str: footprint_area_m2 is a number or "auto"
+        readers = [_converter(m)[0] for m in members]
+
+        def number_or_text(text: str) -> object:
+            for read in readers:
+                try:
+                    return read(text)
+                except ValueError:
+                    continue
+            raise ValueError(text)
+        return number_or_text, None
+    if annotation in (int, float, str):
+        return annotation, None
+    raise TypeError(f"no command-line reading for {annotation!r}")
+
+
+def build_parser(name: str, flow: Any) -> argparse.ArgumentParser:
+    """An option per parameter of ``flow``, with its type, choices and default read from its signature."""
+    fn = flow.fn
+    doc = inspect.getdoc(fn) or SUMMARIES[name]
+    parser = argparse.ArgumentParser(prog=f"python -m flows {name}", description=doc,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    hints = typing.get_type_hints(fn)
+    for parameter in inspect.signature(fn).parameters.values():
+        annotation = _without_none(hints[parameter.name])
+        flags = [f"--{parameter.name.replace('_', '-')}", *CLI_SPELLINGS.get(parameter.name, [])]
+        required = parameter.default is inspect.Parameter.empty
+        default = None if required else parameter.default
+        shown = "required" if required else f"default: {default}"
+        if annotation is bool:
+            parser.add_argument(*flags, dest=parameter.name, action=argparse.BooleanOptionalAction,
+                                default=default, required=required, help=shown)
+            continue
+        if typing.get_origin(annotation) is list:
+            read, choices = _converter(typing.get_args(annotation)[0])
+            parser.add_argument(*flags, dest=parameter.name, type=read, choices=choices, nargs="+",
+                                action="extend", default=None, required=required,
+                                help=f"one or more; repeatable ({shown})")
+            continue
+        read, choices = _converter(annotation)
+        parser.add_argument(*flags, dest=parameter.name, type=read, choices=choices, default=default,
+                            required=required, help=shown)
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
+    return parser
+
+
+class _WithoutTraceback(logging.Filter):
+    """Leaves a record's traceback out of the console: the run ends with its one ``error:`` line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.exc_info, record.exc_text, record.stack_info = None, None, None
+        return True
+
+
+def console_without_tracebacks() -> None:
+    """Prefect's console handler (set up when the flow's modules imported Prefect) prints no tracebacks.
+
+    The API handlers of the flow and task runs see the records first, so the runs' logs keep them.
+    """
+    from prefect.logging.handlers import PrefectConsoleHandler
+
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, PrefectConsoleHandler):
+            handler.addFilter(_WithoutTraceback())
+
+
+def start_api_in_background() -> Future[None] | None:
+    """Start this process's temporary Prefect server while the flow's modules import (no URL set: none).
+
+    :func:`flows.runtime.api_url` finds it afterwards, as ``prefect.get_client()`` does: it is the process's
+    default instance. The caller waits for the future (which raises what the start raised) before any flow runs.
+    """
+    from prefect.settings import get_current_settings
+
+    if get_current_settings().api.url:
+        return None
+    from prefect.server.api.server import SubprocessASGIServer
+
+    pool = ThreadPoolExecutor(1, thread_name_prefix="start-prefect-server")
+    started = pool.submit(SubprocessASGIServer().start)
+    pool.shutdown(wait=False)  # the start goes on; the future tells when it is done
+    return started
+
+
+def stop_api() -> None:
+    from prefect.server.api.server import SubprocessASGIServer
+
+    SubprocessASGIServer().stop()
+
+
+def _usage() -> str:
+    width = max(map(len, FLOWS))
+    lines = [f"  {name:<{width}}  {SUMMARIES[name]}" for name in FLOWS]
+    return ("usage: python -m flows FLOW [--PARAMETER VALUE]...\n\nflows (python -m flows FLOW --help for its "
+            "options):\n" + "\n".join(lines))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse, run the flow in this process, print its result; returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_usage())
+        return 0 if argv else 2
+    name, options = argv[0], argv[1:]
+    if name not in FLOWS:
+        print(f"{_usage()}\n\nerror: unknown flow {name!r}", file=sys.stderr)
+        return 2
+    quiet_environment()
+    asks_help = any(o in ("-h", "--help") for o in options)
+    server = None if asks_help else start_api_in_background()
+    flow = load_flow(name)
+    try:
+        args = vars(build_parser(name, flow).parse_args(options))
+    except SystemExit:  # a bad option (2) or --help (0): stop the server this call started, if any
+        if server is not None:
+            wait_all([server])
+            stop_api()
+        raise
+    debug = args.pop("debug")
+    if not debug:
+        console_without_tracebacks()
+    if server is not None:
+        server.result()  # raises what the start raised
+    with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON alone; prints of libraries go beside logs
+        state = flow(**args, return_state=True)
+    if state.is_failed() or state.is_crashed():
+        print(f"error: {state.message or state.name}", file=sys.stderr)
+        return 1
+    print(json.dumps({"flow": name, "flow_run_id": str(state.state_details.flow_run_id), "state": state.name,
+                      "result": state.result()}, indent=2, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

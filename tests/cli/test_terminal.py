@@ -1,0 +1,90 @@
+"""What the command line prints: plain tables and occasional progress lines when piped, rich ones on a terminal,
+one line per usage error."""
+
+from __future__ import annotations
+
+import io
+import time
+
+import pytest
+
+from mpi_lidar.terminal import Display, duration, plain_text, plural, print_table, table_lines
+from tests.cli_runner import assert_one_error_line, call_main
+
+
+class FakeTerminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_plural__one_and_many():
+    assert [plural(n, "scan") for n in (0, 1, 2, 1000)] == ["0 scans", "1 scan", "2 scans", "1,000 scans"]
+    assert plural(2, "study", "studies") == "2 studies"
+
+
+def test_duration__seconds_minutes_hours():
+    assert [duration(s) for s in (4.4, 65, 3725)] == ["4 s", "1 min 05 s", "1 h 02 min"]
+
+
+def test_plain_text__markdown_becomes_what_a_reader_sees():
+    assert plain_text("[report](../a/report.html)") == "report"
+    assert plain_text(r"a\|b \*c\* `code`") == "a|b *c* code"
+    assert plain_text("two\nlines") == "two lines"
+
+
+def test_table_lines__aligned_columns_without_markdown():
+    lines = table_lines(("scan", "status"), [("a", "corrected"), ("longer_name", "[x](y)")])
+    assert lines == ["scan         status", "-----------  ---------", "a            corrected", "longer_name  x"]
+    assert not any("|" in line for line in lines)
+
+
+def test_print_table__rich_on_a_terminal_plain_in_a_pipe():
+    piped, terminal = io.StringIO(), FakeTerminal()
+    for stream in (piped, terminal):
+        print_table(("scan", "MAE [mm]", "notes"), [("a", "1.0", "a long note " * 20)], stream=stream, clip=("notes",))
+    assert piped.getvalue().splitlines()[0].split() == ["scan", "MAE", "[mm]", "notes"]
+    assert "┃" in terminal.getvalue() and "MAE [mm]" in terminal.getvalue()  # "[mm]" is text, not markup
+    assert "…" in terminal.getvalue() and "|" not in terminal.getvalue()
+
+
+def test_display__piped_counts_first_last_and_at_most_one_line_per_interval():
+    stream = io.StringIO()
+    with Display(stream, every_s=3600) as display, display.step("scans", 50) as advance:
+        for i in range(50):
+            advance(f"s{i}: corrected")
+    lines = stream.getvalue().splitlines()
+    assert [line.split(",")[0] for line in lines] == ["scans: 1/50", "scans: 50/50"]
+    assert lines[-1].endswith("last s49: corrected")
+
+
+def test_display__piped_step_without_a_count_says_it_still_runs():
+    stream = io.StringIO()
+    with Display(stream, every_s=0.05) as display, display.step("training") as now:
+        now("round 3")
+        time.sleep(0.2)
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == "training ..." and len(lines) >= 2
+    assert all(line.startswith("training: still running (round 3), ") for line in lines[1:])
+
+
+def test_display__on_a_terminal_leaves_only_the_echoed_lines():
+    stream = FakeTerminal()
+    with Display(stream) as display, display.step("trials", 2) as advance:
+        display.echo("study 'x': 2 trials run")
+        advance()
+        advance()
+    assert display.live and "study 'x': 2 trials run" in stream.getvalue()
+
+
+@pytest.mark.parametrize(("args", "fragment"), [
+    (["correct", "--frobnicate"], "no such option --frobnicate (mpi-lidar correct --help lists the options)"),
+    (["correct", "--mode", "x"], "no such option --mode; did you mean --model? (mpi-lidar correct --help"),
+    (["correct", "x", "--out", "o"], "missing option '--model' (mpi-lidar correct --help lists the options)"),
+    (["tune", "--data", "d", "--trials", "0"], "mpi-lidar tune --help"),
+    (["frobnicate"], "no such command 'frobnicate' (mpi-lidar --help lists the commands)"),
+    (["correct", "--model"], "option '--model' requires an argument (mpi-lidar correct --help"),
+])
+def test_main__a_usage_error_is_one_line(monkeypatch, capsys, args, fragment):
+    code, stdout, stderr = call_main(monkeypatch, capsys, *args)
+    assert code == 2 and stdout == ""
+    assert_one_error_line(stderr, fragment)
