@@ -5,7 +5,7 @@ Every parameter of the flow is an option, spelled as the parameter with dashes (
 boolean is ``--name`` / ``--no-name``. The options are read from the flow's own signature, so they and
 their defaults are the flow's, which are ``mpi-lidar``'s (:data:`CLI_SPELLINGS` adds the CLI's spelling where
 a parameter is named otherwise). At the end the flow run's id, final state and result are printed as one JSON
-object on stdout; a flow run that fails prints one ``error:`` line (its state's message) and exits 1, a bad
+object on stdout; a flow run that fails prints one ``error:`` line (:func:`failure_line`) and exits 1, a bad
 option exits 2.
 
 Without ``PREFECT_API_URL`` the run reports to a temporary Prefect server of its own, started while the
@@ -180,6 +180,22 @@ def stop_api() -> None:
     SubprocessASGIServer().stop()
 
 
+def failure_line(state: Any) -> str:
+    """Why a flow run failed, in one line: a user error's own message (as ``mpi-lidar`` prints it), else the
+    exception's type and message, else the state's message."""
+    from mpi_lidar.errors import MpiLidarError
+
+    try:
+        raised = state.result(raise_on_failure=False)
+    except Exception:  # the result cannot be read back: the state's message says enough
+        raised = None
+    if isinstance(raised, MpiLidarError):
+        return str(raised)
+    if isinstance(raised, BaseException):
+        return f"{type(raised).__name__}: {raised}"
+    return state.message or state.name
+
+
 def _usage() -> str:
     width = max(map(len, FLOWS))
     lines = [f"  {name:<{width}}  {SUMMARIES[name]}" for name in FLOWS]
@@ -191,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse, run the flow in this process, print its result; returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
-        print(_usage())
+        print(_usage(), file=sys.stdout if argv else sys.stderr)
         return 0 if argv else 2
     name, options = argv[0], argv[1:]
     if name not in FLOWS:
@@ -216,7 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON alone; prints of libraries go beside logs
         state = flow(**args, return_state=True)
     if state.is_failed() or state.is_crashed():
-        print(f"error: {state.message or state.name}", file=sys.stderr)
+        print(f"error: {failure_line(state)}", file=sys.stderr)
         return 1
     print(json.dumps({"flow": name, "flow_run_id": str(state.state_details.flow_run_id), "state": state.name,
                       "result": state.result()}, indent=2, default=str))

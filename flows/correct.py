@@ -155,14 +155,13 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "g
 
     The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
     [m^2] or "auto", ``sensor`` (a sensor profile's path), ``amplitude_scale`` (the scanner's amplitude unit
-    per V^2) and ``max_invalid_share`` (None keeps the
-    default), ``fail_on`` (statuses that end the flow Failed after the summary is written; failed always does,
-    unserved unless ``allow_unserved``), ``workers`` (0, the default of ``mpi-lidar correct``: in the flow's
-    process, every core on each scan and no Dask cluster started; N: a LocalCluster of N processes),
-    ``scheduler``, ``outputs`` (light: store, metrics, report and thumbnail; data; full) and ``point_clouds``
-    (formats written at any level, as ``--point-cloud``; None: ply and las at full, none below) and ``baseline``
-    (what the pixels the model does not correct get: fused or raw). Returns the flow run's id, the wall time and
-    each source's status.
+    per V^2) and ``max_invalid_share`` (None keeps the default), ``fail_on`` (statuses that end the flow Failed
+    after the summary is written; failed always does, unserved unless ``allow_unserved``), ``workers`` (0, the
+    default of ``mpi-lidar correct``: in the flow's process, every core on each scan and no Dask cluster
+    started; N: a LocalCluster of N processes), ``scheduler``, ``outputs`` (light: store, metrics, report and
+    thumbnail; data; full), ``point_clouds`` (formats written at any level, as ``--point-cloud``; None: ply and
+    las at full, none below) and ``baseline`` (what the pixels the model does not correct get: fused or raw).
+    Returns the flow run's id, the wall time and each source's status.
     """
     options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
                                          max_invalid_share=max_invalid_share, amplitude_scale=amplitude_scale,

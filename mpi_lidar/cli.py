@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
@@ -13,7 +12,7 @@ import click
 
 from mpi_lidar.config import PRESETS, Config, resolve_config
 from mpi_lidar.correction.gate_names import GATES
-from mpi_lidar.errors import EXIT_FAILURE, EXIT_USER_ERROR, MpiLidarError
+from mpi_lidar.errors import EXIT_FAILURE, EXIT_USER_ERROR, MpiLidarError, environment_fault, write_error_log
 from mpi_lidar.learning.feature_choices import (  # not .features: that imports dask, and --help must be quick
     DEFAULT_FEATURE_SET,
     DEFAULT_GEOMETRIC,
@@ -21,7 +20,7 @@ from mpi_lidar.learning.feature_choices import (  # not .features: that imports 
     FEATURE_SETS,
     TARGET_MODES,
 )
-from mpi_lidar.redact import redact
+from mpi_lidar.redact import install_log_redaction, redact
 from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS
 from mpi_lidar.terminal import Display, plural, print_table
 
@@ -214,15 +213,13 @@ def load_params(path: Path) -> dict[str, object]:
     import tomllib
 
     from mpi_lidar.learning.train import check_params
+    from mpi_lidar.safe_files import read_small_text
 
+    # A regular file of at most 1 MiB, UTF-8: a FIFO or /dev/zero is refused before a byte is read.
+    text = read_small_text(path, "parameter file", kind="TOML" if path.suffix == ".toml" else "JSON")
     try:
-        text = path.read_text()
         params = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
-    except FileNotFoundError:
-        raise MpiLidarError(f"parameter file {path} does not exist") from None
-    except IsADirectoryError:
-        raise MpiLidarError(f"parameter file {path} is a directory; give a JSON or TOML file") from None
-    except (ValueError, UnicodeDecodeError) as exc:
+    except (ValueError, RecursionError) as exc:  # RecursionError: arrays nested thousands deep
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise MpiLidarError(f"parameter file {path} is not valid {path.suffix[1:] or 'JSON'}: {reason}") from None
     if not isinstance(params, dict):
@@ -376,13 +373,18 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, gate: str, m
     started = time.perf_counter()
     here = not scheduler and not workers
     total = len(expand_archive(list(scans)))
+    def summarise(outcomes: list[ScanOutcome]) -> Path:  # while the batch still holds out_dir
+        return write_batch_report(outcomes, time.perf_counter() - started, out_dir)
+
     with Display() as display, display.step("correcting scans", total) as advance:
         with InProcess() if here else dask_executor(scheduler, workers or 2) as executor:
+            summaries: list[Path] = []
             outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
                                        on_scan=lambda outcome: advance(f"{outcome.name}: {outcome.status}"),
-                                       outputs=outputs, point_clouds=point_clouds or None)
+                                       outputs=outputs, point_clouds=point_clouds or None,
+                                       on_done=lambda done: summaries.append(summarise(done)))
     wall_s = time.perf_counter() - started
-    summary = write_batch_report(outcomes, wall_s, out_dir)
+    summary = summaries[0]
     print_batch(outcomes, wall_s, summary)
     failing = failing_outcomes(outcomes, fail_on, allow_unserved)
     for outcome in failing:
@@ -462,8 +464,11 @@ def calibrate(scans: tuple[str, ...], out: Path, no_reference: bool) -> None:
               help="Scan store to write (X.scan.zarr) for one file, or a directory: OUT/<name>.scan.zarr per file.")
 @click.option("--frequencies", help="Comma-separated frequencies in Hz, if the files do not hold frequencies_hz.")
 @click.option("--var", "variables", multiple=True, metavar="NAME=VARIABLE",
-              help="Read the scan array NAME (depth, amplitude, taps, azimuth_rad, elevation_rad, reference_depth, "
-                   "frequencies_hz, ...) from the file's VARIABLE (array of an .npz); repeatable.")
+              help="Read the scan array NAME (depth, amplitude, taps, azimuth_rad, elevation_rad, azimuth_deg, "
+                   "elevation_deg, reference_depth, frequencies_hz, ...) from the file's VARIABLE (array of an "
+                   ".npz); ignore=VAR1,VAR2 leaves variables out on purpose; repeatable. A variable neither known nor "
+                   "mapped is refused; only regular files of at most 2 GiB are read, and all stores are written or "
+                   "none.")
 @click.option("--depths", type=click.Choice(["wrapped", "unwrapped"]), default="wrapped", show_default=True,
               help="wrapped: each frequency's depth lies in [0, c/2f), as its phase measures it (correction "
                    "unwraps them into one range, out to 24 m at 12.5-31.25 MHz); unwrapped: the scanner gives "
@@ -612,8 +617,7 @@ def verify(stores: tuple[Path, ...]) -> None:
             damaged += 1
             click.echo(f"error: {redact(str(exc))}", err=True)
             continue
-        note = "" if result.fingerprinted else " (written before fingerprints: only decoding checked)"
-        click.echo(f"ok {result.path}: {result.kind}, {result.chunks:,} chunks{note}")
+        click.echo(f"ok {result.path}: {result.kind}, {result.chunks:,} chunks")
     if damaged:
         sys.exit(EXIT_FAILURE)
 
@@ -625,11 +629,24 @@ def main() -> None:
     unexpected exits 1 with its traceback written to a log file (printed with ``--debug``). Secrets are masked in
     every line. Without ``--debug`` nothing else reaches stderr (:func:`_quiet`).
     """
+    install_log_redaction()  # every log line of every library, masked as the error lines are
     debug = "--debug" in sys.argv[1:]
     if debug:
         sys.argv.remove("--debug")
-    else:
-        _quiet()
+    inherited = os.environ.get("PYTHONWARNINGS")
+    try:
+        if not debug:
+            _quiet()
+        _run(debug)
+    finally:  # this process's environment as it was (the command line called from Python, as in tests)
+        if inherited is None:
+            os.environ.pop("PYTHONWARNINGS", None)
+        else:
+            os.environ["PYTHONWARNINGS"] = inherited
+
+
+def _run(debug: bool) -> None:
+    """The command of ``sys.argv``; every error one line on stderr and its exit code (:func:`main`)."""
     try:
         cli.main(standalone_mode=False, prog_name="mpi-lidar")
     except click.ClickException as exc:
@@ -644,6 +661,12 @@ def main() -> None:
             traceback.print_exc()
         sys.exit(EXIT_USER_ERROR)
     except Exception as exc:  # a bug or an environment problem: one line, the traceback in a file
+        fault = environment_fault(exc)  # a full disk, a quota, a read-only file system: the user's to fix
+        if fault is not None:
+            click.echo(f"error: {redact(str(fault))}", err=True)
+            if debug:
+                click.echo(redact(traceback.format_exc()), err=True)
+            sys.exit(EXIT_USER_ERROR)
         log = _write_traceback()
         reason = redact(str(exc).strip().splitlines()[0]) if str(exc).strip() else ""
         click.echo(f"error: unexpected {type(exc).__name__}: {reason} (traceback in {log}; rerun with --debug "
@@ -688,18 +711,15 @@ def _quiet() -> None:
     import warnings
 
     warnings.filterwarnings("ignore", category=RuntimeWarning)
-    inherited = os.environ.get("PYTHONWARNINGS")
-    os.environ["PYTHONWARNINGS"] = ",".join(filter(None, (inherited, "ignore::RuntimeWarning")))  # worker processes
+    inherited = os.environ.get("PYTHONWARNINGS")  # for the worker processes this command starts
+    os.environ["PYTHONWARNINGS"] = ",".join(filter(None, (inherited, "ignore::RuntimeWarning")))
     for name in ("asyncio", "tornado"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
-def _write_traceback() -> Path:
-    """The current exception's traceback, secrets masked, in a per-user log file; its path."""
-    log = Path(tempfile.gettempdir()) / f"mpi-lidar-{os.getuid()}" / "last-error.log"
-    log.parent.mkdir(parents=True, exist_ok=True)
-    log.write_text(redact(traceback.format_exc()))
-    return log
+def _write_traceback() -> Path | str:
+    """The current exception's traceback, secrets masked, in this user's private log file; its path."""
+    return write_error_log(redact(traceback.format_exc())) or "no log: the temporary folder cannot be written"
 
 
 if __name__ == "__main__":

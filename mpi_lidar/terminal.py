@@ -2,9 +2,9 @@
 
 On a terminal (standard output is a TTY) tables are rich tables and long work shows a rich progress display
 that disappears when it is done. Piped into a file or another program, tables are plain text in aligned
-columns and progress is an occasional plain line: the first item of a step, then at most one line every
-:data:`PLAIN_EVERY_S` seconds, and the last; a step without a count (training) says when it starts and, while
-it runs, every :data:`PLAIN_EVERY_S` seconds that it still does. Markdown (``|---|`` tables, ``[report](...)``
+columns and progress is an occasional plain line: one when a step starts, then one every :data:`PLAIN_EVERY_S`
+seconds while it runs (its count, or for a step without a count such as training, that it still runs), and one
+for its last item. Markdown (``|---|`` tables, ``[report](...)``
 links) is what report files hold; it never reaches the terminal: cells are shown as their plain text.
 
 Everything goes to standard output; standard error holds error lines only.
@@ -47,7 +47,7 @@ def duration(seconds: float) -> str:
 def plain_text(cell: object) -> str:
     """A report cell as the text a reader sees: links as their text, markdown escapes and code marks removed."""
     text = _LINK.sub(r"\1", " ".join(str(cell).splitlines()))
-    return _ESCAPED.sub(r"\1", text).replace("`", "")
+    return _ESCAPED.sub(r"\1", text.replace("**", "")).replace("`", "")
 
 
 def is_terminal(stream: TextIO | None = None) -> bool:
@@ -130,13 +130,18 @@ class Display:
                 MofNCompleteColumn,
                 Progress,
                 SpinnerColumn,
+                Task,
                 TextColumn,
                 TimeElapsedColumn,
             )
+            from rich.text import Text
 
-            self._progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
-                                      MofNCompleteColumn(), TimeElapsedColumn(), transient=True,
-                                      console=Console(file=self.stream))
+            class Count(MofNCompleteColumn):  # nothing for a step without a count (rich shows "0/?")
+                def render(self, task: Task) -> Text:
+                    return Text("") if task.total is None else super().render(task)
+
+            self._progress = Progress(SpinnerColumn(), TextColumn("{task.description}", markup=False), BarColumn(),
+                                      Count(), TimeElapsedColumn(), transient=True, console=Console(file=self.stream))
             self._progress.__enter__()
         return self
 
@@ -181,39 +186,45 @@ class Display:
 
     @contextmanager
     def _plain_step(self, description: str, total: int | None) -> Iterator[Advance]:
+        """Plain lines: one when the step starts, then one whenever every_s seconds passed without one (from
+        the items as they finish, or from a clock while none does), and one for the last item."""
         started = time.monotonic()
-        if total is None:  # no count: say it started, then that it still runs, every every_s seconds
-            self._write(f"{description} ...")
-            stop = threading.Event()
-            now_running = [""]
+        done, last_line, now_label = 0, started, ""
+        lock = threading.Lock()
 
-            def beat() -> None:
-                while not stop.wait(self.every_s):
-                    label = f" ({now_running[0]})" if now_running[0] else ""
-                    self._write(f"{description}: still running{label}, {duration(time.monotonic() - started)}")
-
-            def name(label: str | None = None) -> None:
-                now_running[0] = label or ""
-
-            beater = threading.Thread(target=beat, name="mpi-lidar-progress", daemon=True)
-            beater.start()
-            try:
-                yield name
-            finally:
-                stop.set()
-                beater.join()
-            return
-        done = 0
-        last = -float("inf")
+        def line(now: float) -> str:
+            elapsed = duration(now - started)
+            if total is None:
+                return f"{description}: still running" + (f" ({now_label})" if now_label else "") + f", {elapsed}"
+            return f"{description}: {done}/{total}, {elapsed}" + (f"; last {now_label}" if now_label else "")
 
         def advance(label: str | None = None) -> None:
-            nonlocal done, last
-            done += 1
-            now = time.monotonic()
-            if done == 1 or done == total or now - last >= self.every_s:
-                last = now
-                self._write(f"{description}: {done}/{total}, {duration(now - started)}"
-                            + (f"; last {label}" if label else ""))
+            nonlocal done, last_line, now_label
+            with lock:
+                now_label = label or ""
+                if total is None:
+                    return
+                done += 1
+                now = time.monotonic()
+                if done == total or now - last_line >= self.every_s:
+                    last_line = now
+                    self._write(line(now))
 
-        yield advance
+        def beat() -> None:
+            nonlocal last_line
+            while not stop.wait(self.every_s / 4):
+                with lock:
+                    now = time.monotonic()
+                    if now - last_line >= self.every_s:
+                        last_line = now
+                        self._write(line(now))
 
+        self._write(f"{description} ..." if total is None else f"{description}: 0/{total}")
+        stop = threading.Event()
+        beater = threading.Thread(target=beat, name="mpi-lidar-progress", daemon=True)
+        beater.start()
+        try:
+            yield advance
+        finally:
+            stop.set()
+            beater.join()

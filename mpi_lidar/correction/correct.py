@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
+from mpi_lidar.correction.amplitude_unit import AmplitudeUnit, measure_amplitude_unit
 from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
 from mpi_lidar.correction.gates import Gate, make_gate
 from mpi_lidar.correction.options import (
@@ -41,7 +42,6 @@ from mpi_lidar.correction.options import (
 )
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
-from mpi_lidar.correction.sensor_scale import SensorScale, measure_sensor_scale
 from mpi_lidar.correction.validity import (
     UNUSABLE_FLAGS,
     depth_rules_only,
@@ -104,6 +104,20 @@ class Correction:
         found = np.bincount(self.flags.ravel(), minlength=len(Flag))
         return {flag.name.lower(): int(found[int(flag)]) for flag in Flag}
 
+    def estimate_counts(self) -> dict[str, int]:
+        """Pixels per estimate (:class:`~mpi_lidar.correction.options.Estimate`): none, measured, fused, corrected."""
+        if self.estimate is None:
+            return {}
+        found = np.bincount(self.estimate.ravel(), minlength=len(Estimate))
+        return {estimate.name.lower(): int(found[int(estimate)]) for estimate in Estimate}
+
+    def uncertainty_summary(self) -> dict[str, float]:
+        """Median and 95th percentile of the depths' 1-sigma uncertainty [m] over the pixels that have one."""
+        if self.uncertainty_m is None or not np.isfinite(self.uncertainty_m).any():
+            return {}
+        median, high = np.nanpercentile(self.uncertainty_m, [50, 95])
+        return {"median_m": float(median), "p95_m": float(high)}
+
 
 def in_model_range(depth: NDArray, model: CorrectionModel, options: CorrectionOptions) -> NDArray[np.bool_]:
     """Whether measured depths [m] lie in the d_AS range of the model's training prior (plus a tolerance)."""
@@ -140,11 +154,15 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     tiles = row_tiles(*scan.shape, options.tile_pixels)
     unit_note: tuple[str, ...] = ()
     if options.amplitude_scale == AUTO:
-        unit, by_depth = _measured_unit(scan, options, sensor, tiles)
+        with clock("validity"):
+            unit = measure_amplitude_unit(scan, sensor, noise_scale=options.noise_scale,
+                                          max_depth_spread_m=options.max_depth_spread_m)
         if not unit.significant:
+            by_depth = _DepthValidity(*_validity_pass(scan, depth_rules_only(options), sensor, tiles))
             return _left_as_measured(scan, by_depth, unit, started)
-        scan, unit_note = _in_v2(scan, unit.amplitude_scale), (unit_note_of(unit),)
-        options = _with_measured_noise(options, unit)
+        unit_note = (unit_note_of(unit),)
+        if not reads_as_v2(unit):
+            scan = _in_v2(scan, unit.amplitude_scale)
     elif options.amplitude_scale != 1.0:  # the scanner's unit to V^2, once, in memory
         scan = _in_v2(scan, options.amplitude_scale)
     with clock("validity"):
@@ -289,41 +307,29 @@ class _DepthValidity:
     measured: _Measured
 
 
-def _measured_unit(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
-                   ) -> tuple[SensorScale, _DepthValidity]:
-    """The scan's own amplitude unit, from its flat surfaces (:func:`measure_sensor_scale`), found from the depths
-    alone (no amplitude threshold: the amplitudes' unit is not known yet), and that depth-only validity; the noise
-    model's noise is assumed where the amplitudes span one noise regime only."""
-    by_depth = _DepthValidity(*_validity_pass(scan, depth_rules_only(options), sensor, tiles))
-    if by_depth.measured.moved:
-        scan = _unwrapped_scan(scan, sensor, tiles)
-    unit = measure_sensor_scale(scan, by_depth.usable_depth, options, sensor)
-    if not unit.significant and unit.pixels > 0:
-        with_model_noise = measure_sensor_scale(scan, by_depth.usable_depth, options, sensor, fix_noise_scale=1.0)
-        unit = with_model_noise if with_model_noise.significant else unit
-    return unit, by_depth
+# A measured amplitude unit within this factor of V^2 is read as V^2: the sensor's noise, which the reading takes
+# to be the noise model's, moves it that much (only the product of unit and noise scale is seen), while a unit of
+# another scale (counts, mW) differs by orders of magnitude.
+V2_TOLERANCE = 2.0
 
 
-def _with_measured_noise(options: CorrectionOptions, unit: SensorScale) -> CorrectionOptions:
-    """``options`` with the noise scale and frequency offsets a scan measured with its amplitude unit, where the
-    options carry none of their own (a profile's win); an offset not measured counts as none."""
-    update: dict[str, object] = {}
-    if options.noise_scale == 1.0 and np.isfinite(unit.noise_scale):
-        update["noise_scale"] = float(unit.noise_scale)
-    if options.frequency_offsets_m is None and np.isfinite(unit.offsets_m).all():
-        update["frequency_offsets_m"] = tuple(float(o) for o in unit.offsets_m)
-    return options.model_copy(update=update) if update else options
+def reads_as_v2(unit: AmplitudeUnit) -> bool:
+    """Whether a measured amplitude unit is taken as V^2 (within ``V2_TOLERANCE`` of it)."""
+    return 1.0 / V2_TOLERANCE <= unit.amplitude_scale <= V2_TOLERANCE
 
 
-def unit_note_of(unit: SensorScale) -> str:
+def unit_note_of(unit: AmplitudeUnit) -> str:
     """What a report says of a scan's own amplitude unit."""
     if not unit.significant:
         return f"amplitude unit auto: not measured ({unit.reason}); every pixel left as measured"
-    return (f"amplitude unit auto: {unit.amplitude_scale:.4g} +- {unit.amplitude_scale_sigma:.2g} per V^2 from "
-            f"{unit.pixels:,} flat pixels")
+    measured = (f"amplitude unit auto: {unit.amplitude_scale:.4g} +- {unit.relative_sigma * unit.amplitude_scale:.2g}"
+                f" per V^2 from the scatter of the frequencies on {unit.pixels:,} pixels")
+    if reads_as_v2(unit):
+        return f"{measured}, within a factor {V2_TOLERANCE:g} of V^2: read as V^2"
+    return f"{measured}; amplitudes divided by it"
 
 
-def _left_as_measured(scan: Scan, by_depth: _DepthValidity, unit: SensorScale, started: float) -> Correction:
+def _left_as_measured(scan: Scan, by_depth: _DepthValidity, unit: AmplitudeUnit, started: float) -> Correction:
     """A scan whose amplitude unit could not be measured: validity from the depths alone (``by_depth``), every
     valid pixel as measured (flag uncalibrated), the scan unserved for its amplitude unit."""
     flags, measured = by_depth.flags, by_depth.measured

@@ -150,10 +150,11 @@ class CorrectionOptions(BaseModel):
     footprint_area_m2: Annotated[float, Field(gt=0, le=MAX_FOOTPRINT_AREA_M2, strict=True)] | Literal["auto"] = AUTO
     # The scanner's amplitude unit per V^2, the noise model's unit: a scan's amplitudes are divided by it before
     # anything reads them (thresholds, albedo, the model's inputs). 1: amplitudes in V^2. "auto": each scan
-    # measures its own on its flat surfaces (mpi_lidar.correction.sensor_scale); where that is not significant
-    # the scan's pixels are left as measured and it ends unserved (amplitude_units).
+    # reads its own from the scatter of its frequencies (mpi_lidar.correction.amplitude_unit), a unit within a
+    # factor of 2 of V^2 read as V^2; where that is not significant the scan's pixels are left as measured and it
+    # ends unserved (amplitude_units).
     amplitude_scale: (Annotated[float, Field(ge=AMPLITUDE_SCALE_BOUNDS[0], le=AMPLITUDE_SCALE_BOUNDS[1], strict=True)]
-                      | Literal["auto"]) = 1.0
+                      | Literal["auto"]) = AUTO
     # The sensor's depth noise over the noise model's and each frequency's depth offset relative to the highest
     # [m] (from a sensor profile): the fused depth's weights, sds and offsets. None: no offsets.
     noise_scale: Annotated[float, Field(gt=0, le=100)] = 1.0

@@ -47,7 +47,7 @@ def batch_report(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path |
     labels = {ScanStatus.SKIPPED: "already done"}
     counted = ", ".join(f"{sum(o.status == status for o in outcomes)} {labels.get(status, status.value)}"
                         for status in ScanStatus)
-    summary = f"{len(outcomes)} scans in {wall_s:.1f} s: {counted}."
+    summary = f"{len(outcomes)} scan{'' if len(outcomes) == 1 else 's'} in {wall_s:.1f} s: {counted}."
     return Report(title="Batch correction", blocks=[summary, table],
                   data={"wall_s": wall_s, "scans": [o.__dict__ for o in outcomes]})
 

@@ -28,10 +28,16 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
     total = max(sum(counts.values()), 1)
     flags = Table(("pixels", "count", "share"),
                   tuple((name.replace("_", " "), f"{n:,}", f"{100 * n / total:.1f} %") for name, n in counts.items()))
+    estimates = correction.estimate_counts()
+    uncertainty = correction.uncertainty_summary()
     blocks: list[Block] = [f"Scan `{scan.name}`, {scan.shape[0]} x {scan.shape[1]} pixels at "
                            + ", ".join(f"{f / 1e6:g}" for f in scan.frequencies_hz) + " MHz. "
                            f"Correction {correction.total_s:.2f} s (gate {correction.gate_s:.2f} s, inference "
                            f"{correction.inference_s:.2f} s).", *_in_words(counts), flags]
+    if estimates:
+        blocks.append("Output depths: " + ", ".join(f"{name} {n:,}" for name, n in estimates.items() if n)
+                      + (f"; 1-sigma uncertainty median {1e3 * uncertainty['median_m']:.3f} mm, 95 % below "
+                         f"{1e3 * uncertainty['p95_m']:.3f} mm." if uncertainty else "."))
     if correction.unserved is not None:
         blocks.insert(1, f"Unserved ({correction.unserved.reason}): {correction.unserved.message}.")
     valid = _valid_pixels(counts)
@@ -49,7 +55,10 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
         blocks.append(Path(name))
     blocks += (embeds or []) if valid else []
     return Report(title=f"Correction of {scan.name}", blocks=blocks,
-                  data={"scan": scan.name, "counts": counts, "metrics": metrics, "notes": notes,
+                  data={"scan": scan.name, "counts": counts, "estimates": correction.estimate_counts(),
+                        "uncertainty": correction.uncertainty_summary(),
+                        "frequency_offsets_m": correction.frequency_offsets_m,
+                        "metrics": metrics, "notes": notes,
                         "outputs": {"level": str(outputs), "files": files},
                         "seconds": {"total": correction.total_s, "gate": correction.gate_s,
                                     "inference": correction.inference_s},

@@ -7,8 +7,9 @@ vectors; optional ``reference_depth`` (H, W) [m] and ``reference_mask`` (H, W) b
 :mod:`mpi_lidar.storage.variables`, which :func:`validate` checks against. The store is
 :mod:`mpi_lidar.scans.store`, the importers of other formats :mod:`mpi_lidar.scans.importers`.
 
-Geometry convention: the scanner sits at the origin; x right, y up, z forward. The ray of azimuth a and
-elevation e is (cos e sin a, sin e, cos e cos a); depth is the range along the ray.
+Geometry convention: the scanner sits at the origin; x towards positive azimuth (to the scanner's left:
+right-handed), y up, z forward. The ray of azimuth a and elevation e is (cos e sin a, sin e, cos e cos a); depth
+is the range along the ray.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
-from mpi_lidar.storage.integrity import check_fingerprint
+from mpi_lidar.storage.integrity import check_chunk_paths, check_fingerprint
 
 # Values a stored map reads at once, a band of whole chunk rows at a time (:class:`StoredMap`): 32 MiB of
 # float32.
@@ -101,6 +101,7 @@ class StoredMap:
         region = tuple(slice(*r.indices(n)[:2]) for r, n in zip(region, self.shape, strict=True))
         aligned = tuple(slice(r.start // c * c, min(-(-r.stop // c) * c, n))
                         for r, c, n in zip(region, chunks, self.shape, strict=True))
+        check_chunk_paths(self.array, aligned, self.store)
         values = np.asarray(self.array[aligned])
         if self.fingerprints is not None:
             grid = tuple(-(-n // c) for n, c in zip(self.shape, chunks, strict=True))

@@ -33,7 +33,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.storage.manifest import unsealed, write_manifest
 
 STAGING_NAME = re.compile(r"^\..+\.(writing|old)-[0-9a-f]{8}$")
 
@@ -73,8 +72,12 @@ def atomic_path(target: str | Path, *, replace: bool = False, what: str = "outpu
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         yield staging
-        if staging.is_dir() and not staging.is_symlink() and unsealed(staging):
-            write_manifest(staging)  # the outputs' manifest, published with them
+        if staging.is_dir() and not staging.is_symlink():
+            # here, not at import: writing a file keeps this module free of numpy and zarr
+            from mpi_lidar.storage.manifest import unsealed, write_manifest
+
+            if unsealed(staging):
+                write_manifest(staging)  # the outputs' manifest, published with them
         _publish(staging, target)
     except MpiLidarError:  # already one line (a StoreError is also an OSError): not a failed write
         raise

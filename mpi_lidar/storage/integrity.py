@@ -201,8 +201,34 @@ def array_fingerprints(values: NDArray, chunks: tuple[int, ...]) -> list[str]:
     return [fingerprint_hex(values[where]) for _, where in chunk_slices(values.shape, chunks)]
 
 
+def check_chunk_paths(array: zarr.Array, where: tuple[slice, ...], store: str) -> None:
+    """Refuse, before they are read, the chunk files of a region that are not regular files or are larger than a
+    chunk can be (one ``lstat`` each): a file replaced after the store was opened is caught where it is read.
+    Stores other than a local directory are left to their own checks."""
+    root = getattr(array.store, "root", None)
+    if root is None:
+        return
+    chunks = tuple(array.shards or array.chunks)
+    limit = float(np.prod(chunks, dtype=np.float64)) * np.dtype(array.dtype).itemsize + CHUNK_FILE_SLACK_BYTES
+    where = (*where, *(slice(None),) * (len(array.shape) - len(where)))  # axes left out: whole
+    boxes = [slice(*w.indices(n)[:2]) for w, n in zip(where, array.shape, strict=True)]
+    spans = [range(w.start // c, -(-w.stop // c)) for w, c in zip(boxes, chunks, strict=True)]
+    for cell in itertools.product(*spans):
+        path = Path(root) / array.path / array.metadata.encode_chunk_key(cell)
+        try:
+            info = path.lstat()
+        except OSError:  # absent: a fill value, which the fingerprint judges
+            continue
+        if not stat.S_ISREG(info.st_mode) or info.st_size > limit:
+            what = "is not a regular file" if not stat.S_ISREG(info.st_mode) else f"takes {info.st_size:,} bytes"
+            raise IntegrityError(f"{store}: {path.relative_to(root).as_posix()} {what}, which no chunk of "
+                                 f"{array.path!r} can be; restore or regenerate the store")
+
+
 def read_chunk(array: zarr.Array, where: tuple[slice, ...], store: str, name: str, index: object) -> NDArray:
-    """One chunk's values; a chunk that no longer decodes is an :class:`IntegrityError` naming it."""
+    """One chunk's values; a chunk that no longer decodes is an :class:`IntegrityError` naming it, and a chunk
+    file that is a link, a special file or larger than a chunk is refused before it is read."""
+    check_chunk_paths(array, where, store)
     try:
         return np.asarray(array[where])
     except Exception as exc:  # codecs raise RuntimeError, ValueError or their own types on damaged bytes

@@ -213,7 +213,7 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
         if output is None:
             output = scan_output_paths([source])[source]
         return _process_scan(source, Path(model_dir), _safe_output(Path(out_dir), output), options, started,
-                             outputs, point_clouds)
+                             outputs, point_clouds, bundle_dir=Path(out_dir))
     except Exception as exc:  # one bad scan, whatever went wrong, must not stop the batch
         return ScanOutcome(source, Path(source).name, ScanStatus.FAILED, _one_line(exc),
                            seconds=time.perf_counter() - started)
@@ -263,8 +263,8 @@ def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None
 
 
 def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
-                  started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None
-                  ) -> ScanOutcome:
+                  started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None,
+                  bundle_dir: Path | None = None) -> ScanOutcome:
     share_one_heap()
     scan = read_scan(source, stored_above_bytes=STORED_MAPS_ABOVE_BYTES)  # a large scan stays in its store
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
@@ -300,7 +300,7 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
         measuring = beside.submit(scan_metrics, scan, correction) if scan.in_memory() else None
         metrics = scan_metrics(scan, correction) if measuring is None else {}
         notes = write_scan_outputs(target, scan, correction, metrics if measuring is None else measuring, identity,
-                                   options, outputs, point_clouds=point_clouds)
+                                   options, outputs, point_clouds=point_clouds, bundle_dir=bundle_dir)
         metrics = metrics if measuring is None else measuring.result()
     if unsealed(target):  # atomic_path wrote the manifest with the outputs; a marker left empty gets it now
         write_manifest(target)
@@ -362,10 +362,11 @@ def _import_hint(paths: list[str]) -> str:
     return f"; {Path(importable[0]).name} is another tool's file: convert it first with mpi-lidar import-scan"
 
 
-def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
-                    executor: Executor | Client | None = None, on_scan: Callable[[ScanOutcome], None] | None = None,
-                    *, client: Client | None = None, outputs: str = "full",
-                    point_clouds: tuple[str, ...] | list[str] | None = None) -> list[ScanOutcome]:
+def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Path,
+                    options: CorrectionOptions | None = None, executor: Executor | Client | None = None,
+                    on_scan: Callable[[ScanOutcome], None] | None = None, *, client: Client | None = None,
+                    outputs: str = "full", point_clouds: tuple[str, ...] | list[str] | None = None,
+                    on_done: Callable[[list[ScanOutcome]], object] | None = None) -> list[ScanOutcome]:
     """Correct every scan, one call of :func:`process_scan` per scan on ``executor``; a bad scan fails alone.
 
     The executor runs the scans in this process (None), as Dask tasks (an executor or a ``client``, the same)
@@ -377,8 +378,10 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     (:data:`mpi_lidar.reporting.output_levels.OUTPUT_LEVELS`); the command line and the correction flow default
     to ``light`` (:data:`~mpi_lidar.reporting.output_levels.DEFAULT_OUTPUTS`), the pipeline writes ``full``.
     ``point_clouds``: the point-cloud formats every scan writes (``las``, ``laz``, ``ply``) at any level;
-    None: ply and las at level full, none below.
+    None: ply and las at level full, none below. ``options`` None: the defaults. ``on_done`` sees the outcomes
+    while the batch still holds ``out_dir`` (:func:`output_lock`): the place for its summary.
     """
+    options = options or CorrectionOptions()
     level = check_outputs(outputs)
     point_clouds = None if point_clouds is None else point_cloud_formats(level, point_clouds)
     _cached_model(str(model_dir))  # a broken model fails the whole batch at once, with one clear line
@@ -402,7 +405,10 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
             outcomes.append(outcome)
             if on_scan:
                 on_scan(outcome)
-    return sorted(outcomes, key=lambda o: o.source)
+        outcomes.sort(key=lambda o: o.source)
+        if on_done:  # the batch summary, written while the output directory is still this batch's
+            on_done(outcomes)
+    return outcomes
 
 
 # --- one batch per output directory -----------------------------------------------------------------------

@@ -4,6 +4,7 @@ one line per usage error."""
 from __future__ import annotations
 
 import io
+import os
 import time
 
 import pytest
@@ -29,7 +30,7 @@ def test_duration__seconds_minutes_hours():
 def test_plain_text__markdown_becomes_what_a_reader_sees():
     assert plain_text("[report](../a/report.html)") == "report"
     assert plain_text(r"a\|b \*c\* `code`") == "a|b *c* code"
-    assert plain_text("two\nlines") == "two lines"
+    assert plain_text("two\nlines") == "two lines" and plain_text("**best**") == "best"
 
 
 def test_table_lines__aligned_columns_without_markdown():
@@ -47,14 +48,25 @@ def test_print_table__rich_on_a_terminal_plain_in_a_pipe():
     assert "…" in terminal.getvalue() and "|" not in terminal.getvalue()
 
 
-def test_display__piped_counts_first_last_and_at_most_one_line_per_interval():
+def test_display__piped_says_start_and_last_and_nothing_between_within_an_interval():
     stream = io.StringIO()
     with Display(stream, every_s=3600) as display, display.step("scans", 50) as advance:
         for i in range(50):
             advance(f"s{i}: corrected")
     lines = stream.getvalue().splitlines()
-    assert [line.split(",")[0] for line in lines] == ["scans: 1/50", "scans: 50/50"]
+    assert [line.split(",")[0] for line in lines] == ["scans: 0/50", "scans: 50/50"]
     assert lines[-1].endswith("last s49: corrected")
+
+
+def test_display__piped_a_slow_step_gets_a_line_per_interval_between_items():
+    stream = io.StringIO()
+    with Display(stream, every_s=0.1) as display, display.step("trials", 2) as advance:
+        advance()
+        time.sleep(0.45)  # no trial finishes: the clock says where the step stands
+        advance()
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == "trials: 0/2" and lines[-1].startswith("trials: 2/2")
+    assert 1 <= sum(line.startswith("trials: 1/2") for line in lines) <= 6
 
 
 def test_display__piped_step_without_a_count_says_it_still_runs():
@@ -65,6 +77,13 @@ def test_display__piped_step_without_a_count_says_it_still_runs():
     lines = stream.getvalue().splitlines()
     assert lines[0] == "training ..." and len(lines) >= 2
     assert all(line.startswith("training: still running (round 3), ") for line in lines[1:])
+
+
+def test_display__a_step_with_nothing_to_do_prints_nothing():
+    stream = io.StringIO()
+    with Display(stream) as display, display.step("trials", 0) as advance:
+        advance()
+    assert stream.getvalue() == ""
 
 
 def test_display__on_a_terminal_leaves_only_the_echoed_lines():
@@ -88,3 +107,12 @@ def test_main__a_usage_error_is_one_line(monkeypatch, capsys, args, fragment):
     code, stdout, stderr = call_main(monkeypatch, capsys, *args)
     assert code == 2 and stdout == ""
     assert_one_error_line(stderr, fragment)
+
+
+def test_main__leaves_the_environment_of_its_caller_as_it_was(monkeypatch, capsys):
+    monkeypatch.delenv("PYTHONWARNINGS", raising=False)
+    code, _, _ = call_main(monkeypatch, capsys, "correct", "--frobnicate")
+    assert code == 2 and "PYTHONWARNINGS" not in os.environ
+    monkeypatch.setenv("PYTHONWARNINGS", "error::DeprecationWarning")
+    call_main(monkeypatch, capsys, "correct", "--frobnicate")
+    assert os.environ["PYTHONWARNINGS"] == "error::DeprecationWarning"

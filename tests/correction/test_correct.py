@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from dataclasses import replace
@@ -163,7 +164,7 @@ def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(arc
     assert result.returncode == 1
     errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "broken.scan.zarr" in errors[0]
-    assert "| a | unchanged |" in result.stdout
+    assert re.search(r"^a +unchanged ", result.stdout, re.M)
     assert (tmp_path / "out" / "summary" / "report.html").exists()
     for name in ("maps.png", "error_hist.png", "point_cloud.png", "raw.ply", "corrected.ply", "report.md"):
         assert (tmp_path / "out" / archive.name / "a" / name).exists(), name  # two folders: nested
@@ -202,8 +203,9 @@ def test_geometry_gate__flat_wall_is_left_exactly_as_measured(small_model):
     pixelwise = correct_scan(scan, model, CorrectionOptions(gate="all"))
     assert (pixelwise.flags[valid] == Flag.CORRECTED).all()
     assert correction.multipath_bias_m is not None and float(correction.multipath_bias_m.max()) == 0.0
-    assert len(correction.notes) == 1 and correction.notes[0].startswith("frequency offsets: ")
-    assert raw.notes == (), "nothing fused, no offsets measured"
+    assert correction.notes[0].startswith("amplitude unit auto: ") and "read as V^2" in correction.notes[0]
+    assert len(correction.notes) == 2 and correction.notes[1].startswith("frequency offsets: ")
+    assert raw.notes == correction.notes[:1], "nothing fused, no offsets measured"
 
 
 def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
@@ -221,8 +223,8 @@ def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
 def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model, tmp_path):
     scan = replace(two_path_scan("nogeo"), azimuth_rad=None, elevation_rad=None)
     correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
-    assert correction.notes[0] == NO_GEOMETRY_NOTE and correction.frequency_offsets_m is None
-    assert "no scene geometry" in correction.notes[1]
+    assert correction.notes[1] == NO_GEOMETRY_NOTE and correction.frequency_offsets_m is None
+    assert "no scene geometry" in correction.notes[2]
     assert (correction.flags == Flag.CORRECTED).all() and correction.multipath_bias_m is None
     write_scan(scan, tmp_path / "nogeo.scan.zarr")
     outcome = process_scan(tmp_path / "nogeo.scan.zarr", small_model, tmp_path / "out", CorrectionOptions(),
@@ -291,8 +293,9 @@ def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, t
 def test_correction_options__amplitude_scale_auto_or_a_positive_number():
     assert CorrectionOptions.from_cli(amplitude_scale="auto").amplitude_scale == "auto"
     assert CorrectionOptions.from_cli(amplitude_scale="4000").amplitude_scale == 4000.0
-    assert CorrectionOptions().amplitude_scale == 1.0
+    assert CorrectionOptions().amplitude_scale == "auto", "each scan reads its own unit by default"
     assert CorrectionOptions(amplitude_scale=4000.0).sha256() != CorrectionOptions().sha256()
+    assert CorrectionOptions(amplitude_scale=1.0).sha256() != CorrectionOptions().sha256()
     for bad in ("-1", "0", "nan", "many"):
-        with pytest.raises(MpiLidarError, match="amplitude_scale must be 'auto' or a number of units per V\^2"):
+        with pytest.raises(MpiLidarError, match=r"amplitude_scale must be 'auto' or a number of units per V\^2"):
             CorrectionOptions.from_cli(amplitude_scale=bad)

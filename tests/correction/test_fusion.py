@@ -83,3 +83,18 @@ def test_correct_scan__a_wall_is_fused_and_its_uncertainty_covers_about_68_perce
     assert (raw.estimate[valid] == Estimate.MEASURED).all()
     raw_covered = (raw_error <= raw.uncertainty_m[valid]).mean()
     assert 0.63 < raw_covered < 0.73, "the measured depth's sd covers its error as often"
+
+
+@pytest.mark.integration
+def test_noise_limit_benchmark__quick_rows_fuse_the_wall_and_leave_the_corner_edge(tmp_path):
+    from benchmarks.noise_limit import HEADER, format_row, run
+
+    rows = dict(run(str(tiny_model(tmp_path / "model", geometric=True)), quick=True))
+    wall, corner = rows["wall at 2 m"], rows["corner at 2 m, 0.073 m^2"]
+    assert wall["share_fused"] > 0.99 and wall["fused_baseline"] < 0.75 * wall["raw_baseline"]
+    assert wall["fused_over_crb"] == pytest.approx(1.0, abs=0.15), "fused pixels at their Cramer-Rao bound"
+    assert 0.6 < wall["covered_all"] < 0.76
+    assert corner["fused_baseline"] <= corner["raw_baseline"] + 1e-6, "fusing the rest never costs a scan"
+    assert corner["edge_fused_baseline"] == pytest.approx(corner["edge_raw_baseline"], abs=0.05)
+    columns = {len(line.strip("|").split("|")) for line in [*HEADER.splitlines(), format_row("x", wall)]}
+    assert columns == {10}

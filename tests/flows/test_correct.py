@@ -13,6 +13,12 @@ from tests.flows.helpers import artifacts
 from tests.scan_factory import two_path_scan
 
 
+def row(markdown: str, scan: str) -> str:
+    """The batch table's row of one scan (whatever the order of its columns)."""
+    [found] = [line for line in markdown.splitlines() if line.startswith(f"| {scan} |")]
+    return found
+
+
 @pytest.fixture(scope="module")
 def archive(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("archive")
@@ -33,10 +39,10 @@ def test_correct_archive_flow__bad_scan_fails_alone_and_rerun_skips(archive, sma
     assert (out / "north" / "report.html").exists() and (out / "south" / "thumbnail.png").exists()  # outputs light
     assert not (out / "broken").exists()
     summary = (out / "summary" / "report.md").read_text()
-    assert "| north | unchanged |" in summary and "| broken.scan.zarr | failed |" in summary
-    assert f"| {archive / 'north.scan.zarr'} |" in summary, "the source is a column"
+    assert "| unchanged |" in row(summary, "north") and "| failed |" in row(summary, "broken.scan.zarr")
+    assert f"| {archive / 'north.scan.zarr'} |" in row(summary, "north"), "the source is a column"
     [published] = artifacts(str(state.state_details.flow_run_id), SUMMARY_ARTIFACT_KEY)
-    assert "| south | unchanged |" in published.data
+    assert "| unchanged |" in row(published.data, "south")
     [table] = artifacts(str(state.state_details.flow_run_id), TABLE_ARTIFACT_KEY)
     rows = json.loads(table.data) if isinstance(table.data, str) else table.data
     assert sorted((row["scan"], row["status"]) for row in rows) == [

@@ -93,3 +93,14 @@ def test_generate_dataset_flow__rerun_on_complete_store_writes_nothing(
 def test_histogram_path__replaces_zarr_suffix() -> None:
     assert histogram_path("runs/x/dataset.zarr") == Path("runs/x/dataset.error_hist.png")
     assert histogram_path("runs/x/store") == Path("runs/x/store.error_hist.png")
+
+
+def test_generate_dataset_flow__sensor_profile_sets_frequencies_and_noise(tmp_path: Path) -> None:
+    """``sensor``, as ``mpi-lidar simulate --sensor``: the profile's sensor is simulated, over the preset."""
+    profile = tmp_path / "sensor.toml"
+    profile.write_text('schema = "mpi-lidar/sensor@1"\nfootprint_area_m2 = 0.02\nnoise_scale = 2.0\n'
+                       "frequencies_hz = [10000000.0, 20000000.0, 30000000.0]\nrange_m = [1.0, 6.0]\n")
+    result = generate_dataset_flow(out=str(tmp_path / "d.zarr"), samples=400, workers=0, sensor=str(profile))
+    config = dataset.store_config(dataset.open_store(tmp_path / "d.zarr"))
+    assert config.frequencies_hz == (10e6, 20e6, 30e6) and config.simulator.noise_scale == 2.0
+    assert result["config_sha256"] == config_sha256(config)

@@ -113,7 +113,9 @@ def _batch(work: Path, model: Path) -> dict[str, Path]:
     write_scan(wall, scans / "flat_wall.scan.zarr")
     write_scan(_no_valid_pixel("dark"), scans / "dark.scan.zarr")
     out = work / "batch"
-    outcomes = correct_archive([str(scans)], model, out, CorrectionOptions(gate="geometry"), outputs="full")
+    # Amplitudes in V^2, given: the dark scan's amplitudes are below the no-light noise in that unit.
+    outcomes = correct_archive([str(scans)], model, out, CorrectionOptions(gate="geometry", amplitude_scale=1.0),
+                               outputs="full")
     statuses = {o.name: o.status for o in outcomes}
     assert statuses[LONG_NAME] == "corrected" and statuses["flat_wall"] == "unchanged", outcomes
     write_batch_report(outcomes, 1.0, out)

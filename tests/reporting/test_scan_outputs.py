@@ -70,15 +70,16 @@ def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full
     assert PLOTLY_JS not in names, "one plotly.js per batch, in the folder above the scans' own"
     assert "error_hist.png" not in names
     raw, corrected = (PlyData.read(str(full_outputs / name))["vertex"] for name in ("raw.ply", "corrected.ply"))
-    assert {p.name for p in corrected.properties} == {"x", "y", "z"} | FIELDS
+    assert {p.name for p in corrected.properties} == ({"x", "y", "z", "red", "green", "blue"}
+                                                      | {f"scalar_{f}" for f in FIELDS | {"uncertainty_m"}})
     assert raw.count == corrected.count > 0
     # the raw cloud lies at the raw range, the corrected one at the corrected range, pixel by pixel
-    row, column = np.asarray(corrected["row"]), np.asarray(corrected["column"])
-    for cloud, field in ((raw, "raw_range_m"), (corrected, "corrected_range_m")):
+    row, column = np.asarray(corrected["scalar_row"]), np.asarray(corrected["scalar_column"])
+    for cloud, field in ((raw, "scalar_raw_range_m"), (corrected, "scalar_corrected_range_m")):
         radius = np.sqrt(np.asarray(cloud["x"], float) ** 2 + np.asarray(cloud["y"], float) ** 2
                          + np.asarray(cloud["z"], float) ** 2)
         np.testing.assert_allclose(radius, np.asarray(cloud[field], float), atol=1e-5)
-    np.testing.assert_allclose(np.asarray(raw["raw_range_m"]), scan.depth[-1][row, column])
+    np.testing.assert_allclose(np.asarray(raw["scalar_raw_range_m"]), scan.depth[-1][row, column])
     las = laspy.read(full_outputs / "corrected.las")
     assert str(las.header.version) == "1.4" and len(las.points) == corrected.count
     assert set(las.point_format.extra_dimension_names) >= FIELDS

@@ -44,7 +44,8 @@ def test_read_scan__taps_only_store_is_demodulated(tmp_path):
     taps = np.moveaxis(taps_from_quadratures(gamma * np.cos(phase), gamma * np.sin(phase)), -1, 1)
     group = zarr.open_group(str(tmp_path / "t.scan.zarr"), mode="w")
     group.create_array("taps", data=taps.astype(np.float64))
-    group.attrs.update({"schema": "mpi-lidar/scan@1", "frequencies_hz": list(FREQS)})
+    group.attrs.update({"schema": "mpi-lidar/scan@1", "frequencies_hz": list(FREQS),
+                        "chunk_sha256": store_fingerprints(group)})
     scan = read_scan(tmp_path / "t.scan.zarr")
     expected = 3e8 * phase / (4 * np.pi * np.asarray(FREQS)[:, None, None])
     np.testing.assert_allclose(scan.depth, expected, rtol=1e-6)

@@ -16,7 +16,7 @@ from mpi_lidar.correction import CorrectionOptions, correct_scan
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.metrics import scan_metrics
 from mpi_lidar.scans.scan import ScanError
-from mpi_lidar.scans.store import SCAN_SCHEMA, read_scan, write_scan
+from mpi_lidar.scans.store import SCAN_SCHEMA, read_scan, store_fingerprints, write_scan
 from mpi_lidar.scans.stored_map import StoredMap
 from mpi_lidar.simulation.scenes import cornered_board, render
 from mpi_lidar.storage.integrity import IntegrityError
@@ -130,7 +130,8 @@ def test_read_scan__stored_maps_are_validated_like_arrays_in_memory(tmp_path):
     amplitude[1, 2, 3] = -1.0
     group.create_array("depth", data=scan.depth)
     group.create_array("amplitude", data=amplitude)
-    group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": list(scan.frequencies_hz)})
+    group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": list(scan.frequencies_hz),
+                        "chunk_sha256": store_fingerprints(group)})
     for threshold in (float("inf"), 0):
         with pytest.raises(ScanError, match=r"amplitude has negative values \(1 pixels\)"):
             read_scan(tmp_path / "bad.scan.zarr", stored_above_bytes=threshold)

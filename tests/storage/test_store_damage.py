@@ -354,3 +354,20 @@ def test_read_scan__damage_of_any_mix_is_refused_or_read_as_written(scan_store, 
             np.testing.assert_array_equal(np.asarray(result.depth), intact.depth)
             np.testing.assert_array_equal(np.asarray(result.amplitude), intact.amplitude)
             assert result.content_sha256() == intact.content_sha256()
+
+
+def test_chunk_linked_after_opening__refused_where_it_is_read(scan_store, dataset_store, tmp_path):
+    scan_copy = copied(scan_store, tmp_path)
+    depth = read_scan(scan_copy, stored_above_bytes=0).depth
+    chunk = scan_copy / "depth" / "c" / "0" / "0" / "0"
+    chunk.unlink()
+    chunk.symlink_to("/dev/zero")
+    with pytest.raises(IntegrityError, match=r"depth/c/0/0/0 is not a regular file"):
+        np.asarray(depth)
+    data_copy = copied(dataset_store, tmp_path)
+    lazy = dataset.read_lazy(data_copy)  # opened and checked; each block is read where it is computed
+    chunk = data_copy / "features" / "c" / "3" / "0"
+    chunk.unlink()
+    os.mkfifo(chunk)
+    with pytest.raises(IntegrityError, match=r"features/c/3/0 is not a regular file"):
+        lazy.features.sum().compute()

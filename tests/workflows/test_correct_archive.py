@@ -242,11 +242,11 @@ def test_correct_cli__unserved_scan_exits_1_unless_allowed(small_model, tmp_path
     write_scan(two_path_scan("fine", seed=1), archive / "fine.scan.zarr")
     arguments = ["correct", archive, "--model", small_model, "--gate", "all", "--workers", "0"]
     code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "strict")
-    assert code == 1 and "| near | unserved |" in out and "| fine | corrected |" in out
+    assert code == 1 and re.search(r"^near +unserved ", out, re.M) and re.search(r"^fine +corrected ", out, re.M)
     assert err.startswith(f"error: scan {archive / 'near.scan.zarr'}: unserved (out_of_range): ")
     assert len(err.splitlines()) == 1 and "mpi-lidar pipeline" in err
     code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "lenient", "--allow-unserved")
-    assert code == 0 and err == "" and "1 corrected, 0 unchanged, 0 degraded, 1 unserved" in out
+    assert code == 0 and err == "" and ": 1 corrected, 1 unserved" in out
 
 
 def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_model, tmp_path, monkeypatch,
@@ -257,8 +257,9 @@ def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_m
     arguments = ["correct", archive, "--model", small_model, "--gate", "all", "--workers", "0"]
 
     code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "plain")
-    assert code == 0 and err == "" and "| hot | degraded |" in out and "| fine | corrected |" in out
-    assert "2 scans in" in out and "1 corrected, 0 unchanged, 1 degraded, 0 unserved, 0 already done, 0 failed." in out
+    assert code == 0 and err == "" and re.search(r"^hot +degraded ", out, re.M)
+    assert re.search(r"^fine +corrected ", out, re.M)
+    assert "2 scans in " in out and ": 1 corrected, 1 degraded\n" in out
 
     code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "strict",
                                "--fail-on", "degraded", "--fail-on", "unchanged")

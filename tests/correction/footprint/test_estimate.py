@@ -515,12 +515,17 @@ def test_correct_scan__amplitude_unit_auto_measures_each_scans_own(tiny_geometri
     assert 3600 < float(auto.notes[0].split()[3]) < 4400  # the unit, within 10 %
     difference = np.abs(auto.depth - in_v2.depth)
     assert np.nanmean(difference) < 0.05e-3 and auto.counts()["corrected"] > 0
-    # a corner alone has no flat surface away from its edge: nothing measured, every pixel as measured
+    # a corner alone has no flat surface away from its edge, but its frequencies' scatter reads its unit all the
+    # same: in V^2, in counts and x 0.01 it corrects to the same depths
     corner_scan = rendered(corner(90.0, 2.0, 0.8), 0.02)
-    lost = correct_scan(replace(corner_scan, amplitude=(corner_scan.amplitude * 4000).astype(np.float32)), model,
-                        CorrectionOptions(amplitude_scale="auto"))
-    assert lost.unserved is not None and lost.unserved.reason == "amplitude_units"
-    assert "--amplitude-scale" in lost.unserved.message and lost.counts()["corrected"] == 0
-    valid = np.isfinite(lost.depth)
-    assert valid.mean() > 0.9
-    np.testing.assert_array_equal(lost.depth[valid], corner_scan.depth[-1][valid])
+    runs = [correct_scan(replace(corner_scan, amplitude=(corner_scan.amplitude * unit).astype(np.float32)), model)
+            for unit in (1.0, 4000.0, 0.01)]
+    assert all(run.unserved is None and run.counts()["corrected"] > 0 for run in runs)
+    assert "read as V^2" in runs[0].notes[0] and "divided by it" in runs[1].notes[0]
+    error = [np.nanmean(np.abs(run.depth - corner_scan.reference_depth)) for run in runs]
+    # the reading scales with the unit: up to float32 rounding of the amplitudes, the same depths
+    np.testing.assert_allclose(runs[2].depth, runs[1].depth, rtol=0, atol=1e-5)
+    # in counts the unit read (within 2 %) divides the amplitudes; in V^2 it is read as V^2: a few corrected
+    # pixels move, the scan's error does not
+    assert np.nanmean(np.abs(runs[1].depth - runs[0].depth)) < 0.1e-3
+    assert abs(error[1] - error[0]) < 0.05e-3

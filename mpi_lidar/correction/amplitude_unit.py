@@ -1,0 +1,146 @@
+"""A scan's amplitude unit, read from how much its frequencies disagree.
+
+The noise model (:func:`mpi_lidar.physics.noise.depth_noise_m`) predicts each frequency's depth sd from its
+amplitude in V^2. A scanner that reports amplitudes in its own unit, ``A = lambda A_V2``, has its sds predicted at
+``A / lambda``. Where the frequencies see one range, the weighted scatter of a pixel's depths about their
+inverse-variance mean, chi2 = sum_f (d_f - mean)^2 / sd_f^2, follows chi-square with F - 1 degrees of freedom when
+lambda is right; too large a lambda predicts too much noise and chi2 reads small, too small a lambda too little
+(the predicted variance, eta^2 (a lambda^2 / A^2 + b lambda / A), grows with lambda). So the unit is the lambda
+at which the median chi2 of the scan's pixels equals chi-square's median: no plane, no flat surface, any scene.
+
+Multipath at these frequencies moves every frequency's depth nearly alike (the consistency gate's premise), so
+it adds little to chi2, and the median ignores the pixels where it does; the frequencies' fixed depth offsets
+are removed first (the median of each one's depth less the highest one's). Only the product of lambda and the
+noise scale eta is seen: eta is held at the sensor's (1: the noise model's).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mpi_lidar.config import SensorConfig
+from mpi_lidar.physics.noise import fused_depths
+from mpi_lidar.physics.unwrap import unwrap_depths
+from mpi_lidar.scans.scan import Scan
+
+# Pixels the unit is read from at most, evenly spaced over the scan: the median's relative sd is then ~0.5 %.
+SAMPLE_PIXELS = 50_000
+# A unit is significant from at least this many pixels (where the median's large-sample sd holds), known to this
+# relative sd.
+MIN_PIXELS = 50
+MAX_RELATIVE_SIGMA = 0.1
+# Where the median amplitude would read as this range of V^2 the unit is looked for (wider than any sensor's).
+MEDIAN_AMPLITUDE_RANGE_V2 = (1e-7, 1e2)
+# Bisection steps over that range in log lambda: 2^-60 of 21 e-folds.
+BISECTION_STEPS = 60
+
+
+@dataclass(frozen=True)
+class AmplitudeUnit:
+    """A scan's amplitude unit (:func:`measure_amplitude_unit`).
+
+    amplitude_scale : lambda, the scanner's unit per V^2 (NaN where not measured). [units / V^2]
+    relative_sigma : Its relative standard deviation (inf where not measured). [1]
+    pixels : Pixels it was read from.
+    significant : At least ``MIN_PIXELS`` pixels and a relative sd of at most ``MAX_RELATIVE_SIGMA``.
+    reason : Why not, where it is not significant.
+    """
+
+    amplitude_scale: float
+    relative_sigma: float
+    pixels: int
+    significant: bool
+    reason: str = ""
+
+
+def measure_amplitude_unit(scan: Scan, sensor: SensorConfig, *, noise_scale: float = 1.0,
+                           max_depth_spread_m: float = 0.3) -> AmplitudeUnit:
+    """The amplitude unit of ``scan`` from the chi-square of its frequencies' depths (the module's docstring).
+
+    Reads at most ``SAMPLE_PIXELS`` evenly spaced pixels with finite depths and positive amplitudes whose depths,
+    unwrapped where the scan's are wrapped, spread over at most ``max_depth_spread_m`` [m]; ``noise_scale`` is the
+    sensor's noise over the noise model's.
+    """
+    rows = _sample_rows(scan)
+    f = len(scan.frequencies_hz)
+    if scan.depth_wrapped and rows.shape[0]:
+        # Weights of the sds' shape at one amplitude (sd ~ 1 / f): the amplitudes' unit is not known yet.
+        result = unwrap_depths(rows[:, :f], np.broadcast_to(1.0 / np.asarray(scan.frequencies_hz), (rows.shape[0], f)),
+                               scan.frequencies_hz, sensor.speed_of_light_m_per_s)
+        rows[:, :f] = result.depth_m
+    with np.errstate(invalid="ignore"):
+        keep = np.isfinite(rows).all(1) & (rows[:, f:] > 0).all(1)
+        keep &= rows[:, :f].max(1) - rows[:, :f].min(1) <= max_depth_spread_m
+    rows = rows[keep]
+    if rows.shape[0] < MIN_PIXELS:
+        return AmplitudeUnit(float("nan"), float("inf"), int(rows.shape[0]), False,
+                             f"only {rows.shape[0]} pixels with consistent depths, at least {MIN_PIXELS} needed")
+    offsets = np.median(rows[:, :f] - rows[:, f - 1:f], axis=0)
+    return _solve(rows, offsets, scan.frequencies_hz, sensor, noise_scale)
+
+
+def _sample_rows(scan: Scan) -> NDArray[np.float64]:
+    """Raw rows (n, 2F) of at most ``SAMPLE_PIXELS`` pixels evenly spaced over the scan, in float64."""
+    h, w = scan.shape
+    pixels = np.unique(np.linspace(0, h * w - 1, min(SAMPLE_PIXELS, h * w)).round().astype(np.intp))
+    y, x = np.divmod(pixels, w)
+    depth = np.asarray(scan.depth[:, y, x], dtype=np.float64).T
+    amplitude = np.asarray(scan.amplitude[:, y, x], dtype=np.float64).T
+    return np.hstack([depth, amplitude])
+
+
+def _median_chi2(rows: NDArray, offsets: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig,
+                 noise_scale: float, log_scale: float) -> float:
+    f = len(frequencies_hz)
+    scaled = np.hstack([rows[:, :f], rows[:, f:] / np.exp(log_scale)])
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        fused = fused_depths(scaled, frequencies_hz, sensor, noise_scale=noise_scale, offsets_m=offsets)
+    return float(np.median((f - 1) * fused.birge_ratio.astype(np.float64) ** 2))
+
+
+def _solve(rows: NDArray, offsets: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig,
+           noise_scale: float) -> AmplitudeUnit:
+    """lambda where the median chi2 equals chi-square's median, by bisection in log lambda (chi2 falls as lambda
+    grows), and its relative sd from the median's."""
+    from scipy.stats import chi2 as chi_square
+
+    f = len(frequencies_hz)
+    target = float(chi_square.median(f - 1))
+    median_amplitude = float(np.median(rows[:, f:]))
+    low, high = (np.log(median_amplitude / bound) for bound in MEDIAN_AMPLITUDE_RANGE_V2[::-1])
+    at = {bound: _median_chi2(rows, offsets, frequencies_hz, sensor, noise_scale, bound) for bound in (low, high)}
+    n = rows.shape[0]
+    if not at[low] >= target >= at[high]:
+        return AmplitudeUnit(float("nan"), float("inf"), n, False,
+                             "the frequencies' scatter matches no amplitude unit within the searched range")
+    for _ in range(BISECTION_STEPS):
+        middle = 0.5 * (low + high)
+        if _median_chi2(rows, offsets, frequencies_hz, sensor, noise_scale, middle) > target:
+            low = middle
+        else:
+            high = middle
+    log_scale = 0.5 * (low + high)
+    relative_sigma = _relative_sigma(rows, offsets, frequencies_hz, sensor, noise_scale, log_scale, target, n)
+    significant = relative_sigma <= MAX_RELATIVE_SIGMA
+    reason = "" if significant else (f"the unit is known only to {relative_sigma:.2g} (relative sigma), more than "
+                                     f"{MAX_RELATIVE_SIGMA:g}: too few pixels whose frequencies agree")
+    return AmplitudeUnit(float(np.exp(log_scale)), relative_sigma, n, significant, reason)
+
+
+def _relative_sigma(rows: NDArray, offsets: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig,
+                    noise_scale: float, log_scale: float, target: float, n: int) -> float:
+    """The relative sd of lambda: the sample median's sd, 1 / (2 p(m) sqrt(n)) with p chi-square's density at its
+    median m, carried through the slope of log median chi2 against log lambda."""
+    from scipy.stats import chi2 as chi_square
+
+    f = len(frequencies_hz)
+    median_sd = 1.0 / (2.0 * float(chi_square.pdf(target, f - 1)) * np.sqrt(n))
+    step = 0.05
+    slope = (np.log(_median_chi2(rows, offsets, frequencies_hz, sensor, noise_scale, log_scale + step))
+             - np.log(_median_chi2(rows, offsets, frequencies_hz, sensor, noise_scale, log_scale - step))) / (2 * step)
+    if not np.isfinite(slope) or slope >= 0:
+        return float("inf")
+    return float((median_sd / target) / abs(slope))
