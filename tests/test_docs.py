@@ -53,7 +53,7 @@ def test_docs__every_relative_link_resolves(page):
 
 
 def test_docs__no_page_cites_a_moved_page():
-    moved = ("docs/scenes.md", "docs/benchmarks.md", "docs/tradeoff.md", "docs/limits.md", "docs/operations.md")
+    moved = ("docs/scenes.md", "docs/benchmarks.md", "docs/tradeoff.md", "docs/limits.md")
     for page in PAGES:
         text = page.read_text()
         assert not any(name in text for name in moved), page

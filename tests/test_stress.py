@@ -265,6 +265,7 @@ def test_predict_depth__finite_outside_training_range(tiny_model):
 
 
 def test_correct_scan__every_pixel_finite_or_flagged_invalid(tiny_model):
+    # 20 pixels, too few to read their amplitude unit: given, V^2
     config = Config()
     rng = np.random.default_rng(7)
     d_as = np.concatenate([np.linspace(1.4, 2.3, 8), np.linspace(2.5, 3.0, 8), [0.2, 0.2, 2.0, 2.0]])
@@ -278,7 +279,7 @@ def test_correct_scan__every_pixel_finite_or_flagged_invalid(tiny_model):
     scan = Scan(name="stress", frequencies_hz=PAPER_FREQUENCIES_HZ,
                 depth=depth.T.reshape(4, h, w).astype(np.float32),
                 amplitude=amplitude.T.reshape(4, h, w).astype(np.float32))
-    result = correct_scan(scan, tiny_model, CorrectionOptions(gate="all"))
+    result = correct_scan(scan, tiny_model, CorrectionOptions(gate="all", amplitude_scale=1.0, baseline="raw"))
     flags = result.flags.ravel()
     out = result.depth.ravel()
     invalid = np.isin(flags, [int(f) for f in INVALID_FLAGS])
@@ -300,7 +301,8 @@ def test_correct_scan__nearer_than_the_prior_is_corrected_down_to_the_near_fract
     depth, amplitude = make_sensor(config).measure(theta, np.random.default_rng(8))
     scan = Scan(name="near", frequencies_hz=PAPER_FREQUENCIES_HZ, depth=depth.T.reshape(4, 4, 5).astype(np.float32),
                 amplitude=amplitude.T.reshape(4, 4, 5).astype(np.float32))
-    flags = correct_scan(scan, tiny_model, CorrectionOptions(gate="all")).flags.ravel()
+    flags = correct_scan(scan, tiny_model, CorrectionOptions(gate="all", amplitude_scale=1.0)).flags.ravel()
     assert np.all(flags[:10] == Flag.CORRECTED) and np.all(flags[10:] == Flag.OUT_OF_RANGE)
-    strict = correct_scan(scan, tiny_model, CorrectionOptions(gate="all", near_range_fraction=0.0)).flags
+    strict_options = CorrectionOptions(gate="all", near_range_fraction=0.0, amplitude_scale=1.0)
+    strict = correct_scan(scan, tiny_model, strict_options).flags
     assert np.all(strict == Flag.OUT_OF_RANGE)

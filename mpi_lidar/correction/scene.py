@@ -32,8 +32,8 @@ from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores
 
 NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
-NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (rho_ABA, d_AB), so every valid "
-                           "pixel keeps its raw depth")
+NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (rho_ABA, d_AB), so it corrects no "
+                           "pixel; every valid pixel gets the baseline")
 
 
 @dataclass(frozen=True)

@@ -97,7 +97,7 @@ VARIABLES: tuple[Variable, ...] = (
     Variable("elevation_rad", Store.SCAN, ("y",), "f", "as given", "rad", "elevation of the pixel row",
              note="With azimuth_rad, the scan grid; a coordinate of y."),
     Variable("ray_directions", Store.SCAN, ("y", "x", "xyz"), "f", "as given", "1",
-             "unit ray direction (x left, y up, z forward)", note="Instead of a scan grid."),
+             "unit ray direction (x right, y up, z forward)", note="Instead of a scan grid."),
     Variable("reference_depth", Store.SCAN, ("y", "x"), "f", "as given", "m", "reference range along the ray",
              note="For evaluation only."),
     Variable("reference_mask", Store.SCAN, ("y", "x"), "b", "bool", "1",

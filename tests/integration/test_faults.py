@@ -57,7 +57,7 @@ def write_archive(root: Path, count: int, height: int = 24, width: int = 32) -> 
 
 def corrected_depths(out: Path) -> dict[str, bytes]:
     return {p.name: zarr.open_group(str(p / "corrected.zarr"), mode="r")["corrected_depth"][:].tobytes()
-            for p in sorted(out.iterdir()) if not p.name.startswith(".") and p.name != "summary"}
+            for p in sorted(out.iterdir()) if p.is_dir() and not p.name.startswith(".") and p.name != "summary"}
 
 
 def kill_one_worker_once(client: Client) -> tuple[threading.Event, object]:
@@ -108,8 +108,9 @@ def test_correct_archive__worker_process_killed_mid_batch_completes_identically(
 
 
 def assert_only_staging_debris(out: Path, scans: list[str]) -> None:
-    """Beside complete scan directories, a killed writer leaves at most hidden staging directories."""
-    extra = sorted(set(os.listdir(out)) - {*scans, "summary"})
+    """Beside complete scan directories (and the batch's plotly.js), a killed writer leaves at most hidden staging
+    directories."""
+    extra = sorted(set(os.listdir(out)) - {*scans, "summary", "plotly.min.js"})
     assert all(STAGING.match(name) for name in extra), extra
 
 
@@ -181,7 +182,8 @@ def test_correct_cli__killed_batch_rerun_skips_finished_and_leaves_no_partial_ou
     assert {name: (out / name / "metrics.json").stat().st_mtime_ns for name in finished} == before
     assert corrected_dirs(out) == names
     assert all(set(os.listdir(out / name)) == SCAN_OUTPUTS for name in names)
-    assert sorted(os.listdir(out)) == [*names, "summary"], "no staging debris"
+    # the batch's one plotly.js bundle (full outputs) beside the scans' folders, and no staging debris
+    assert sorted(os.listdir(out)) == sorted([*names, "plotly.min.js", "summary"]), "no staging debris"
     depth = zarr.open_group(str(out / names[-1] / "corrected.zarr"), mode="r")["corrected_depth"][:]
     assert depth.shape == (24, 32) and np.isfinite(depth).all()
 

@@ -30,7 +30,9 @@ from mpi_lidar.workflows.correct_archive import (
 from tests.cli_runner import assert_one_error_line, call_main
 from tests.scan_factory import two_path_scan
 
-ALL = CorrectionOptions(gate="all")  # every valid pixel corrected: a two-path scan ends 'corrected'
+# Every valid pixel corrected: a two-path scan ends 'corrected'. Amplitudes in V^2, given: a scan whose amplitudes
+# were scaled up then reads as saturated (with the unit auto, it would read as another unit).
+ALL = CorrectionOptions(gate="all", amplitude_scale=1.0)
 # The command line's output level: what these tests read (corrected.zarr, metrics.json, report.md and .html);
 # the figures and point clouds of "full" are tests/reporting's.
 LIGHT = "light"
@@ -234,6 +236,9 @@ def test_process_scan__amplitudes_in_another_unit_are_unserved_not_degraded(smal
     outcome = process_scan(tmp_path / "counts.scan.zarr", small_model, tmp_path / "out", ALL, outputs=LIGHT)
     assert outcome.status == ScanStatus.UNSERVED and outcome.unserved == "amplitude_units"
     assert "--sensor" in outcome.reason
+    auto = process_scan(tmp_path / "counts.scan.zarr", small_model, tmp_path / "auto",
+                        ALL.model_copy(update={"amplitude_scale": "auto"}), outputs=LIGHT)
+    assert auto.status == ScanStatus.CORRECTED and auto.counts["saturated"] == 0, "the unit read from the scan"
 
 
 def test_correct_cli__unserved_scan_exits_1_unless_allowed(small_model, tmp_path, monkeypatch, capsys):
@@ -254,7 +259,8 @@ def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_m
     archive = tmp_path / "archive"
     write_scan(saturated(two_path_scan("hot"), 0.62, ALL), archive / "hot.scan.zarr")
     write_scan(two_path_scan("fine", seed=1), archive / "fine.scan.zarr")
-    arguments = ["correct", archive, "--model", small_model, "--gate", "all", "--workers", "0"]
+    arguments = ["correct", archive, "--model", small_model, "--gate", "all", "--workers", "0", "--amplitude-scale",
+                 "1"]
 
     code, out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "plain")
     assert code == 0 and err == "" and re.search(r"^hot +degraded ", out, re.M)
@@ -266,7 +272,8 @@ def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_m
     assert code == 1
     assert err.splitlines() == [f"error: scan {archive / 'hot.scan.zarr'}: degraded: 62.1 % of its pixels are "
                                 "invalid"]
-    assert "| hot | degraded |" in (tmp_path / "strict" / "summary" / "report.md").read_text()
+    summary = (tmp_path / "strict" / "summary" / "report.md").read_text()
+    assert re.search(r"^\| hot \|[^\n]*\| degraded \|", summary, re.M)
     assert (tmp_path / "strict" / "fine" / "report.html").is_file()
 
     code, _out, err = call_main(monkeypatch, capsys, *arguments, "--out", tmp_path / "strict",
