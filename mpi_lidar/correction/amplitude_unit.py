@@ -26,16 +26,21 @@ from mpi_lidar.physics.noise import fused_depths
 from mpi_lidar.physics.unwrap import unwrap_depths
 from mpi_lidar.scans.scan import Scan
 
-# Pixels the unit is read from at most, evenly spaced over the scan: the median's relative sd is then ~0.5 %.
-SAMPLE_PIXELS = 50_000
+# Pixels the unit is read from at most, evenly spaced over the scan: the unit's relative sd is then ~1-1.5 %, below
+# the noise model's own error.
+SAMPLE_PIXELS = 10_000
 # A unit is significant from at least this many pixels (where the median's large-sample sd holds), known to this
 # relative sd.
 MIN_PIXELS = 50
 MAX_RELATIVE_SIGMA = 0.1
 # Where the median amplitude would read as this range of V^2 the unit is looked for (wider than any sensor's).
 MEDIAN_AMPLITUDE_RANGE_V2 = (1e-7, 1e2)
-# Bisection steps over that range in log lambda: 2^-60 of 21 e-folds.
-BISECTION_STEPS = 60
+# The root in log lambda is found to this tolerance: 1e-4 relative, far below the reading's sd.
+LOG_SCALE_TOLERANCE = 1e-4
+# A unit read within this factor of V^2 is taken as V^2 (:func:`reads_as_v2`): the sensor's noise, which the reading
+# takes to be the noise model's, moves it that much (only the product of unit and noise scale is seen), while a unit
+# of another scale (counts, mW) differs by orders of magnitude. Searched first, the scans in V^2 cost less.
+V2_TOLERANCE = 2.0
 
 
 @dataclass(frozen=True)
@@ -103,8 +108,8 @@ def _median_chi2(rows: NDArray, offsets: NDArray, frequencies_hz: tuple[float, .
 
 def _solve(rows: NDArray, offsets: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig,
            noise_scale: float) -> AmplitudeUnit:
-    """lambda where the median chi2 equals chi-square's median, by bisection in log lambda (chi2 falls as lambda
-    grows), and its relative sd from the median's."""
+    """lambda where the median chi2 equals chi-square's median, by Brent's method in log lambda (chi2 falls as
+    lambda grows), and its relative sd from the median's."""
     from scipy.stats import chi2 as chi_square
 
     f = len(frequencies_hz)
@@ -116,13 +121,15 @@ def _solve(rows: NDArray, offsets: NDArray, frequencies_hz: tuple[float, ...], s
     if not at[low] >= target >= at[high]:
         return AmplitudeUnit(float("nan"), float("inf"), n, False,
                              "the frequencies' scatter matches no amplitude unit within the searched range")
-    for _ in range(BISECTION_STEPS):
-        middle = 0.5 * (low + high)
-        if _median_chi2(rows, offsets, frequencies_hz, sensor, noise_scale, middle) > target:
-            low = middle
-        else:
-            high = middle
-    log_scale = 0.5 * (low + high)
+    from scipy.optimize import brentq
+
+    def excess(log_scale: float) -> float:
+        return _median_chi2(rows, offsets, frequencies_hz, sensor, noise_scale, log_scale) - target
+
+    near = np.log(1.0 / V2_TOLERANCE), np.log(V2_TOLERANCE)
+    if excess(near[0]) >= 0 >= excess(near[1]):  # within the tolerance of V^2, as most scans are
+        low, high = near
+    log_scale = float(brentq(excess, low, high, xtol=LOG_SCALE_TOLERANCE))
     relative_sigma = _relative_sigma(rows, offsets, frequencies_hz, sensor, noise_scale, log_scale, target, n)
     significant = relative_sigma <= MAX_RELATIVE_SIGMA
     reason = "" if significant else (f"the unit is known only to {relative_sigma:.2g} (relative sigma), more than "
@@ -144,3 +151,8 @@ def _relative_sigma(rows: NDArray, offsets: NDArray, frequencies_hz: tuple[float
     if not np.isfinite(slope) or slope >= 0:
         return float("inf")
     return float((median_sd / target) / abs(slope))
+
+
+def reads_as_v2(unit: AmplitudeUnit) -> bool:
+    """Whether a measured amplitude unit is taken as V^2 (within ``V2_TOLERANCE`` of it)."""
+    return 1.0 / V2_TOLERANCE <= unit.amplitude_scale <= V2_TOLERANCE

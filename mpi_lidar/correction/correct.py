@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.amplitude_unit import AmplitudeUnit, measure_amplitude_unit
+from mpi_lidar.correction.amplitude_unit import V2_TOLERANCE, AmplitudeUnit, measure_amplitude_unit, reads_as_v2
 from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
 from mpi_lidar.correction.gates import Gate, make_gate
 from mpi_lidar.correction.options import (
@@ -168,7 +168,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     with clock("validity"):
         flags, usable_depth, measured = _validity_pass(scan, options, sensor, tiles)
         if measured.moved:  # some depths wrapped: every later stage reads them unwrapped
-            scan = _unwrapped_scan(scan, sensor, tiles)
+            scan = _unwrapped_scan(scan, measured)
     gate_started = time.perf_counter()
     with clock("gate"):
         gate = make_gate(options)
@@ -307,17 +307,6 @@ class _DepthValidity:
     measured: _Measured
 
 
-# A measured amplitude unit within this factor of V^2 is read as V^2: the sensor's noise, which the reading takes
-# to be the noise model's, moves it that much (only the product of unit and noise scale is seen), while a unit of
-# another scale (counts, mW) differs by orders of magnitude.
-V2_TOLERANCE = 2.0
-
-
-def reads_as_v2(unit: AmplitudeUnit) -> bool:
-    """Whether a measured amplitude unit is taken as V^2 (within ``V2_TOLERANCE`` of it)."""
-    return 1.0 / V2_TOLERANCE <= unit.amplitude_scale <= V2_TOLERANCE
-
-
 def unit_note_of(unit: AmplitudeUnit) -> str:
     """What a report says of a scan's own amplitude unit."""
     if not unit.significant:
@@ -403,7 +392,14 @@ class _Measured:
     depth: NDArray[np.float32]
     confidence: NDArray[np.float32] | None
     offsets: _OffsetSample
-    moved: bool = False
+    # (flat pixel indices (k,), their unwrapped depths (k, F) [m]) of the pixels whose depths took a wrap count,
+    # a part per band of rows: the scan's depths are unwrapped from them without a second search.
+    moved_pixels: list[tuple[NDArray[np.intp], NDArray[np.float32]]] = field(default_factory=list)
+
+    @property
+    def moved(self) -> bool:
+        """Whether any depth took a wrap count."""
+        return bool(self.moved_pixels)
 
 
 # The frequencies' relative offsets are measured on at most about this many pixels, evenly spaced: beyond that
@@ -469,8 +465,10 @@ def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
             measured.depth[where] = np.where(part_flags == Flag.AMBIGUOUS, raw[rows, f - 1], part[:, f - 1])
             if measured.confidence is not None and confidence is not None:
                 measured.confidence[where] = confidence
-                if not measured.moved and not np.array_equal(part[:, :f], raw[rows, :f], equal_nan=True):
-                    measured.moved = True  # one thread's True is enough: no thread sets it back
+                # Bit by bit: a row that took no wrap count keeps its bytes (NaN included).
+                moved = np.flatnonzero((part[:, :f].view(np.uint32) != raw[rows, :f].view(np.uint32)).any(1))
+                if moved.size:  # list.append is atomic: the threads' parts need no lock
+                    measured.moved_pixels.append((where.start + moved, part[moved, :f].copy()))
 
         on_cores_by_rows(check, raw.shape[0], PARALLEL_MIN_ROWS)
     return flags, usable_depth, measured
@@ -485,17 +483,15 @@ def _unwrapped(scan: Scan, raw: NDArray[np.float32], sensor: SensorConfig,
     return unwrapped_rows(raw, scan.frequencies_hz, sensor)
 
 
-def _unwrapped_scan(scan: Scan, sensor: SensorConfig, tiles: list[slice]) -> Scan:
+def _unwrapped_scan(scan: Scan, measured: _Measured) -> Scan:
     """The scan with its depth maps unwrapped into one range, in memory (F x H x W float32, as large as the
     depth maps themselves, also for a scan kept in its store): the scene geometry, the footprint and the model
-    all read depths. Only a scan some of whose depths took a wrap count pays for it."""
+    all read depths. Only a scan some of whose depths took a wrap count pays for it, and only a copy: the
+    validity pass kept the depths of the pixels that moved."""
     f = len(scan.frequencies_hz)
-    depth = np.empty((f, scan.shape[0] * scan.shape[1]), dtype=np.float32)
-    for pixels, raw in _raw_tiles(scan, tiles):
-        def unwrap(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
-            depth[:, start + rows.start:start + rows.stop] = _unwrapped(scan, raw[rows], sensor)[0][:, :f].T
-
-        on_cores_by_rows(unwrap, raw.shape[0], PARALLEL_MIN_ROWS)
+    depth = np.array(scan.depth, dtype=np.float32).reshape(f, -1)
+    for pixels, unwrapped in measured.moved_pixels:
+        depth[:, pixels] = unwrapped.T
     return replace(scan, depth=depth.reshape(f, *scan.shape), depth_wrapped=False)
 
 

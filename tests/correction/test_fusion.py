@@ -98,3 +98,21 @@ def test_noise_limit_benchmark__quick_rows_fuse_the_wall_and_leave_the_corner_ed
     assert corner["edge_fused_baseline"] == pytest.approx(corner["edge_raw_baseline"], abs=0.05)
     columns = {len(line.strip("|").split("|")) for line in [*HEADER.splitlines(), format_row("x", wall)]}
     assert columns == {10}
+
+
+@pytest.mark.integration
+def test_correct_scan__a_wrapped_scan_corrects_as_the_same_scan_unwrapped(tiny_geometric_model):
+    from dataclasses import replace
+
+    from mpi_lidar.physics.demod import unambiguous_range
+
+    scan = render(flat_wall(20.0, 6.0, 0.7, height=24, width=32), Config(), np.random.default_rng(9),
+                  patch_spacing_m=1.0)
+    ambiguity = unambiguous_range(np.asarray(scan.frequencies_hz), 3e8)[:, None, None]
+    counts = np.rint((scan.reference_depth[None] - scan.depth) / ambiguity)
+    assert counts[-1].min() >= 1, "past 4.8 m the 31.25 MHz depths wrap"
+    unwrapped = replace(scan, depth=(scan.depth + counts * ambiguity).astype(np.float32), depth_wrapped=False)
+    wrapped_run, unwrapped_run = (correct_scan(s, tiny_geometric_model) for s in (scan, unwrapped))
+    assert np.array_equal(wrapped_run.flags, unwrapped_run.flags)
+    np.testing.assert_allclose(wrapped_run.depth, unwrapped_run.depth, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(wrapped_run.measured_depth, unwrapped.depth[-1], rtol=0, atol=1e-6)
