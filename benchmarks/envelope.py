@@ -48,10 +48,18 @@ class Case:
     told_unit: float | None = None
 
 
-def framed_corner(distance_m: float, height: int = 96, width: int = 128) -> Scene:
-    """A 90-degree corner of albedo 0.7 at ``distance_m`` whose boards fill the view at any range."""
-    return corner(90.0, distance_m, 0.7, height, width, board_m=max(0.5, 0.25 * distance_m),
+def framed_corner(distance_m: float, albedo: float = 0.7, height: int = 96, width: int = 128) -> Scene:
+    """A 90-degree corner at ``distance_m`` whose boards fill the view at any range."""
+    return corner(90.0, distance_m, albedo, height, width, board_m=max(0.5, 0.25 * distance_m),
                   half_height_m=max(0.35, 0.12 * distance_m))
+
+
+def render_with_footprint(scene: Scene, footprint_m2: float, seed: int) -> Scan:
+    """The scene rendered at Table I noise with the receiver footprint ``footprint_m2`` [m^2] (0: a wall, coarse
+    patches: no multipath to render)."""
+    gain = footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
+    return render(scene, Config(), np.random.default_rng(seed), coupling_gain=gain,
+                  patch_spacing_m=1.0 if footprint_m2 == 0 else None)
 
 
 def cases(quick: bool) -> list[Case]:
@@ -70,9 +78,7 @@ def cases(quick: bool) -> list[Case]:
 
 
 def rendered(case: Case, seed: int) -> Scan:
-    gain = case.footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
-    scan = render(case.scene, Config(), np.random.default_rng(seed), coupling_gain=gain,
-                  patch_spacing_m=1.0 if case.footprint_m2 == 0 else None)
+    scan = render_with_footprint(case.scene, case.footprint_m2, seed)
     return replace(scan, amplitude=(scan.amplitude * case.unit).astype(np.float32))
 
 

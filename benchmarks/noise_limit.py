@@ -23,15 +23,15 @@ from datetime import date
 
 import numpy as np
 
+from benchmarks.envelope import framed_corner, render_with_footprint
 from benchmarks.scenes import edge_line, edge_line_region, mae_mm
-from mpi_lidar.config import Config, SensorConfig
+from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.correction.options import Estimate
 from mpi_lidar.learning.model import CorrectionModel, load_model
-from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_RADIUS_M
 from mpi_lidar.physics.noise import depth_noise_m
 from mpi_lidar.scans.scan import Scan
-from mpi_lidar.simulation.scenes import Scene, corner, flat_wall, render
+from mpi_lidar.simulation.scenes import Scene, flat_wall
 
 HEADER = ("| scan | raw MAE [mm] | raw baseline [mm] | fused baseline [mm] | change | edge raw baseline [mm] "
           "| edge fused baseline [mm] | measured / fused / corrected [%] | fused MAE / CRB | within 1 sigma: all "
@@ -49,12 +49,6 @@ class Case:
     footprint_m2: float
 
 
-def framed_corner(distance_m: float, albedo: float = 0.7, height: int = 96, width: int = 128) -> Scene:
-    """A 90-degree corner at ``distance_m`` whose boards fill the view at any range."""
-    return corner(90.0, distance_m, albedo, height, width, board_m=max(0.5, 0.25 * distance_m),
-                  half_height_m=max(0.35, 0.12 * distance_m))
-
-
 def cases(quick: bool) -> list[Case]:
     if quick:
         return [Case("corner at 2 m, 0.073 m^2", framed_corner(2.0, height=48, width=64), 2.0, 0.073),
@@ -62,15 +56,13 @@ def cases(quick: bool) -> list[Case]:
     runs = [Case(f"corner at {d:g} m, 0.073 m^2", framed_corner(d), d, 0.073) for d in (1.0, 2.0, 3.5)]
     runs += [Case("corner at 2 m, 0.002 m^2", framed_corner(2.0), 2.0, 0.002),
              Case("corner at 2 m, 0.0007 m^2", framed_corner(2.0), 2.0, 0.0007),
-             Case("corner at 2 m, 0.0007 m^2, albedo 0.2", framed_corner(2.0, 0.2), 2.0, 0.0007)]
+             Case("corner at 2 m, 0.0007 m^2, albedo 0.2", framed_corner(2.0, albedo=0.2), 2.0, 0.0007)]
     runs += [Case(f"wall at {d:g} m", flat_wall(20.0, d, 0.7), None, 0.0) for d in (1.0, 2.0, 3.5)]
     return runs
 
 
 def rendered(case: Case, seed: int) -> Scan:
-    gain = case.footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
-    return render(case.scene, Config(), np.random.default_rng(seed), coupling_gain=gain,
-                  patch_spacing_m=1.0 if case.footprint_m2 == 0 else None)
+    return render_with_footprint(case.scene, case.footprint_m2, seed)
 
 
 def measure(case: Case, scan: Scan, model: CorrectionModel) -> dict[str, float]:

@@ -158,8 +158,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
             unit = measure_amplitude_unit(scan, sensor, noise_scale=options.noise_scale,
                                           max_depth_spread_m=options.max_depth_spread_m)
         if not unit.significant:
-            by_depth = _DepthValidity(*_validity_pass(scan, depth_rules_only(options), sensor, tiles))
-            return _left_as_measured(scan, by_depth, unit, started)
+            return _left_as_measured(scan, *_validity_pass(scan, depth_rules_only(options), sensor, tiles), unit,
+                                     started)
         unit_note = (unit_note_of(unit),)
         if not reads_as_v2(unit):
             scan = _in_v2(scan, unit.amplitude_scale)
@@ -298,15 +298,6 @@ def _in_v2(scan: Scan, units_per_v2: float) -> Scan:
     return replace(scan, amplitude=(np.asarray(scan.amplitude) / units_per_v2).astype(np.float32))
 
 
-@dataclass(frozen=True)
-class _DepthValidity:
-    """The validity pass from the depths alone: flags (H*W,), usable depth (H*W,) [m] and measured depth."""
-
-    flags: NDArray[np.uint8]
-    usable_depth: NDArray[np.float32]
-    measured: _Measured
-
-
 def unit_note_of(unit: AmplitudeUnit) -> str:
     """What a report says of a scan's own amplitude unit."""
     if not unit.significant:
@@ -318,12 +309,13 @@ def unit_note_of(unit: AmplitudeUnit) -> str:
     return f"{measured}; amplitudes divided by it"
 
 
-def _left_as_measured(scan: Scan, by_depth: _DepthValidity, unit: AmplitudeUnit, started: float) -> Correction:
-    """A scan whose amplitude unit could not be measured: validity from the depths alone (``by_depth``), every
-    valid pixel as measured (flag uncalibrated), the scan unserved for its amplitude unit."""
-    flags, measured = by_depth.flags, by_depth.measured
+def _left_as_measured(scan: Scan, flags: NDArray[np.uint8], usable_depth: NDArray[np.float32], measured: _Measured,
+                      unit: AmplitudeUnit, started: float) -> Correction:
+    """A scan whose amplitude unit could not be measured: validity from the depths alone (``flags``,
+    ``usable_depth``, ``measured`` of :func:`_validity_pass`), every valid pixel as measured (flag uncalibrated),
+    the scan unserved for its amplitude unit."""
     flags[flags == Flag.NOT_NEEDED] = Flag.UNCALIBRATED
-    depth = np.where(flags == Flag.AMBIGUOUS, measured.depth, by_depth.usable_depth).astype(np.float32)
+    depth = np.where(flags == Flag.AMBIGUOUS, measured.depth, usable_depth).astype(np.float32)
     h, w = scan.shape
     why = Unserved(UnservedReason.AMPLITUDE_UNITS,
                    f"the scan's amplitude unit could not be measured ({unit.reason}): give it "

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.options import CorrectionOptions, GateName
-from mpi_lidar.correction.validity import depth_noise_m
+from mpi_lidar.physics.noise import fused_depths
 
 if TYPE_CHECKING:
     from mpi_lidar.correction.scene import SceneGeometry
@@ -70,11 +70,8 @@ class ConsistencyGate(Gate):
     def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig
                          ) -> NDArray[np.bool_]:
         f = len(frequencies_hz)
-        depth = raw[:, :f].astype(np.float64)
-        amplitude = np.maximum(raw[:, f:].astype(np.float64), 1e-12)
-        weight = depth_noise_m(sensor, tuple(frequencies_hz), amplitude) ** -2
-        mean = (weight * depth).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
-        chi2 = (weight * (depth - mean) ** 2).sum(1)
+        # chi^2 about the inverse-variance mean: (F - 1) times the squared Birge ratio of the fused depth.
+        chi2 = (f - 1) * fused_depths(raw, tuple(frequencies_hz), sensor).birge_ratio.astype(np.float64) ** 2
         from scipy import stats  # 1-2 s of imports that only this gate needs
 
         return np.asarray(chi2 > stats.chi2.ppf(1 - self.p_value, df=f - 1))
