@@ -325,7 +325,8 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
               help="Exit 0 when the model cannot serve a scan (status unserved: out of its range, amplitudes in "
                    "another unit, no geometry for a geometric model); its outputs keep the pixels as measured.")
 @click.option("--outputs", type=click.Choice(OUTPUT_LEVELS), default=DEFAULT_OUTPUTS, show_default=True,
-              help="What each scan writes: corrected.zarr, metrics.json, report and a small thumbnail (light); "
+              help="What each scan writes: corrected.zarr, metrics.json, report, corrected.laz and a small "
+                   "thumbnail (light); "
                    "only corrected.zarr and metrics.json (data); or also maps, error histogram, point-cloud "
                    "views, a 3-D view and point clouds (full, several times slower). A scan already corrected at a "
                    "lower level is corrected again to add the rest.")
@@ -333,7 +334,8 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--point-cloud", "point_clouds", type=click.Choice(["las", "laz", "ply"]), multiple=True,
               help="Write the corrected point cloud in this format at any --outputs level; repeatable: "
                    "corrected.las / corrected.laz (LAS 1.4, the raw range an extra dimension) or raw.ply and "
-                   "corrected.ply, each with named fields per point. Default: ply and las at full, none below.")
+                   "corrected.ply, each with named fields per point. Default: laz at light, ply and laz at full, "
+                   "none at data.")
 @click.option("--workers", type=click.IntRange(min=0), default=None,
               help="Worker processes of a local Dask cluster, each correcting scans of its own: for a machine "
                    "with many more cores than one process keeps busy. Default (or 0): this process, which puts "

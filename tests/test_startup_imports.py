@@ -45,3 +45,20 @@ def test_cli_help__the_whole_process_loads_no_heavy_library():
 def test_import_correction_path__xgboost_waits_for_a_booster(module):
     """XGBoost (and with it scikit-learn) is imported where a booster is loaded or trained, not on import."""
     assert _loaded_after(f"import {module}") == []
+
+
+def test_import_correct_archive__reporting_waits_for_a_figure():
+    """The default output levels draw no matplotlib figure: their modules import none until level full draws."""
+    assert _loaded_after("import mpi_lidar.workflows.correct_archive") == []
+
+
+def test_load_model__imports_xgboost_without_scikit_learn_which_still_imports_after(tmp_path):
+    """Loading a booster needs none of XGBoost's scikit-learn estimators; scikit-learn stays importable."""
+    from tests.model_factory import tiny_model
+
+    model = tiny_model(tmp_path / "model")
+    statement = (f"from mpi_lidar.learning.model import load_model\nmodel = load_model({str(model)!r})\n"
+                 "assert model.booster.num_boosted_rounds() > 0")
+    assert _loaded_after(statement) == ["xgboost"]
+    after = _loaded_after(f"{statement}\nimport sklearn.neighbors")
+    assert after == ["sklearn", "xgboost"]

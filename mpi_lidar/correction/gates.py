@@ -72,9 +72,9 @@ class ConsistencyGate(Gate):
         f = len(frequencies_hz)
         # chi^2 about the inverse-variance mean: (F - 1) times the squared Birge ratio of the fused depth.
         chi2 = (f - 1) * fused_depths(raw, tuple(frequencies_hz), sensor).birge_ratio.astype(np.float64) ** 2
-        from scipy import stats  # 1-2 s of imports that only this gate needs
+        from scipy.special import chdtri  # the quantile without scipy.stats's imports (0.3 s)
 
-        return np.asarray(chi2 > stats.chi2.ppf(1 - self.p_value, df=f - 1))
+        return np.asarray(chi2 > chdtri(f - 1, self.p_value))
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_sha256, describe_validation_error, json_kind
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSet, FeatureSpec, TargetMode
+from mpi_lidar.learning.xgboost_import import import_xgboost
 from mpi_lidar.storage.atomic import atomic_path
 
 if TYPE_CHECKING:
@@ -308,6 +309,7 @@ def load_model(model_dir: str | Path) -> CorrectionModel:
     card = read_card(card_path)
     if card.model_sha256 != file_sha256(model_path):
         raise MpiLidarError(f"{model_path} does not match the hash in its card; the model directory is damaged")
+    import_xgboost()  # without scikit-learn: a one-scan correction's start-up
     import xgboost as xgb
 
     booster = xgb.Booster()

@@ -1,4 +1,4 @@
-"""Figures of a corrected scan: the maps, the point-cloud views, the interactive 3-D view and the thumbnail.
+"""Figures of a corrected scan at level full: the maps, the point-cloud views and the interactive 3-D view.
 
 Every figure is a :class:`matplotlib.figure.Figure` of its own, drawn without pyplot: nothing of pyplot's
 global state (its backend, its open figures) is touched, and ``Figure.savefig`` renders with the Agg canvas.
@@ -9,8 +9,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import matplotlib
-import matplotlib.image
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.colors import ListedColormap
@@ -19,13 +17,10 @@ from matplotlib.ticker import MaxNLocator
 
 from mpi_lidar.correction import Correction, Flag
 from mpi_lidar.reporting.metrics import applied_correction_mm, measured_depth
+from mpi_lidar.reporting.thumbnail import FLAG_COLOURS
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.storage.atomic import atomic_path
 
-FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea",
-                "#ff6b81"]
-THUMBNAIL_PX = 512  # longest side of thumbnail.png [px]
-THUMBNAIL_GAP_PX = 4
 VIEW_3D_POINTS = 20_000  # most points per cloud in the interactive 3-D view of report.html
 PLOTLY_JS = "plotly.min.js"
 VIEW_3D_FALLBACK = "interactive 3-D view: open report.html"
@@ -268,36 +263,3 @@ def write_plotly_js(directory: Path) -> Path:
 def plotly_js_src(bundle: Path, page_dir: Path) -> str:
     """The ``src`` of the plotly bundle for a page in ``page_dir``: relative, so a batch folder moves whole."""
     return Path(os.path.relpath(bundle, page_dir)).as_posix()
-
-
-def thumbnail_image(correction: Correction, limit: int = THUMBNAIL_PX) -> tuple[np.ndarray, tuple[float, float]]:
-    """RGB image (h, w, 3) uint8, at most ``limit`` pixels on its longest side: the corrected depth (left,
-    viridis between its 1 and 99 % quantiles, invalid pixels white) and the flags (right, :data:`FLAG_COLOURS`),
-    every ``step``-th pixel of each. Returns the image and the depth range of the colours [m]."""
-    h, w = correction.flags.shape
-    panel = max(1, (limit - THUMBNAIL_GAP_PX) // 2)
-    step = max(1, -(-h // limit), -(-w // panel))
-    depth, flags = correction.depth[::step, ::step], correction.flags[::step, ::step]
-    finite = depth[np.isfinite(depth)]
-    low, high = (float(v) for v in np.quantile(finite, [0.01, 0.99])) if finite.size else (0.0, 1.0)
-    scaled = np.clip((np.nan_to_num(depth, nan=low) - low) / max(high - low, 1e-9), 0.0, 1.0)
-    left = matplotlib.colormaps["viridis"](scaled, bytes=True)[..., :3]
-    left[~np.isfinite(depth)] = 255
-    palette = np.array([[int(c[i:i + 2], 16) for i in (1, 3, 5)] for c in FLAG_COLOURS], dtype=np.uint8)
-    right = palette[np.minimum(flags, len(FLAG_COLOURS) - 1)]
-    ph, pw = flags.shape
-    image = np.full((ph, 2 * pw + THUMBNAIL_GAP_PX, 3), 255, dtype=np.uint8)
-    image[:, :pw], image[:, pw + THUMBNAIL_GAP_PX:] = left, right
-    return image, (low, high)
-
-
-def thumbnail_legend(depth_limits: tuple[float, float]) -> str:
-    flags = ", ".join(f"{flag.name.lower().replace('_', ' ')} {colour}" for flag, colour in zip(Flag, FLAG_COLOURS,
-                                                                                                  strict=True))
-    return (f"Thumbnail: corrected depth (left; viridis from {depth_limits[0]:.3f} to {depth_limits[1]:.3f} m, "
-            f"invalid pixels white) and what was done per pixel (right; {flags}).")
-
-
-def write_png(path: Path, image: np.ndarray) -> None:
-    """An RGB image (h, w, 3) uint8 as a PNG, without drawing a figure."""
-    matplotlib.image.imsave(path, image, format="png")

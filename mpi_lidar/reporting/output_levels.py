@@ -20,12 +20,11 @@ class OutputLevel(StrEnum):
 
 
 OUTPUT_LEVELS = tuple(level.value for level in OutputLevel)  # from most to least
-# The default of a batch (``mpi-lidar correct``, the correction flow): the store, the report and a thumbnail
-# cost little beside the correction itself; ``full`` (maps, histogram, point clouds as PLY and LAS, 3-D view)
-# costs as much as the correction again on a megapixel scan (docs/results/correction.md). A LAZ point cloud is not
-# part of it: it costs about a third of a megapixel scan's correction, above the 20 % the default may add
-# (docs/results/point-clouds.md); ``--point-cloud laz`` writes it at any level. The pipeline's three demo scenes
-# are written ``full``.
+# The default of a batch (``mpi-lidar correct``, the correction flow): the store, the report, a thumbnail and
+# the LAZ point cloud cost little beside the correction itself (the LAZ 16-19 % of a megapixel scan's,
+# docs/results/point-clouds.md); ``full`` (maps, histogram, point clouds as PLY and LAZ, 3-D view) costs as much
+# as the correction again on a megapixel scan (docs/results/correction.md). ``--point-cloud`` picks the formats
+# at any level. The pipeline's three demo scenes are written ``full``.
 DEFAULT_OUTPUTS = OutputLevel.LIGHT.value
 
 

@@ -34,13 +34,13 @@ POINT_CLOUD_FILES: dict[PointCloudFormat, tuple[str, ...]] = {
     PointCloudFormat.LAS: ("corrected.las",),
     PointCloudFormat.LAZ: ("corrected.laz",),
 }
-# Written at level full unless ``point_clouds`` says otherwise.
-FULL_POINT_CLOUDS = (PointCloudFormat.PLY, PointCloudFormat.LAS)
-# The formats each level writes by default. A LAZ at the default level (light) waits for one that costs at
-# most 20 % of a scan's correction; it costs about a third of it (docs/results/point-clouds.md).
+# Written at level full unless ``point_clouds`` says otherwise: the LAZ and the raw and corrected PLY files.
+FULL_POINT_CLOUDS = (PointCloudFormat.PLY, PointCloudFormat.LAZ)
+# The formats each level writes by default. The default level (light) writes the LAZ: it costs 16-19 % of a
+# megapixel scan's correction (docs/results/point-clouds.md), within the 20 % the default outputs may add.
 LEVEL_POINT_CLOUDS: dict[OutputLevel, tuple[PointCloudFormat, ...]] = {
     OutputLevel.FULL: FULL_POINT_CLOUDS,
-    OutputLevel.LIGHT: (),
+    OutputLevel.LIGHT: (PointCloudFormat.LAZ,),
     OutputLevel.DATA: (),
 }
 # One letter per flag code, for the 31 characters of the LAS ``flag`` description ("0C 1N 2F ...").
@@ -114,8 +114,8 @@ def point_cloud_colors(flags: NDArray, amplitude: NDArray) -> NDArray[np.uint8]:
 def point_cloud_formats(outputs: str, point_clouds: tuple[str, ...] | list[str] | None = None
                         ) -> tuple[PointCloudFormat, ...]:
     """The point-cloud formats a scan writes: ``point_clouds`` at any level (each once, in the order of
-    :data:`POINT_CLOUD_FILES`), or by default the level's :data:`LEVEL_POINT_CLOUDS` (PLY and LAS at level
-    full, none below)."""
+    :data:`POINT_CLOUD_FILES`), or by default the level's :data:`LEVEL_POINT_CLOUDS` (PLY and LAZ at level
+    full, LAZ at light, none at data)."""
     if point_clouds is None:
         return LEVEL_POINT_CLOUDS[check_outputs(outputs)]
     unknown = sorted(set(point_clouds) - set(POINT_CLOUD_FILES))

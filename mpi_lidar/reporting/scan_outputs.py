@@ -8,32 +8,24 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from mpi_lidar.correction import Correction, CorrectionOptions
 from mpi_lidar.correction.corrected_store import write_corrected_store
-from mpi_lidar.reporting.figures import (
-    VIEW_3D_FALLBACK,
-    maps_figure,
-    plotly_js_src,
-    point_cloud_figure,
-    point_cloud_view_3d,
-    thumbnail_image,
-    thumbnail_legend,
-    write_plotly_js,
-    write_png,
-)
 from mpi_lidar.reporting.metrics import measured_depth, metric_regions
 from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.reporting.point_cloud_files import point_cloud_formats, write_point_clouds
 from mpi_lidar.reporting.report import REPORT_MARKER, Embed, error_histogram_figure, save_figure
 from mpi_lidar.reporting.scan_report import scan_report
+from mpi_lidar.reporting.thumbnail import thumbnail_image, thumbnail_legend, write_png
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.storage.atomic import atomic_path
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 T = TypeVar("T")
 
@@ -47,8 +39,8 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
     """One scan's outputs at level ``outputs``, written into a staging directory and swapped in at the end.
 
     ``data``: ``corrected.zarr`` and ``metrics.json`` (counts, metrics, notes, the outputs written); ``light``:
-    those, ``report.md``/``report.html`` and ``thumbnail.png`` (corrected depth and flags, at most
-    :data:`~mpi_lidar.reporting.figures.THUMBNAIL_PX` pixels wide); ``full``: those but the thumbnail, plus the
+    those, ``report.md``/``report.html``, ``corrected.laz`` and ``thumbnail.png`` (corrected depth and flags, at
+    most :data:`~mpi_lidar.reporting.thumbnail.THUMBNAIL_PX` pixels wide); ``full``: those but the thumbnail, plus the
     maps, the error histogram, the point-cloud views, an interactive 3-D view in report.html (linking one shared
     ``plotly.min.js`` in ``bundle_dir``, by default the folder holding ``target``: one per batch) and the point
     clouds. ``point_clouds``: the formats written at any level
@@ -56,13 +48,23 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
     ``corrected.ply``, ``las``/``laz`` ``corrected.las``/``.laz``, every file with the named fields of
     :func:`mpi_lidar.scans.pointcloud.correction_fields`, and the uncertainty where the correction has one;
     :func:`~mpi_lidar.reporting.point_cloud_files.write_point_clouds` says what each holds); None: ``ply`` and
-    ``las`` at level full, none below. ``metrics`` are :func:`~mpi_lidar.reporting.metrics.scan_metrics`, or a
-    future of them (the store is written while they are worked out). Returns the notes for the batch summary;
+    ``laz`` at level full, ``laz`` at light, none at data. ``metrics`` are
+    :func:`~mpi_lidar.reporting.metrics.scan_metrics`, or a future of them (the store is written while they are
+    worked out). Returns the notes for the batch summary;
     ``cpu_s``, if given, gets the CPU seconds of this process spent on ``write`` (store, point clouds, report, and a
     future's metrics) and ``figures`` (drawing and encoding PNGs, the 3-D view). Nothing of pyplot's global state is
     touched: the figures are drawn on figures of their own.
     """
     level = check_outputs(outputs)
+    if level == OutputLevel.FULL:  # matplotlib and plotly are imported where the full level draws with them
+        from mpi_lidar.reporting.figures import (
+            VIEW_3D_FALLBACK,
+            maps_figure,
+            plotly_js_src,
+            point_cloud_figure,
+            point_cloud_view_3d,
+            write_plotly_js,
+        )
     formats = point_cloud_formats(outputs, point_clouds)
     cpu_s = {} if cpu_s is None else cpu_s
     notes: list[str] = list(correction.notes)

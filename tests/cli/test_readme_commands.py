@@ -129,7 +129,7 @@ def test_readme_own_scans_block__runs_as_written(tmp_path, monkeypatch, capsys):
         code, stdout, stderr = call_main(monkeypatch, capsys, *shlex.split(line)[1:])
         assert code == 0, f"{line}: exit {code}\n{stdout}\n{stderr}"
     outputs = tmp_path / "corrected" / "corner"
-    for name in ("corrected.zarr", "metrics.json", "report.html", "corrected.las", "corrected.ply", "raw.ply"):
+    for name in ("corrected.zarr", "metrics.json", "report.html", "corrected.laz", "corrected.ply", "raw.ply"):
         assert (outputs / name).exists(), name
     assert (tmp_path / "corrected" / "summary").is_dir()
 

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correction.amplitude_unit import LOG_SCALE_TOLERANCE, MIN_PIXELS, measure_amplitude_unit
+from mpi_lidar.correction.amplitude_unit import (
+    LOG_SCALE_TOLERANCE,
+    MIN_PIXELS,
+    _chi_square_density,
+    measure_amplitude_unit,
+)
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
 
 
@@ -52,3 +57,11 @@ def test_measure_amplitude_unit__too_few_consistent_pixels_is_not_significant():
     assert scan.shape[0] * scan.shape[1] < MIN_PIXELS
     measured = measure_amplitude_unit(scan, SensorConfig())
     assert not measured.significant and np.isnan(measured.amplitude_scale) and "at least" in measured.reason
+
+
+@pytest.mark.parametrize("dof", [1, 3, 7])
+def test_chi_square_density__scipy_stats_value(dof):
+    from scipy.stats import chi2
+
+    for x in (0.1, 1.0, 2.366, 9.0):
+        assert _chi_square_density(x, dof) == pytest.approx(float(chi2.pdf(x, dof)), rel=1e-12)

@@ -1,4 +1,4 @@
-"""Figures of a corrected scan: the maps, the rasterized point-cloud views, the 3-D view and the thumbnail."""
+"""Figures of a corrected scan: the maps, the rasterized point-cloud views and the 3-D view."""
 
 from __future__ import annotations
 
@@ -10,14 +10,11 @@ import pytest
 from mpi_lidar.correction import Correction, CorrectionOptions, Flag
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 from mpi_lidar.reporting.figures import (
-    FLAG_COLOURS,
-    THUMBNAIL_PX,
     VIEW_3D_POINTS,
     _mean_raster,
     maps_figure,
     point_cloud_figure,
     point_cloud_view_3d,
-    thumbnail_image,
 )
 from mpi_lidar.reporting.metrics import applied_correction_mm
 from tests.scan_factory import two_path_scan
@@ -93,20 +90,6 @@ def test_point_cloud_view_3d__decimated_to_the_limit():
     assert markup.lstrip().startswith("<div") and "<html" not in markup and "Plotly.newPlot" in markup
     assert f"{VIEW_3D_POINTS // 4:,} of each" in markup
     assert len(markup) < 1_000_000
-
-
-def test_thumbnail_image__at_most_512_pixels_depth_left_flags_right():
-    flags = np.full((1500, 3000), Flag.NO_MULTIPATH, dtype=np.uint8)
-    flags[:, :1500] = Flag.CORRECTED
-    depth = np.tile(np.linspace(1.0, 3.0, 3000, dtype=np.float32), (1500, 1))
-    depth[0, 0] = np.nan
-    big, (low, high) = thumbnail_image(Correction(depth, flags, 0.0, 0.0))
-    assert max(big.shape[:2]) <= THUMBNAIL_PX and big.dtype == np.uint8 and big.shape[2] == 3
-    assert 1.0 <= low < high <= 3.0
-    half = big.shape[1] // 2 + 2
-    assert tuple(big[10, half + 2]) == tuple(int(FLAG_COLOURS[Flag.CORRECTED][i:i + 2], 16) for i in (1, 3, 5))
-    assert tuple(big[10, -2]) == tuple(int(FLAG_COLOURS[Flag.NO_MULTIPATH][i:i + 2], 16) for i in (1, 3, 5))
-    assert tuple(big[0, 0]) == (255, 255, 255), "invalid pixels are white"
 
 
 def test_point_cloud_figure__flat_wall_top_view_is_a_box_not_a_line():

@@ -26,24 +26,24 @@ FIELDS = {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitud
 
 def test_point_cloud_format__one_closed_set():
     assert POINT_CLOUD_FORMATS == ("las", "laz", "ply") == tuple(PointCloudFormat)
-    assert set(POINT_CLOUD_FILES) == set(PointCloudFormat) and FULL_POINT_CLOUDS == ("ply", "las")
+    assert set(POINT_CLOUD_FILES) == set(PointCloudFormat) and FULL_POINT_CLOUDS == ("ply", "laz")
     assert set(LEVEL_POINT_CLOUDS) == set(OutputLevel) and LEVEL_POINT_CLOUDS[OutputLevel.FULL] == FULL_POINT_CLOUDS
-    # a level holds what the next one holds (each format once); LAZ waits for 20 % (docs/results/point-clouds.md)
+    # a level holds what the next one holds (each format once); the default level writes the LAZ
     assert set(LEVEL_POINT_CLOUDS["light"]) <= set(LEVEL_POINT_CLOUDS["full"]) and LEVEL_POINT_CLOUDS["data"] == ()
     assert point_cloud_formats(DEFAULT_OUTPUTS) == LEVEL_POINT_CLOUDS[OutputLevel(DEFAULT_OUTPUTS)]
     option = next(p for p in correct_command.params if p.name == "point_clouds")
     assert tuple(option.type.choices) == POINT_CLOUD_FORMATS, "the command line offers every format"
 
 
-def test_light__no_point_clouds_unless_asked(model_dir, archived, tmp_path):
+def test_light__the_laz_by_default_and_the_formats_asked_for(model_dir, archived, tmp_path):
     light = process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"), outputs="light")
     names = {p.name for p in Path(light.output).iterdir()}
-    assert not names & {"raw.ply", "corrected.ply", "corrected.las", "corrected.laz", PLOTLY_JS}
-    outcomes = correct_archive([str(archived[1])], model_dir, tmp_path / "asked", CorrectionOptions(gate="all"),
-                               outputs="light", point_clouds=("laz",))
-    names = {p.name for p in Path(outcomes[0].output).iterdir()}
     assert "corrected.laz" in names and not names & {"raw.ply", "corrected.ply", "corrected.las", PLOTLY_JS}
-    assert set(laspy.read(Path(outcomes[0].output) / "corrected.laz").point_format.extra_dimension_names) >= FIELDS
+    assert set(laspy.read(Path(light.output) / "corrected.laz").point_format.extra_dimension_names) >= FIELDS
+    outcomes = correct_archive([str(archived[1])], model_dir, tmp_path / "asked", CorrectionOptions(gate="all"),
+                               outputs="light", point_clouds=("las",))
+    names = {p.name for p in Path(outcomes[0].output).iterdir()}
+    assert "corrected.las" in names and not names & {"raw.ply", "corrected.ply", "corrected.laz", PLOTLY_JS}
     # the light outputs exist, but without the PLY files asked for now: corrected again to add them
     again = process_scan(archived[1], model_dir, tmp_path / "light", CorrectionOptions(gate="all"), outputs="light",
                          point_clouds=("ply",))
@@ -53,7 +53,7 @@ def test_light__no_point_clouds_unless_asked(model_dir, archived, tmp_path):
 
 
 def test_point_cloud_formats__default_by_level_and_unknown_refused(model_dir, archived, tmp_path):
-    assert point_cloud_formats("full") == ("ply", "las") and point_cloud_formats("light") == ()
+    assert point_cloud_formats("full") == ("ply", "laz") and point_cloud_formats("light") == ("laz",)
     assert point_cloud_formats("data", ["laz", "ply", "laz"]) == ("ply", "laz")
     assert point_cloud_formats("full", ()) == ()
     with pytest.raises(MpiLidarError, match="unknown point cloud format 'xyz'"):

@@ -17,8 +17,9 @@ from plyfile import PlyData
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
-from mpi_lidar.reporting.figures import FLAG_COLOURS, PLOTLY_JS, VIEW_3D_FALLBACK
+from mpi_lidar.reporting.figures import PLOTLY_JS, VIEW_3D_FALLBACK
 from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS, OutputLevel, covers
+from mpi_lidar.reporting.thumbnail import FLAG_COLOURS
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import cornered_board, render
 from mpi_lidar.workflows.correct_archive import process_scan
@@ -66,7 +67,7 @@ def level_outputs(model_dir, board_store, tmp_path_factory):
 def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full_outputs, archived):
     scan = archived[0]
     names = {p.name for p in full_outputs.iterdir()}
-    assert {"maps.png", "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las"} <= names
+    assert {"maps.png", "point_cloud.png", "raw.ply", "corrected.ply", "corrected.laz"} <= names
     assert PLOTLY_JS not in names, "one plotly.js per batch, in the folder above the scans' own"
     assert "error_hist.png" not in names
     raw, corrected = (PlyData.read(str(full_outputs / name))["vertex"] for name in ("raw.ply", "corrected.ply"))
@@ -80,7 +81,7 @@ def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full
                          + np.asarray(cloud["z"], float) ** 2)
         np.testing.assert_allclose(radius, np.asarray(cloud[field], float), atol=1e-5)
     np.testing.assert_allclose(np.asarray(raw["scalar_raw_range_m"]), scan.depth[-1][row, column])
-    las = laspy.read(full_outputs / "corrected.las")
+    las = laspy.read(full_outputs / "corrected.laz")
     assert str(las.header.version) == "1.4" and len(las.points) == corrected.count
     assert set(las.point_format.extra_dimension_names) >= FIELDS
     np.testing.assert_allclose(np.asarray(las["raw_range_m"]), scan.depth[-1][las["row"], las["column"]])
@@ -90,18 +91,18 @@ def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full
     assert (full_outputs.parent / PLOTLY_JS).stat().st_size > 1_000_000
     assert VIEW_3D_FALLBACK in (full_outputs / "report.md").read_text()
     files = json.loads((full_outputs / "metrics.json").read_text())["outputs"]["files"]
-    assert {"corrected.las", "raw.ply", "corrected.ply"} <= set(files) and PLOTLY_JS not in files
+    assert {"corrected.laz", "raw.ply", "corrected.ply"} <= set(files) and PLOTLY_JS not in files
 
 
 # --- output levels ----------------------------------------------------------------------------------------
 
 FILES = {
     "data": {"corrected.zarr", "metrics.json"},
-    "light": {"corrected.zarr", "metrics.json", "report.md", "report.html", "thumbnail.png"},
+    "light": {"corrected.zarr", "metrics.json", "report.md", "report.html", "thumbnail.png", "corrected.laz"},
     "full": {"corrected.zarr", "metrics.json", "report.md", "report.html", "maps.png", "error_hist.png",
-             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.las"},
+             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.laz"},
 }
-GEOMETRY_FILES = {"point_cloud.png", "raw.ply", "corrected.ply", "corrected.las"}
+GEOMETRY_FILES = {"point_cloud.png", "raw.ply", "corrected.ply", "corrected.laz"}
 
 
 def _listing(path: Path) -> set[str]:
@@ -149,7 +150,7 @@ def test_output_level__is_no_part_of_the_hash_a_higher_level_is_kept_a_lower_one
     assert covers(None, "full") and covers("full", "data") and not covers("data", "light")
 
 
-def test_output_level__scan_without_geometry_at_full_says_point_clouds_were_skipped(model_dir, tmp_path):
+def test_output_level__scan_without_geometry_says_point_clouds_were_skipped(model_dir, tmp_path):
     scan = render(cornered_board(height=24, width=32), Config(), np.random.default_rng(1))
     store = write_scan(replace(scan, azimuth_rad=None, elevation_rad=None), tmp_path / "flat.scan.zarr")
     pixelwise = tiny_model(tmp_path / "model", geometric=False)
@@ -157,7 +158,8 @@ def test_output_level__scan_without_geometry_at_full_says_point_clouds_were_skip
     assert "no scan geometry: point clouds and views skipped" in outcome.notes
     assert _listing(Path(outcome.output)) == FILES["full"] - GEOMETRY_FILES
     light = process_scan(store, pixelwise, tmp_path / "light", CorrectionOptions(), outputs="light")
-    assert not any("point clouds" in note for note in light.notes), "light never writes point clouds"
+    assert "no scan geometry: point clouds skipped" in light.notes
+    assert _listing(Path(light.output)) == FILES["light"] - GEOMETRY_FILES
 
 
 def test_output_level__unknown_level_is_one_clear_error(model_dir, board_store, tmp_path):
