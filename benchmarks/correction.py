@@ -2,7 +2,7 @@
 
 Run: .venv/bin/python -m benchmarks.correction [--model DIR] [--work DIR] [--side 1000] [--batch 200]
      [--batch-side 256] [--big-side 4000] [--quick]
-One run prints five tables, each a markdown table (``--quick``: tiny sizes, seconds, for the test):
+One run prints six tables, each a markdown table (``--quick``: tiny sizes, seconds, for the test):
 
 1. Stages of one ``--side`` x ``--side`` render of the cornered board (4 frequencies, Table I noise,
    geometry gate, this process, caches warm): CPU seconds of this process (all threads, so robust when other
@@ -25,6 +25,8 @@ One run prints five tables, each a markdown table (``--quick``: tiny sizes, seco
    outputs, and its growth over the same process after imports and model loading) for the ``--side`` scan and a
    ``--big-side`` one. The big scan is the ``--side`` render with every pixel repeated (big-side / side)^2
    times on a finer scan grid: sizes, not accuracy, matter there.
+6. Start-up of a one-scan ``mpi-lidar correct`` (:mod:`benchmarks.startup`): what a fresh process pays before
+   its scan's own work, at output levels data and light, against the goal of at most 0.7 s.
 
 The model is ``--model DIR``, or one trained here (default parameters, early stopping) on ``--train-rows``
 rows simulated from the default prior with the geometric inputs the scan geometry would give: the default
@@ -54,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.startup import startup_tables
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec, synthetic_geometry
@@ -98,10 +101,12 @@ class Plan:
     train_rows: int = 50_000
     rounds: int = DEFAULT_ROUNDS
     repeats: int = 3  # end-to-end runs per output level and pure-inference runs; the fastest is reported
+    startup_repeats: int = 5  # fresh processes per start-up row; the median is reported
 
     @classmethod
     def quick(cls) -> Plan:
-        return cls(side=48, batch=3, batch_side=24, big_side=96, train_rows=2_000, rounds=10, repeats=1)
+        return cls(side=48, batch=3, batch_side=24, big_side=96, train_rows=2_000, rounds=10, repeats=1,
+                   startup_repeats=1)
 
 
 def table(headers: tuple[str, ...], rows: list[tuple[object, ...]]) -> str:
@@ -379,6 +384,7 @@ def run(plan: Plan, model_dir: Path | None, work: Path) -> str:
     big_side = read_scan(big).shape[0] if plan.big_side != plan.side else plan.side
     emit(table(MEMORY_HEADERS, [peak_memory(source, model_dir, work, plan.side),
                                 peak_memory(big, model_dir, work, big_side)]))
+    emit(startup_tables(work / "startup", plan.startup_repeats))
     return "\n\n".join(parts + sections)
 
 
