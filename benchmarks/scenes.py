@@ -3,6 +3,7 @@
 Run: .venv/bin/python -m benchmarks.scenes --model DIR [--model DIR ...] [--gate geometry --gate all]
      [--min-bias-mm 1.0 ...] [--seed 0] [--matched-footprint]
  or: .venv/bin/python -m benchmarks.scenes --estimation-error  (geometric estimates against the renderer's)
+ or: .venv/bin/python -m benchmarks.scenes --baselines --model DIR  (the fused baseline against the raw one)
 Renders every scene of :func:`scene_set` once (Table I noise, seeded by the scene's position), corrects it
 with each model, gate and geometry-gate threshold, and prints one markdown row per combination: MAE of
 the 31.25 MHz depth before/after on the whole map, on the reference mask and, for corners, within 20 cm
@@ -11,20 +12,31 @@ measured ("gated out"; pixels outside that range always keep their raw depth). W
 the external imports are corrected with ``footprint_area_m2`` = 90 pi r^2 for their own footprint radius r
 (the calibrated gain of the default) instead of the default footprint. Models trained with geometric inputs
 get the gate's rho_ABA and d_AB estimates for the pixels they correct.
+
+``--baselines`` corrects every scene with default options twice, with ``--baseline raw`` (pixels the model does
+not correct keep the highest frequency's depth) and with the default fused baseline, and prints per scene the
+MAE of both on the whole map, the reference mask and at the edge, whether the fused one is no worse (whole map
+and mask), the share of valid pixels per estimate (measured, fused, corrected) and the share of pixels whose
+error lies within their 1-sigma uncertainty. ``--shrink N`` divides every scene's height and width by N (a quick
+look, a test).
 """
 
 from __future__ import annotations
 
 import argparse
 import platform
+import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import date
 
 import numpy as np
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import GATES, INVALID_FLAGS, CorrectionOptions, Flag, analyse_geometry, correct_scan
-from mpi_lidar.learning.model import load_model
+from mpi_lidar.correction.correct import Correction
+from mpi_lidar.correction.options import Baseline, Estimate
+from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_area
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import (
@@ -55,18 +67,20 @@ def edge_line(distance: float, roll_deg: float = 0.0) -> EdgeLine:
     return np.array([0.0, 0.0, distance]), np.array([-np.sin(roll), np.cos(roll), 0.0])
 
 
-def scene_set() -> list[tuple[str, Callable[[], Scene], EdgeLine | None]]:
-    """(label, scene factory, the corner's edge line or None) of the evaluation set."""
+def scene_set(shrink: int = 1) -> list[tuple[str, Callable[[], Scene], EdgeLine | None]]:
+    """(label, scene factory, the corner's edge line or None) of the evaluation set, each scene's height and
+    width divided by ``shrink`` (same field of view, fewer pixels)."""
+    small, large = {"height": 96 // shrink, "width": 128 // shrink}, {"height": 120 // shrink, "width": 160 // shrink}
     scenes: list[tuple[str, Callable[[], Scene], EdgeLine | None]] = [
-        (f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt)), None) for tilt in (0, 30, 60)]
-    scenes += [("cylinder", cylinder_scene, None), ("sphere", sphere_scene, None)]
+        (f"flat wall {tilt} deg", lambda tilt=tilt: flat_wall(float(tilt), **small), None) for tilt in (0, 30, 60)]
+    scenes += [("cylinder", lambda: cylinder_scene(**small), None), ("sphere", lambda: sphere_scene(**small), None)]
     for angle, distance, albedo in ((60, 2.0, 0.8), (90, 2.0, 0.8), (120, 2.0, 0.8), (90, 1.8, 0.8),
                                     (90, 2.3, 0.8), (90, 2.0, 0.3)):
         scenes.append((f"corner {angle} deg, {distance} m, albedo {albedo}",
-                       lambda a=angle, d=distance, r=albedo: corner(float(a), d, r), edge_line(distance)))
-    scenes += [("cornered board (Fig. 7)", cornered_board, edge_line(2.25)),
-               ("wooden corner (Fig. 10)", wooden_corner, edge_line(2.3)),
-               ("multi-object (Fig. 8)", multi_object, None)]
+                       lambda a=angle, d=distance, r=albedo: corner(float(a), d, r, **small), edge_line(distance)))
+    scenes += [("cornered board (Fig. 7)", lambda: cornered_board(**large), edge_line(2.25)),
+               ("wooden corner (Fig. 10)", lambda: wooden_corner(**small), edge_line(2.3)),
+               ("multi-object (Fig. 8)", lambda: multi_object(**large), None)]
     return scenes
 
 
@@ -74,10 +88,10 @@ def scene_set() -> list[tuple[str, Callable[[], Scene], EdgeLine | None]]:
 MATCHED_FOOTPRINT_GAIN = DEFAULT_COUPLING_GAIN
 
 
-def external_corner(footprint_radius_m: float, config: Config, rng: np.random.Generator) -> Scan:
+def external_corner(footprint_radius_m: float, config: Config, rng: np.random.Generator, shrink: int = 1) -> Scan:
     """A 90-degree corner whose correlation phasors are imported through :func:`scan_from_phasors`, the
     path an external transient renderer takes (here the phasors come from our own light transport)."""
-    scene = corner(90.0, 2.0, 0.8)
+    scene = corner(90.0, 2.0, 0.8, 96 // shrink, 128 // shrink)
     reference = render(scene, config.replace(simulator={"noise_scale": 0.0}), np.random.default_rng(0))
     phasor, dc = light_transport(scene, config, footprint_radius_m, 0.02, DEFAULT_COUPLING_GAIN)
     h, w = reference.shape
@@ -85,6 +99,22 @@ def external_corner(footprint_radius_m: float, config: Config, rng: np.random.Ge
                              rng, dc_gamma=dc.T.reshape(-1, h, w), azimuth_rad=scene.azimuth_rad,
                              elevation_rad=scene.elevation_rad, reference_depth=reference.reference_depth,
                              reference_mask=reference.reference_mask)
+
+
+# (label, scan, its corner's edge line or None, the footprint area to correct it with [m^2] or None: the default)
+Item = tuple[str, Scan, EdgeLine | None, float | None]
+
+
+def rendered_items(config: Config, seed: int, matched_footprint: bool = False, shrink: int = 1) -> list[Item]:
+    """Every scene of :func:`scene_set`, rendered (seeded by its position), then the two external imports."""
+    items: list[Item] = []
+    for index, (label, factory, edge) in enumerate(scene_set(shrink)):
+        items.append((label, render(factory(), config, np.random.default_rng([seed, index])), edge, None))
+    for k, radius in enumerate((0.004, DEFAULT_FOOTPRINT_RADIUS_M * 2)):
+        scan = external_corner(radius, config, np.random.default_rng([seed, 100 + k]), shrink)
+        area = footprint_area(radius, MATCHED_FOOTPRINT_GAIN) if matched_footprint else None
+        items.append((f"external corner 90 deg, footprint {radius * 1e3:g} mm", scan, edge_line(2.0), area))
+    return items
 
 
 def edge_line_region(scan: Scan, edge: EdgeLine) -> np.ndarray:
@@ -139,6 +169,112 @@ def quartiles(values: np.ndarray) -> str:
     return f"{q2:.2f} ({q1:.2f}-{q3:.2f})"
 
 
+BASELINE_HEADER = ("| scene | whole map, raw / fused baseline [mm] | masked, raw / fused baseline [mm] "
+                   "| change, whole / masked | fused <= raw | edge, raw / fused baseline [mm] "
+                   "| measured / fused / corrected [%] | within 1 sigma [%] |\n|---|---|---|---|---|---|---|---|")
+REGIONS = ("whole map", "masked", "edge")
+
+
+@dataclass(frozen=True)
+class BaselineComparison:
+    """A scene corrected with default options under the raw and under the fused baseline.
+
+    ``mae_mm`` maps each of REGIONS to the MAE [mm] of the output depth under the raw and the fused baseline, on
+    the pixels valid in both runs: all of them, those in the reference mask, those within EDGE_RADIUS_M of the
+    corner's edge line (NaN where a region has no pixel: convex scenes have no mask, flat ones no edge);
+    ``shares`` the fused run's valid pixels per estimate (measured, fused, corrected) [1]; ``covered`` the share
+    of its valid pixels whose error is at most their 1-sigma uncertainty [1].
+    """
+
+    mae_mm: dict[str, tuple[float, float]]
+    shares: dict[str, float]
+    covered: float
+
+    @property
+    def fused_no_worse(self) -> bool:
+        """Fused MAE <= raw MAE on the whole map and, where the scene has one, on the mask."""
+        whole, masked = self.mae_mm["whole map"], self.mae_mm["masked"]
+        return whole[1] <= whole[0] and (not np.isfinite(masked[0]) or masked[1] <= masked[0])
+
+
+def valid_pixels(scan: Scan, run: Correction) -> np.ndarray:
+    """Pixels with a reference depth and a valid output depth."""
+    assert scan.reference_depth is not None
+    invalid = np.isin(run.flags, [int(f) for f in INVALID_FLAGS])
+    return np.isfinite(scan.reference_depth) & np.isfinite(run.depth) & ~invalid
+
+
+def estimate_shares(run: Correction) -> dict[str, float]:
+    """Share of the valid pixels (those with an estimate) per estimate: measured, fused, corrected [1]."""
+    counts = run.estimate_counts()
+    names = [e.name.lower() for e in Estimate if e != Estimate.NONE]
+    total = sum(counts.get(name, 0) for name in names)
+    return {name: counts.get(name, 0) / total if total else float("nan") for name in names}
+
+
+def covered_share(run: Correction, reference: np.ndarray, where: np.ndarray) -> float:
+    """Share of the pixels ``where`` with an uncertainty whose error is at most their 1-sigma uncertainty [1]."""
+    if run.uncertainty_m is None:
+        return float("nan")
+    sigma = run.uncertainty_m.astype(np.float64)
+    where = where & np.isfinite(sigma)
+    error = np.abs(run.depth.astype(np.float64) - reference)
+    return float((error[where] <= sigma[where]).mean()) if where.any() else float("nan")
+
+
+def compare_baselines(scan: Scan, model: CorrectionModel, edge: EdgeLine | None) -> BaselineComparison:
+    """Correct ``scan`` with default options, once with ``--baseline raw``, and compare the two on one pixel set."""
+    assert scan.reference_depth is not None and scan.reference_mask is not None
+    raw_run = correct_scan(scan, model, CorrectionOptions(baseline=Baseline.RAW))
+    fused_run = correct_scan(scan, model)
+    usable = valid_pixels(scan, raw_run) & valid_pixels(scan, fused_run)
+    near = edge_line_region(scan, edge) if edge is not None else np.zeros_like(usable)
+    regions = dict(zip(REGIONS, (usable, usable & scan.reference_mask, usable & near), strict=True))
+    reference = scan.reference_depth
+    mae = {name: (mae_mm(raw_run.depth, reference, where), mae_mm(fused_run.depth, reference, where))
+           for name, where in regions.items()}
+    return BaselineComparison(mae, estimate_shares(fused_run), covered_share(fused_run, reference, usable))
+
+
+def baseline_rows(model: CorrectionModel, items: list[Item]) -> list[tuple[str, BaselineComparison]]:
+    """One comparison per scene. The items' footprint areas are not used: default options calibrate their own."""
+    return [(label, compare_baselines(scan, model, edge)) for label, scan, edge, _ in items]
+
+
+def format_baseline_row(label: str, row: BaselineComparison) -> str:
+    pairs = {name: f"{_cell(raw)} / {_cell(fused)}" if np.isfinite(raw) else "" for name, (raw, fused) in
+             row.mae_mm.items()}
+    change = " / ".join(_cell(100 * (fused / raw - 1), "+.1f") + " %" if np.isfinite(raw) else "-"
+                        for raw, fused in (row.mae_mm["whole map"], row.mae_mm["masked"]))
+    shares = " / ".join(f"{100 * row.shares[name]:.1f}" for name in ("measured", "fused", "corrected"))
+    return (f"| {label} | {pairs['whole map']} | {pairs['masked']} | {change} "
+            f"| {'yes' if row.fused_no_worse else '**no**'} | {pairs['edge']} | {shares} "
+            f"| {_cell(100 * row.covered, '.1f')} |")
+
+
+def _cell(value: float, spec: str = ".3f") -> str:
+    return "" if not np.isfinite(value) else format(value, spec)
+
+
+def print_baselines(model_paths: list[str], seed: int, shrink: int) -> None:
+    """The --baselines table of each model, with how many scenes met "fused <= raw" on the mask."""
+    started = time.perf_counter()
+    items = rendered_items(Config(), seed, shrink=shrink)
+    for path in model_paths:
+        model = load_model(path)
+        print(f"model {path} ({model.booster.num_boosted_rounds()} trees, {model.spec.feature_set} inputs"
+              f"{', geometric' if model.geometric else ''}): default options against --baseline raw; "
+              f"Table I noise, seed {seed}\n")
+        print(BASELINE_HEADER)
+        rows = baseline_rows(model, items)
+        for label, row in rows:
+            print(format_baseline_row(label, row), flush=True)
+        met = sum(row.fused_no_worse for _, row in rows)
+        print(f"\nfused <= raw (whole map and mask): {met} of {len(rows)} scenes\n")
+    print(f"{platform.system()}, {platform.machine()}, Python {platform.python_version()}, {date.today()}, "
+          f"{time.perf_counter() - started:.0f} s wall")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", action="append")
@@ -149,12 +285,19 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--matched-footprint", action="store_true",
                         help="Correct the external imports with the footprint area of their own footprint.")
+    parser.add_argument("--baselines", action="store_true",
+                        help="Only compare the default fused baseline with --baseline raw, default options.")
+    parser.add_argument("--shrink", type=int, default=1,
+                        help="With --baselines: divide every scene's height and width by this (a quick look).")
     args = parser.parse_args()
     if args.estimation_error:
         estimation_error(Config(), args.seed)
         return
     if not args.model:
         parser.error("give at least one --model (or --estimation-error)")
+    if args.baselines:
+        print_baselines(args.model, args.seed, args.shrink)
+        return
     gates = args.gate or ["geometry", "all"]
     thresholds = args.min_bias_mm or [1e3 * CorrectionOptions().min_multipath_bias_m]
     config = Config()
@@ -165,14 +308,7 @@ def main() -> None:
     print("| scene | model | gate | min bias [mm] | gated out | raw MAE [mm] | corrected MAE [mm] | masked raw "
           "[mm] | masked corrected [mm] | edge raw [mm] | edge corrected [mm] | gate ms |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    items: list[tuple[str, Scan, EdgeLine | None, float | None]] = []
-    for index, (label, factory, edge) in enumerate(scene_set()):
-        items.append((label, render(factory(), config, np.random.default_rng([args.seed, index])), edge, None))
-    for k, radius in enumerate((0.004, DEFAULT_FOOTPRINT_RADIUS_M * 2)):
-        scan = external_corner(radius, config, np.random.default_rng([args.seed, 100 + k]))
-        area = footprint_area(radius, MATCHED_FOOTPRINT_GAIN) if args.matched_footprint else None
-        items.append((f"external corner 90 deg, footprint {radius * 1e3:g} mm", scan, edge_line(2.0), area))
-    for label, scan, edge, footprint_area_m2 in items:
+    for label, scan, edge, footprint_area_m2 in rendered_items(config, args.seed, args.matched_footprint):
         for path, model in models.items():
             for gate in gates:
                 for threshold in (thresholds if gate == "geometry" else [float("nan")]):

@@ -1,0 +1,52 @@
+"""The scene benchmark's comparison of the fused baseline with the raw one, at tiny sizes with a tiny model."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import pytest
+
+from benchmarks.scenes import BASELINE_HEADER, BaselineComparison, scene_set
+from tests.model_factory import tiny_model
+
+NAN = math.nan
+
+
+def _comparison(whole: tuple[float, float], masked: tuple[float, float]) -> BaselineComparison:
+    return BaselineComparison({"whole map": whole, "masked": masked, "edge": (NAN, NAN)},
+                              {"measured": 0.0, "fused": 1.0, "corrected": 0.0}, 0.68)
+
+
+@pytest.mark.unit
+def test_baseline_comparison__fused_must_be_no_worse_on_the_whole_map_and_the_mask():
+    assert _comparison((1.2, 0.9), (1.1, 0.8)).fused_no_worse
+    assert _comparison((1.2, 0.9), (NAN, NAN)).fused_no_worse, "a convex scene has no mask: the whole map decides"
+    assert not _comparison((1.2, 0.9), (1.1, 1.2)).fused_no_worse
+    assert not _comparison((1.2, 1.3), (1.1, 0.8)).fused_no_worse
+
+
+@pytest.mark.integration
+def test_scenes_benchmark__baselines_print_a_row_per_scene_with_shares_summing_to_100(tmp_path):
+    model = tiny_model(tmp_path / "model")
+    done = subprocess.run([sys.executable, "-m", "benchmarks.scenes", "--baselines", "--model", str(model),
+                           "--shrink", "4"], capture_output=True, text=True, check=True, timeout=300)
+    lines = done.stdout.splitlines()
+    header = BASELINE_HEADER.splitlines()[0]
+    table = lines[lines.index(header) + 2:]
+    rows = [line.strip("|").split("|") for line in table[:table.index("")]]
+    labels = [cells[0].strip() for cells in rows]
+    assert labels[:-2] == [label for label, _, _ in scene_set()] and len(labels) == len(scene_set()) + 2
+    assert {len(cells) for cells in rows} == {header.count("|") - 1}
+    for cells in rows:
+        shares = [float(share) for share in cells[6].split("/")]
+        assert sum(shares) == pytest.approx(100.0, abs=0.2), f"{cells[0]}: shares {shares}"
+        assert 0.0 < float(cells[7]) <= 100.0
+    walls = [cells for cells in rows if cells[0].strip().startswith("flat wall")]
+    for cells in walls:
+        raw, fused = (float(mae) for mae in cells[2].split("/"))
+        assert fused < 0.8 * raw, "a wall's pixels all fuse: four frequencies' noise instead of one"
+        assert cells[4].strip() == "yes"
+    summary = next(line for line in lines if line.startswith("fused <= raw"))
+    assert summary.endswith(f"of {len(rows)} scenes")
