@@ -10,6 +10,9 @@ output and of the fused one on the pixels all three have, the same within 20 cm 
 pixels per estimate (measured, fused, corrected), the fused pixels' MAE over what their Cramer-Rao bound gives
 (sqrt(2 / pi) sigma for Gaussian noise), and the share of pixels whose error lies within their 1-sigma uncertainty
 (68 % for a calibrated Gaussian sigma), over all pixels, the fused ones and the corrected ones.
+Then, where the model's card has an uncertainty model and its dataset is still at the card's path, the share of
+the dataset's test rows (simulated, never seen in training) whose corrected error lies within the card's sigma,
+per band of true range, beside the share within the measured depth's sd (the noise model alone).
 ``--quick`` runs the strong corner and the wall at 2 m only, small (for a test).
 """
 
@@ -20,6 +23,7 @@ import platform
 import time
 from dataclasses import dataclass
 from datetime import date
+from pathlib import Path
 
 import numpy as np
 
@@ -28,15 +32,21 @@ from benchmarks.scenes import edge_line, edge_line_region, mae_mm
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.correction.options import Estimate
+from mpi_lidar.learning.error_model import coverage, error_terms
 from mpi_lidar.learning.model import CorrectionModel, load_model
-from mpi_lidar.physics.noise import depth_noise_m
+from mpi_lidar.learning.train import training_geometry
+from mpi_lidar.physics.noise import depth_noise_m, fused_depths
 from mpi_lidar.scans.scan import Scan
+from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.scenes import Scene, flat_wall
 
 HEADER = ("| scan | raw MAE [mm] | raw baseline [mm] | fused baseline [mm] | change | edge raw baseline [mm] "
           "| edge fused baseline [mm] | measured / fused / corrected [%] | fused MAE / CRB | within 1 sigma: all "
           "/ fused / corrected [%] |\n|---|---|---|---|---|---|---|---|---|---|")
 GAUSSIAN_MAE_PER_SIGMA = float(np.sqrt(2 / np.pi))
+HELD_OUT_HEADER = ("| true range [m] | test rows | within the card's sigma [%] | within the measured sd [%] |\n"
+                   "|---|---|---|---|")
+HELD_OUT_BANDS_M = ((0.5, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 8.0), (8.0, 12.0))
 
 
 @dataclass(frozen=True)
@@ -103,6 +113,29 @@ def cramer_rao_sd_m(scan: Scan) -> np.ndarray:
     return ((sigma**-2.0).sum(1) ** -0.5).reshape(scan.shape)
 
 
+def held_out_rows(model: CorrectionModel) -> list[str]:
+    """Markdown rows of the corrected depths' coverage on the test split of the model's dataset, per band of true
+    range and over all; none where the card has no uncertainty model or its dataset is not at the card's path."""
+    uncertainty, path = model.card.uncertainty_model, Path(model.card.dataset.path)
+    if uncertainty is None or not path.is_dir() or not dataset.is_complete(path):
+        return []
+    test = dataset.read_subsample(path, "test")
+    config = test.info.config
+    depth = model.predict_depth(test.features, training_geometry(model.spec, test))
+    terms = error_terms(test.features, depth, test.target, config.frequencies_hz, config.sensor,
+                        config.simulator.noise_scale)
+    fused = fused_depths(test.features, config.frequencies_hz, config.sensor,
+                         noise_scale=config.simulator.noise_scale)
+    within_measured = np.abs(terms[:, 2]) <= fused.top_sigma_m * np.where(fused.consistent, 1.0, fused.birge_ratio)
+    rows = []
+    for label, band in [(f"{low:g}-{high:g}", (test.target >= low) & (test.target < high))
+                        for low, high in HELD_OUT_BANDS_M] + [("all", np.ones(test.target.size, dtype=bool))]:
+        if band.any():
+            rows.append(f"| {label} | {int(band.sum()):,} | {100 * coverage(uncertainty, terms[band]):.1f} "
+                        f"| {100 * within_measured[band].mean():.1f} |")
+    return rows
+
+
 def format_row(label: str, row: dict[str, float]) -> str:
     change = 100 * (row["fused_baseline"] / row["raw_baseline"] - 1)
     shares = " / ".join(f"{100 * row[f'share_{name}']:.0f}" for name in ("measured", "fused", "corrected"))
@@ -134,6 +167,16 @@ def main() -> None:
     print(HEADER)
     for case in cases(args.quick):
         print(format_row(case.label, measure(case, rendered(case, args.seed), model)), flush=True)
+    uncertainty = model.card.uncertainty_model
+    if uncertainty is not None:
+        print(f"\nuncertainty model of the card: fused sd x {uncertainty.noise_factor:.3f} (+) "
+              f"{1e3 * uncertainty.model_sd_m:.2f} mm x (|correction| / {1e3 * uncertainty.reference_correction_m:g} "
+              f"mm)^{uncertainty.correction_exponent:.2f};\n{100 * uncertainty.validation_coverage:.1f} % of its "
+              f"{uncertainty.validation_rows:,} validation rows within it")
+    held_out = held_out_rows(model)
+    if held_out:
+        print(f"\nheld-out rows: the test split of {model.card.dataset.path}\n\n{HELD_OUT_HEADER}")
+        print("\n".join(held_out))
     print(f"\n{platform.system()}, {platform.machine()}, Python {platform.python_version()}, {date.today()}, "
           f"{time.perf_counter() - started:.0f} s wall")
 

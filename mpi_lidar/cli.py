@@ -301,7 +301,7 @@ def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: 
 @click.option("--footprint-area-m2", default=None, metavar="auto|A",
               help="Effective receiver footprint of your sensor, which scales the geometric coupling [m^2], or "
                    "auto: each scan measures its own from its facing surfaces, and pixels that depend on an "
-                   "estimate that is not significant are left as measured (flag uncalibrated). "
+                   "estimate that is not significant are not corrected (flag uncalibrated). "
                    "(default: the --sensor profile's, else auto)")
 @click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None,
               help="Sensor profile (sensor.toml from mpi-lidar calibrate): footprint and the saturation and "

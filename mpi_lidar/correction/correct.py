@@ -49,8 +49,9 @@ from mpi_lidar.correction.validity import (
     usable_depth_of,
     validity_flags,
 )
+from mpi_lidar.learning.error_model import corrected_sigma_m
 from mpi_lidar.learning.features import geometry_inputs
-from mpi_lidar.learning.model import CorrectionModel
+from mpi_lidar.learning.model import CorrectionModel, ModelCard
 from mpi_lidar.physics.noise import fused_depths
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores_by_rows
@@ -192,7 +193,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     with clock("validity"):
         offsets_m, offset_notes = _frequency_offsets(measured, flags, bias_m, options)
         estimate, uncertainty = _estimates(scan, sensor, tiles, flags, depth, measured.depth, options, offsets_m,
-                                           calibration, None if bias_m is None else bias_m.reshape(-1))
+                                           calibration, None if bias_m is None else bias_m.reshape(-1), model.card)
     notes += offset_notes
     h, w = scan.shape
     unserved = unserved_reason(flags, model, options, served=predict)
@@ -233,7 +234,7 @@ def _frequency_offsets(measured: _Measured, flags: NDArray[np.uint8], bias_m: ND
 def _estimates(scan: Scan, sensor: SensorConfig, tiles: list[slice], flags: NDArray[np.uint8],
                depth: NDArray[np.float32], measured_depth: NDArray[np.float32], options: CorrectionOptions,
                offsets_m: NDArray | None, footprint: FootprintEstimate | None, bias_m: NDArray | None,
-               ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+               card: ModelCard) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
     """Which estimate each pixel's depth is (:class:`Estimate`) and its 1-sigma uncertainty [m], (H*W,) each, tile
     by tile; the baseline's pixels take the fused depth (:func:`fused_depths`, ``offsets_m`` removed) into
     ``depth`` in place where ``options.baseline`` is fused and their frequencies agree within noise.
@@ -241,9 +242,9 @@ def _estimates(scan: Scan, sensor: SensorConfig, tiles: list[slice], flags: NDAr
     Uncertainty: the fused depth's sd under the noise model; the measured depth's sd, times the frequencies' Birge
     ratio where they disagree beyond their noise (multipath or a flying pixel); for both, combined
     with the multipath bias the scene geometry expects (``bias_m`` (H*W,) [m], below the gate's threshold, else
-    the pixel would be corrected); a corrected depth's, that measured sd and the share of its correction that the
-    footprint's own relative uncertainty leaves open (:func:`corrected_uncertainty_m`). NaN where there is no
-    depth, and where the range is ambiguous (its wrap count, metres, is not known).
+    the pixel would be corrected); a corrected depth's from the model's own error as its ``card`` states it and the
+    share of its correction that the footprint estimate's uncertainty leaves open (:func:`corrected_uncertainty_m`).
+    NaN where there is no depth, and where the range is ambiguous (its wrap count, metres, is not known).
     """
     fuse = Baseline(options.baseline) == Baseline.FUSED
     estimate = np.full(flags.size, Estimate.NONE, dtype=np.uint8)
@@ -274,23 +275,52 @@ def _estimates(scan: Scan, sensor: SensorConfig, tiles: list[slice], flags: NDAr
             # A pixel left alone keeps the multipath bias its scene geometry expects (below the gate's threshold).
             uncertainty[index] = np.hypot(sigma, expected)
             uncertainty[index[corrected]] = corrected_uncertainty_m(
-                measured_sigma[corrected], depth[index[corrected]] - measured_depth[index[corrected]], footprint)
+                card, measured_sigma[corrected], fused.sigma_m[corrected],
+                depth[index[corrected]] - measured_depth[index[corrected]], footprint)
             estimate[index[corrected]] = Estimate.CORRECTED
 
         on_cores_by_rows(estimate_rows, raw.shape[0], PARALLEL_MIN_ROWS)
     return estimate, uncertainty
 
 
-def corrected_uncertainty_m(measured_sigma_m: NDArray, correction_m: NDArray,
-                            footprint: FootprintEstimate | None) -> NDArray[np.float32]:
-    """1-sigma uncertainty [m] of corrected depths: the measured depth's sd (n,) [m] and the part of the correction
-    (n,) [m] that the footprint's relative uncertainty leaves open (the multipath bias scales with the footprint;
-    a given footprint, ``footprint`` None, adds nothing). The model's own error beyond these is not in it
-    (docs/results/noise-limit.md measures how much that leaves out)."""
-    relative = 0.0
-    if footprint is not None and np.isfinite(footprint.area_m2) and footprint.area_m2 > 0:
-        relative = float(footprint.sigma_m2 / footprint.area_m2)
-    return np.sqrt(np.square(measured_sigma_m) + np.square(relative * correction_m)).astype(np.float32)
+def corrected_uncertainty_m(card: ModelCard, measured_sigma_m: NDArray, fused_sigma_m: NDArray,
+                            correction_m: NDArray, footprint: FootprintEstimate | None) -> NDArray[np.float32]:
+    """1-sigma uncertainty [m] of depths corrected by the model of ``card``, from the measured depth's sd (n,) [m],
+    the fused depth's sd under the noise model (n,) [m] and the correction (n,) [m].
+
+    With the card's uncertainty model (:mod:`mpi_lidar.learning.error_model`): the model's error as fitted on the
+    validation rows of its training (68 % of their errors within it), from the fused sd and the size of the
+    correction, combined with the share of the correction that the footprint estimate's relative uncertainty leaves
+    open (:func:`footprint_left_open`). A card without one (written before it was fitted): the measured sd and
+    that share, without the model's own error.
+    """
+    relative = footprint_left_open(card, footprint)
+    if card.uncertainty_model is None:
+        base_m = np.asarray(measured_sigma_m, dtype=np.float64)
+    else:
+        base_m = corrected_sigma_m(card.uncertainty_model, fused_sigma_m, correction_m)
+    return np.hypot(base_m, relative * np.asarray(correction_m, dtype=np.float64)).astype(np.float32)
+
+
+def footprint_left_open(card: ModelCard, footprint: FootprintEstimate | None) -> float:
+    """The footprint estimate's relative uncertainty [1] that a corrected depth's uncertainty must add, as a share
+    of the correction (the multipath bias scales with the footprint; a given footprint, ``footprint`` None, adds
+    nothing).
+
+    A card with an uncertainty model has the validation rows' errors in it, and those rows' geometric inputs
+    carried an estimation error of their coupling (``geometry_error_model``): only a footprint less certain than
+    that adds the excess (in quadrature); a model without geometric inputs does not read the footprint, which then
+    adds nothing. A card without an uncertainty model: the whole relative uncertainty.
+    """
+    if footprint is None or not np.isfinite(footprint.area_m2) or footprint.area_m2 <= 0:
+        return 0.0
+    relative = float(footprint.sigma_m2 / footprint.area_m2)
+    if card.uncertainty_model is None:
+        return relative
+    if not card.geometric:
+        return 0.0
+    trained = 0.0 if card.geometry_error_model is None else card.geometry_error_model.coupling_log_sd
+    return float(np.sqrt(max(relative**2 - trained**2, 0.0)))
 
 
 def _in_v2(scan: Scan, units_per_v2: float) -> Scan:
@@ -534,13 +564,13 @@ def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
     if not np.isfinite(estimate.area_m2):
         return (f"footprint auto: could not be measured on the {estimate.pixels:,} pixels with facing partners, "
                 f"not significant: {uncalibrated:,} pixels that could hold multipath above the gate's threshold "
-                "were left as measured (flag uncalibrated)")
+                "were not corrected (flag uncalibrated)")
     measured = (f"footprint auto: {estimate.area_m2:.4g} +- {estimate.sigma_m2:.2g} m^2 from {estimate.pixels:,} "
                 f"pixels on {estimate.surfaces} surfaces")
     if estimate.significant:
         return f"{measured}; the coupling and the gate use it"
     return (f"{measured}, not significant: {uncalibrated:,} pixels that could hold multipath above the gate's "
-            "threshold were left as measured (flag uncalibrated)")
+            "threshold were not corrected (flag uncalibrated)")
 
 
 def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,

@@ -123,6 +123,24 @@ class GeometryErrorCard(_Part):
     d_ab_sd_m: float
 
 
+class UncertaintyCard(_Part):
+    """The corrected depths' 1-sigma uncertainty, fitted on the validation rows of the training
+    (:mod:`mpi_lidar.learning.error_model`): sigma^2 = (noise_factor sigma_fused)^2
+    + (model_sd_m (|c| / reference_correction_m)^correction_exponent)^2, with sigma_fused the fused depth's sd
+    under the noise model [m] and c the pixel's correction [m]."""
+
+    noise_factor: float = Field(ge=0)
+    """Multiple of the fused depth's sd, the noise the model's output keeps. [1]"""
+    model_sd_m: float = Field(ge=0)
+    """The model's own error at a correction of ``reference_correction_m``. [m]"""
+    reference_correction_m: float = Field(gt=0)
+    correction_exponent: float
+    """How the model's own error grows with the size of the correction. [1]"""
+    validation_rows: int = Field(ge=0)
+    validation_coverage: float = Field(ge=0, le=1)
+    """Share of the validation rows whose error lies within this sigma. [1]"""
+
+
 class MetricsCard(_Part):
     validation_mae_m: float
     """MAE of the residual or depth target on the validation rows at the best iteration. [m]"""
@@ -147,7 +165,9 @@ ParamValue = Annotated[str | int | float | bool, PlainValidator(_param_value)]
 class ModelCard(_Part):
     """What a model expects and how it was made; ``card.json`` holds exactly these keys.
 
-    ``geometric`` is False and ``geometry_error_model`` absent on cards written before geometric inputs.
+    ``geometric`` is False and ``geometry_error_model`` absent on cards written before geometric inputs;
+    ``uncertainty_model`` is absent on cards written before it was fitted, and where the training had too few
+    validation rows to fit it.
     """
 
     card_schema: Literal["mpi-lidar/model@1"] = Field(alias="schema")
@@ -157,6 +177,7 @@ class ModelCard(_Part):
     feature_names: tuple[str, ...]
     geometric: bool = False
     geometry_error_model: GeometryErrorCard | None = None
+    uncertainty_model: UncertaintyCard | None = None
     target_mode: TargetMode
     residual_reference: str | None
     dataset: DatasetCard
@@ -172,10 +193,12 @@ class ModelCard(_Part):
         return FeatureSpec(self.frequencies_hz, self.feature_set, self.target_mode, self.geometric)
 
     def to_json(self) -> str:
-        """The card as ``card.json`` holds it (sorted keys; no ``geometry_error_model`` key when it has none)."""
+        """The card as ``card.json`` holds it (sorted keys; no ``geometry_error_model`` or ``uncertainty_model`` key
+        where it has none)."""
         data = self.model_dump(mode="json", by_alias=True)
-        if data["geometry_error_model"] is None:
-            del data["geometry_error_model"]
+        for optional in ("geometry_error_model", "uncertainty_model"):
+            if data[optional] is None:
+                del data[optional]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
 
 

@@ -3,7 +3,8 @@
 
 Both take their parameters from :func:`xgb_params` and early-stop on a validation set of every tenth row
 (of the train split; rows are independent draws, so any fixed subset is an unbiased sample), and both
-return the booster trimmed to its best iteration. The test split is never seen here.
+return the booster trimmed to its best iteration. The test split is never seen here. :func:`train_dask` fits the
+corrected depths' uncertainty on the same validation rows (:mod:`mpi_lidar.learning.error_model`).
 """
 
 from __future__ import annotations
@@ -13,14 +14,16 @@ import logging
 import time
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.config import SensorConfig
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning.error_model import error_terms, fit_uncertainty
 from mpi_lidar.learning.features import GEOMETRY_ERROR_MODEL, FeatureSpec, synthetic_geometry, synthetic_geometry_dask
 from mpi_lidar.learning.model import (
     MODEL_SCHEMA,
@@ -29,6 +32,7 @@ from mpi_lidar.learning.model import (
     MetricsCard,
     ModelCard,
     TrainingCard,
+    UncertaintyCard,
     booster_sha256,
     package_versions,
     save_model,
@@ -84,6 +88,8 @@ class TrainResult:
     """A trained booster, trimmed to its best iteration, and how it was trained.
 
     Without a validation set (no early stopping) ``validation_rows`` is 0 and ``validation_mae_m`` NaN.
+    ``uncertainty`` is the corrected depths' uncertainty fitted on the validation rows (None where it was not:
+    :func:`train_arrays` has no raw rows to fit it on).
     """
 
     booster: xgb.Booster
@@ -92,6 +98,7 @@ class TrainResult:
     fit_rows: int
     validation_rows: int
     wall_s: float
+    uncertainty: UncertaintyCard | None = None
 
 
 def _early_stopped(booster: xgb.Booster, history: dict[str, list[float]], fit_rows: int, validation_rows: int,
@@ -152,7 +159,8 @@ def train_dask(
     num_boost_round: int = DEFAULT_ROUNDS,
     early_stopping_rounds: int = DEFAULT_EARLY_STOPPING,
 ) -> TrainResult:
-    """Train on the full train split of a complete dataset with xgboost.dask, early-stopped on validation."""
+    """Train on the full train split of a complete dataset with xgboost.dask, early-stopped on validation, and fit
+    the corrected depths' uncertainty on the validation rows (:func:`validation_error_terms`)."""
     import xgboost.dask as dxgb  # its imports (pandas, distributed) cost seconds that correction never needs
 
     lazy = dataset.read_lazy(data_path)
@@ -173,7 +181,31 @@ def train_dask(
         client, xgb_params(params or None), dtrain, num_boost_round=num_boost_round,
         evals=[(dval, "validation")], early_stopping_rounds=early_stopping_rounds, verbose_eval=False,
     )
-    return _early_stopped(output["booster"], output["history"]["validation"], fit_rows, val_rows, started)
+    result = _early_stopped(output["booster"], output["history"]["validation"], fit_rows, val_rows, started)
+    terms = validation_error_terms(client, result.booster, spec, lazy, validation, x_val)
+    return replace(result, uncertainty=fit_uncertainty(terms))
+
+
+def validation_error_terms(client: Client, booster: xgb.Booster, spec: FeatureSpec, lazy: dataset.LazyDataset,
+                           validation: da.Array, x_val: da.Array) -> NDArray[np.float64]:
+    """:func:`~mpi_lidar.learning.error_model.error_terms` of the validation rows (``validation`` mask over the
+    stored rows, ``x_val`` their model inputs), predicted on the cluster: only the three columns come back."""
+    import dask.array as da
+    import xgboost.dask as dxgb
+
+    config = lazy.info.config
+    raw, true_depth = _rows(lazy.features, validation), _rows(lazy.target, validation)
+    depth = spec.depth(raw, dxgb.inplace_predict(client, booster, x_val).astype(np.float64))
+    # Columns of one block each, so that the blocks pair up by rows.
+    terms = da.map_blocks(_error_terms_block, raw, depth[:, None], true_depth[:, None], dtype=np.float64,
+                          chunks=(raw.chunks[0], (3,)), frequencies_hz=tuple(spec.frequencies_hz),
+                          sensor=config.sensor, noise_scale=config.simulator.noise_scale)
+    return np.asarray(client.compute(terms).result())
+
+
+def _error_terms_block(raw: NDArray, depth: NDArray, true_depth: NDArray, frequencies_hz: tuple[float, ...],
+                       sensor: SensorConfig, noise_scale: float) -> NDArray[np.float64]:
+    return error_terms(raw, depth[:, 0], true_depth[:, 0], frequencies_hz, sensor, noise_scale)
 
 
 _native_log: object | None = None  # the ctypes function, kept alive here: the library calls it for as long as it runs
@@ -255,6 +287,7 @@ def model_card(spec: FeatureSpec, dataset_card: DatasetCard, params: Mapping[str
         feature_names=spec.names,
         geometric=spec.geometric,
         geometry_error_model=GeometryErrorCard(**GEOMETRY_ERROR_MODEL) if spec.geometric else None,
+        uncertainty_model=result.uncertainty,
         target_mode=spec.target_mode,
         residual_reference=spec.residual_reference,
         dataset=dataset_card,

@@ -126,8 +126,9 @@ VARIABLES: tuple[Variable, ...] = (
              note="CF flag_values and flag_meanings name the codes: none, measured, fused, corrected."),
     Variable("depth_uncertainty", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
              "1-sigma uncertainty of the corrected depth",
-             note="From the noise model (measured and fused depths) and the footprint's uncertainty (corrected "
-                  "depths); NaN where the depth or the range is not known."),
+             note="From the noise model (measured and fused depths); for corrected depths from the model's own "
+                  "error, fitted on its validation rows (card.json: uncertainty_model), and the footprint "
+                  "estimate's uncertainty; NaN where the depth or the range is not known."),
     Variable("multipath_bias_m", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
              "expected multipath bias (geometry gate)", note="Written by the geometry gate only."),
     Variable("azimuth_rad", Store.CORRECTED, ("x",), "f", "as given", "rad", "azimuth of the pixel column",

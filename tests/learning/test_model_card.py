@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,15 @@ import xgboost as xgb
 from mpi_lidar.config import Config
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import GEOMETRY_ERROR_MODEL, FeatureSpec
-from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, DatasetCard, file_sha256, load_model, save_model
+from mpi_lidar.learning.model import (
+    CARD_FILE,
+    MODEL_FILE,
+    DatasetCard,
+    UncertaintyCard,
+    file_sha256,
+    load_model,
+    save_model,
+)
 from mpi_lidar.learning.train import model_card, train_arrays
 
 CONFIG = Config()
@@ -81,7 +90,7 @@ def test_load_model__old_format_card_loads_and_predicts_as_before(tmp_path, fitt
     model_dir = _old_model_dir(tmp_path, fitted.booster, geometric_key)
     model = load_model(model_dir)
     card = model.card
-    assert card.geometric is False and card.geometry_error_model is None
+    assert card.geometric is False and card.geometry_error_model is None and card.uncertainty_model is None
     assert card.dataset.prior.d_as_m == (1.4, 2.4) and card.dataset.samples == 8000
     assert card.params["max_depth"] == 6 and card.training.dask_workers == 2
     assert model.booster.feature_names is None
@@ -108,6 +117,17 @@ def test_save_model__card_round_trips_through_the_file(model_dir):
     assert card.to_json() == (model_dir / CARD_FILE).read_text()
     assert card.dataset.path == "in memory" and card.dataset.prior.d_as_m == CONFIG.prior.d_as_m
     assert card.training.validation_rows == 200 and card.params["max_depth"] == 3
+
+
+def test_save_model__uncertainty_model_round_trips_and_is_absent_when_none(tmp_path, fitted):
+    uncertainty = UncertaintyCard(noise_factor=1.03, model_sd_m=0.0021, reference_correction_m=0.01,
+                                  correction_exponent=0.55, validation_rows=200, validation_coverage=0.684)
+    card = model_card(SPEC, DatasetCard.from_config(CONFIG, path="in memory"), {"max_depth": 3},
+                      replace(fitted, uncertainty=uncertainty), workers=0)
+    model_dir = save_model(tmp_path / "model", fitted.booster, card)
+    assert load_model(model_dir).card.uncertainty_model == uncertainty
+    assert json.loads((model_dir / CARD_FILE).read_text())["uncertainty_model"]["model_sd_m"] == 0.0021
+    assert "uncertainty_model" not in json.loads(card.model_copy(update={"uncertainty_model": None}).to_json())
 
 
 def test_model_card__geometric_model_records_its_error_model():

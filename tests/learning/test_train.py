@@ -49,11 +49,14 @@ def test_train_and_save__card_describes_model_and_data(trained, small_dataset):
     assert {"xgboost-cpu", "numpy", "mpi-lidar"} <= set(card.versions)
     assert model.booster.feature_names == list(card.feature_names)  # stored in the booster too
     assert (trained["residual"] / "model.ubj").read_bytes()[:1] == b"{"  # UBJSON, not a pickle
-    # the file keeps the keys cards have always had
+    # the file keeps the keys cards have always had, and the uncertainty model fitted on the validation rows
     assert set(json.loads((trained["residual"] / "card.json").read_text())) == {
         "schema", "frequencies_hz", "raw_feature_names", "feature_set", "feature_names", "geometric", "target_mode",
         "residual_reference", "dataset", "params", "num_boost_round", "metrics", "training", "versions",
-        "model_sha256"}
+        "model_sha256", "uncertainty_model"}
+    uncertainty = card.uncertainty_model
+    assert uncertainty is not None and uncertainty.validation_rows == card.training.validation_rows
+    assert uncertainty.validation_coverage == pytest.approx(0.6827, abs=0.02)
 
 
 @pytest.mark.parametrize("target", ["absolute", "residual"])
