@@ -9,6 +9,7 @@ amber). Every file: docs/reference/point-clouds.md.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -20,12 +21,14 @@ from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.scans.geometry import point_cloud
 from mpi_lidar.scans.pointcloud import (
     LAS_DESCRIPTION_CHARS,
+    LasBand,
     PointCloudFormat,
     correction_fields,
-    write_las,
+    intensity_scale,
+    write_las_bands,
     write_ply,
 )
-from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.scan import RayRows, Scan
 
 # Point-cloud files per format: the raw cloud as PLY beside the corrected one; LAS/LAZ hold the raw range as an
 # extra dimension of the corrected cloud. Ordered as the formats are written and listed.
@@ -131,36 +134,56 @@ def point_cloud_files(scan: Scan, outputs: str, point_clouds: tuple[str, ...] | 
     return [name for fmt in point_cloud_formats(outputs, point_clouds) for name in POINT_CLOUD_FILES[fmt]]
 
 
-def write_point_clouds(directory: Path, formats: tuple[PointCloudFormat, ...], rays: NDArray,
+def write_point_clouds(directory: Path, formats: tuple[PointCloudFormat, ...], rays: NDArray | RayRows,
                        measured_depth: NDArray, corrected_depth: NDArray, flags: NDArray, amplitude_v2: NDArray,
                        uncertainty_m: NDArray | None = None) -> list[str]:
     """The point clouds of ``formats`` into ``directory``; returns the names of the files written.
 
-    ``rays`` (H, W, 3) unit rays; ``measured_depth`` the highest frequency's measured (unwrapped) range and
-    ``corrected_depth`` the corrected range (NaN where invalid) [m]; ``flags`` the pixel flags; ``amplitude_v2``
-    the highest frequency's amplitude [V^2]; ``uncertainty_m`` the corrected range's uncertainty [m], an extra
+    ``rays`` (H, W, 3) unit rays, or a :class:`~mpi_lidar.scans.scan.RayRows` where no PLY is written (the LAS
+    and LAZ files are built a band of rows at a time, the PLY files whole); ``measured_depth`` the highest
+    frequency's measured (unwrapped) range and ``corrected_depth`` the corrected range (NaN where invalid) [m];
+    ``flags`` the pixel flags; ``amplitude_v2`` the highest frequency's amplitude [V^2]; ``uncertainty_m`` the
+    corrected range's uncertainty [m], an extra
     field where given. Each file's fields are those of :func:`~mpi_lidar.scans.pointcloud.correction_fields`.
     """
     if not formats:
         return []
-    fields = correction_fields(measured_depth, corrected_depth, flags, amplitude_v2, uncertainty_m)
-    valid = np.isfinite(fields["corrected_range_m"])
     written = []
     if PointCloudFormat.PLY in formats:
+        fields = correction_fields(measured_depth, corrected_depth, flags, amplitude_v2, uncertainty_m)
+        valid = np.isfinite(fields["corrected_range_m"])
+        whole_rays = rays[:]  # a RayRows builds every row
         colors = point_cloud_colors(fields["flag"], fields["amplitude_v2"])
         comments = (f"scalar_flag codes: {flag_description()} (docs/reference/point-clouds.md)",)
         for name, depth in zip(POINT_CLOUD_FILES[PointCloudFormat.PLY],
                                (np.where(valid, fields["raw_range_m"], np.nan), fields["corrected_range_m"]),
                                strict=True):
-            write_ply(directory / name, point_cloud(depth, rays), fields, colors, comments)
+            write_ply(directory / name, point_cloud(depth, whole_rays), fields, colors, comments)
             written.append(name)
-    las_formats = [fmt for fmt in (PointCloudFormat.LAS, PointCloudFormat.LAZ) if fmt in formats]
-    if las_formats:
-        withheld = ~valid & np.isfinite(fields["raw_range_m"])
-        points = point_cloud(np.where(valid, fields["corrected_range_m"], fields["raw_range_m"]), rays)
-        for fmt in las_formats:
+    for fmt in (PointCloudFormat.LAS, PointCloudFormat.LAZ):
+        if fmt in formats:
             (name,) = POINT_CLOUD_FILES[fmt]
-            write_las(directory / name, points, fields, compress=fmt == PointCloudFormat.LAZ, withheld=withheld,
-                      descriptions={"flag": flag_description()}, metadata=point_cloud_metadata())
+            band = _las_band(rays, measured_depth, corrected_depth, flags, amplitude_v2, uncertainty_m)
+            # Every pixel with a finite raw or corrected range has a point (rays are finite).
+            placed = np.isfinite(corrected_depth) | np.isfinite(measured_depth)
+            per_count = intensity_scale(np.where(placed, amplitude_v2, np.nan))
+            write_las_bands(directory / name, np.shape(flags), band, per_count, compress=fmt == PointCloudFormat.LAZ,
+                            descriptions={"flag": flag_description()}, metadata=point_cloud_metadata())
             written.append(name)
     return [name for fmt in formats for name in POINT_CLOUD_FILES[fmt] if name in written]
+
+
+def _las_band(rays: NDArray | RayRows, measured_depth: NDArray, corrected_depth: NDArray, flags: NDArray,
+              amplitude_v2: NDArray, uncertainty_m: NDArray | None) -> Callable[[slice], LasBand]:
+    """The LAS/LAZ file's points a band of rows at a time: a valid pixel at its corrected range, an invalid one
+    with a finite raw range at its raw range, withheld."""
+
+    def band(rows: slice) -> LasBand:
+        fields = correction_fields(measured_depth[rows], corrected_depth[rows], flags[rows], amplitude_v2[rows],
+                                   None if uncertainty_m is None else uncertainty_m[rows])
+        valid = np.isfinite(fields["corrected_range_m"])
+        withheld = ~valid & np.isfinite(fields["raw_range_m"])
+        points = point_cloud(np.where(valid, fields["corrected_range_m"], fields["raw_range_m"]), rays[rows])
+        return points, fields, withheld
+
+    return band

@@ -21,6 +21,7 @@ from mpi_lidar.reporting.report import REPORT_MARKER, Embed, error_histogram_fig
 from mpi_lidar.reporting.scan_report import scan_report
 from mpi_lidar.reporting.thumbnail import thumbnail_image, thumbnail_legend, write_png
 from mpi_lidar.scans import geometry
+from mpi_lidar.scans.pointcloud import PointCloudFormat
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.storage.atomic import atomic_path
 
@@ -94,13 +95,17 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
                         {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz":
                          1e3 * (measured_depth(scan, correction) - scan.reference_depth)[where],
                          "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
-        rays = scan.rays() if level == OutputLevel.FULL or formats else None
-        if rays is not None:
+        # Whole rays where level full draws its views or PLY files are written; LAS and LAZ take a band at a time.
+        whole = level == OutputLevel.FULL or PointCloudFormat.PLY in formats
+        rays = scan.rays() if whole else None
+        cloud_rays = rays if rays is not None else scan.ray_rows() if formats else None
+        if cloud_rays is not None:
             measured = measured_depth(scan, correction)
             with _cpu(cpu_s, "write"):
-                files += write_point_clouds(staging, formats, rays, measured, correction.depth, correction.flags,
-                                            scan.amplitude[-1], getattr(correction, "uncertainty_m", None))
-            if level == OutputLevel.FULL:
+                files += write_point_clouds(staging, formats, cloud_rays, measured, correction.depth,
+                                            correction.flags, scan.amplitude[-1],
+                                            getattr(correction, "uncertainty_m", None))
+            if level == OutputLevel.FULL and rays is not None:
                 with _cpu(cpu_s, "figures"):
                     raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), measured, np.nan), rays)
                     corrected_points = geometry.point_cloud(correction.depth, rays)
@@ -110,7 +115,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
                                                             1e3 * (correction.depth - measured)),
                                         fallback=VIEW_3D_FALLBACK, scripts=(plotly_js_src(bundle, target),)))
                     del raw_points, corrected_points
-            del rays
+            del rays, cloud_rays
         elif level == OutputLevel.FULL:
             notes.append("no scan geometry: point clouds and views skipped")
         elif formats:

@@ -27,10 +27,12 @@ caller leaves invalid pixels out.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from contextlib import ExitStack
 from enum import StrEnum
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,6 +74,11 @@ PLY_SCALAR_PREFIX = "scalar_"  # CloudCompare reads properties so named as scala
 _NUMERIC_KINDS = "biuf"
 _RETURN_BITS = 0x11  # return 1 of 1 (LAS 1.4 point format 6: return number, bits 0-3; number of returns, 4-7)
 _WITHHELD_BIT = 0x04  # LAS 1.4 point format 6 classification flags: synthetic 1, key point 2, withheld 4
+# Pixels of the scan grid a LAS file is built from at a time: a band's points, fields and records take about
+# 100 MB, whatever the scan's size (a 4000 x 4000 scan built whole took 2.5 GB more).
+LAS_BAND_PIXELS = 1 << 20
+# One band of a scan's rows for a LAS file: points (h, W, 3) [m], fields name -> (h, W), withheld (h, W) or None.
+LasBand = tuple[NDArray, Mapping[str, NDArray], NDArray | None]
 
 
 def generator() -> str:
@@ -102,10 +109,10 @@ def correction_fields(raw_range_m: NDArray, corrected_range_m: NDArray, flags: N
     return fields
 
 
-def _points_and_fields(points: NDArray, fields: Mapping[str, NDArray]
+def _points_and_fields(points: NDArray, fields: Mapping[str, NDArray], first_row: int = 0
                        ) -> tuple[NDArray[np.float64], dict[str, NDArray], NDArray[np.bool_]]:
-    """The finite points (N, 3), per field their values (N,), with row and column (uint32) added, and which
-    pixels (H * W,) they are."""
+    """The finite points (N, 3), per field their values (N,), with row and column (uint32, rows counted from
+    ``first_row``: the points may be a band of a scan's rows) added, and which pixels (H * W,) they are."""
     grid = np.asarray(points, dtype=np.float64)
     if grid.ndim != 3 or grid.shape[-1] != 3:
         raise ValueError(f"points must have shape (H, W, 3), got {grid.shape}")
@@ -127,7 +134,7 @@ def _points_and_fields(points: NDArray, fields: Mapping[str, NDArray]
         if values.dtype.kind not in _NUMERIC_KINDS:
             raise ValueError(f"field {name!r} must be numeric, got {values.dtype}")
         kept[name] = values.reshape(-1)[keep]
-    kept["row"], kept["column"] = rows, columns
+    kept["row"], kept["column"] = rows + np.uint32(first_row), columns
     return grid.reshape(-1, 3)[keep], kept, keep
 
 
@@ -154,56 +161,118 @@ def write_las(path: str | Path, points: NDArray, fields: Mapping[str, NDArray], 
     ``points`` (H, W, 3) [m], ``fields`` name -> (H, W) array; ``withheld`` (H, W) bool: the points marked
     Withheld, classification 7; ``descriptions`` field name -> description, over :data:`FIELD_DESCRIPTIONS`
     (cut to 31 characters in the extra bytes, whole in the JSON record); ``metadata``: more entries of the
-    JSON record. See the module docstring.
+    JSON record. See the module docstring; :func:`write_las_bands` writes a scan a band of rows at a time.
+    """
+    grid = np.asarray(points)
+    if withheld is not None and np.shape(withheld) != grid.shape[:2]:
+        raise ValueError(f"withheld must have shape {grid.shape[:2]} like the points, got {np.shape(withheld)}")
+    # The points' shape, the fields' names and kinds, checked on no rows (nothing copied), then the fields' shapes.
+    _points_and_fields(grid[:0], {name: np.asarray(values)[:0] for name, values in fields.items()})
+    wrong = [name for name, values in fields.items() if np.shape(values) != grid.shape[:2]]
+    if wrong:
+        raise ValueError(f"field {wrong[0]!r} must have shape {grid.shape[:2]} like the points, got "
+                         f"{np.shape(fields[wrong[0]])}")
+    per_count = 1.0
+    if INTENSITY_FIELD in fields:
+        placed = np.isfinite(grid).all(axis=-1)
+        per_count = intensity_scale(np.where(placed, np.asarray(fields[INTENSITY_FIELD], dtype=np.float64), np.nan))
+
+    def band(rows: slice) -> LasBand:
+        marked = None if withheld is None else np.asarray(withheld)[rows]
+        return grid[rows], {name: np.asarray(values)[rows] for name, values in fields.items()}, marked
+
+    return write_las_bands(path, grid.shape[:2], band, per_count, compress, descriptions=descriptions,
+                           metadata=metadata)
+
+
+def write_las_bands(path: str | Path, shape: tuple[int, ...], band: Callable[[slice], LasBand],
+                    intensity_per_count: float = 1.0, compress: bool | None = None, *,
+                    descriptions: Mapping[str, str] | None = None,
+                    metadata: Mapping[str, object] | None = None) -> Path:
+    """Write a LAS 1.4 file (LAZ when ``compress``, by default when the suffix is ``.laz``) of a scan grid of
+    ``shape`` (H, W), a band of rows at a time, so that memory stays that of a band of :data:`LAS_BAND_PIXELS`
+    pixels whatever the scan's size: ``band(rows)`` gives those rows' points, fields and withheld marks
+    (:data:`LasBand`), the same fields in every band. ``intensity_per_count``: the :data:`INTENSITY_FIELD` value
+    of one intensity count (:func:`intensity_scale` of the points' values). Coordinates are stored in
+    :data:`LAS_SCALE_M` steps from the scanner at the origin (int32: 214 km either way). ``descriptions`` and
+    ``metadata`` as :func:`write_las` takes them.
     """
     import laspy  # here, not at the top: laspy takes 0.2 s to import, which a run without LAS files never pays
 
     path = Path(path)
     compress = path.suffix.lower() == ".laz" if compress is None else compress
-    if withheld is not None and np.shape(withheld) != np.shape(points)[:2]:
-        raise ValueError(f"withheld must have shape {np.shape(points)[:2]} like the points, got {np.shape(withheld)}")
-    xyz, values, keep = _points_and_fields(points, fields)
+    backend = laspy.LazBackend.LazrsParallel if cores() > 1 else laspy.LazBackend.Lazrs
+    with atomic_path(path, replace=True, what="point cloud") as staging, staging.open("wb") as stream, \
+            ExitStack() as open_writer:
+        writer = None
+        for rows in _row_bands(shape[0], shape[1]):
+            points, fields, withheld = band(rows)
+            xyz, values, keep = _points_and_fields(points, fields, rows.start)
+            if writer is None:  # the header needs the fields' types: those of the first band
+                header = _las_header({name: v.dtype for name, v in values.items()}, intensity_per_count,
+                                     descriptions, metadata)
+                writer = open_writer.enter_context(laspy.open(stream, mode="w", header=header, do_compress=compress,
+                                                              laz_backend=backend if compress else None,
+                                                              closefd=False))
+            marked = np.zeros(xyz.shape[0], bool) if withheld is None else np.asarray(withheld, bool).reshape(-1)[keep]
+            writer.write_points(_las_records(writer.header, xyz, values, marked, intensity_per_count))
+    return path
+
+
+def _row_bands(height: int, width: int) -> list[slice]:
+    """Bands of rows of about :data:`LAS_BAND_PIXELS` pixels (one band for an empty grid)."""
+    step = max(1, LAS_BAND_PIXELS // max(width, 1))
+    return [slice(start, min(height, start + step)) for start in range(0, height, step)] or [slice(0, 0)]
+
+
+def _las_header(dtypes: Mapping[str, np.dtype], per_count: float, descriptions: Mapping[str, str] | None,
+                metadata: Mapping[str, object] | None) -> Any:
+    """The LAS header: point format 6, the fields of ``dtypes`` (the pixel indices included) as extra bytes, and
+    the JSON record."""
+    import laspy
+
     described = {**FIELD_DESCRIPTIONS, **(descriptions or {})}
-    described = {name: described.get(name, name) for name in values}
+    described = {name: described.get(name, name) for name in dtypes}
     record: dict[str, object] = {"generator": generator(), "fields": described}
-    if INTENSITY_FIELD in values:
-        scale = intensity_scale(values[INTENSITY_FIELD])
-        described[INTENSITY_FIELD] = f"{described[INTENSITY_FIELD]} = {scale:.2e} * I"
-        record["intensity"] = {"field": INTENSITY_FIELD, "per_count": scale,
+    if INTENSITY_FIELD in dtypes:
+        described[INTENSITY_FIELD] = f"{described[INTENSITY_FIELD]} = {per_count:.2e} * I"
+        record["intensity"] = {"field": INTENSITY_FIELD, "per_count": per_count,
                                "meaning": f"{INTENSITY_FIELD} = intensity * per_count, intensity {INTENSITY_MAX} "
                                           "at the file's largest amplitude"}
     record["withheld"] = (f"withheld points (classification {LAS_CLASS_LOW_NOISE}, low point/noise) are invalid "
                           f"pixels placed at their raw range; the others have classification "
                           f"{LAS_CLASS_UNCLASSIFIED}")
     record.update(metadata or {})
-
     header = laspy.LasHeader(version="1.4", point_format=6)
     header.generating_software = generator()[:32]
     header.system_identifier = "OTHER"
     header.scales = np.full(3, LAS_SCALE_M)
-    header.offsets = np.floor(xyz.min(axis=0)) if xyz.size else np.zeros(3)
-    header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=v.dtype,
+    header.offsets = np.zeros(3)
+    header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=dtype,
                                                   description=described[name][:LAS_DESCRIPTION_CHARS])
-                           for name, v in values.items()])
+                           for name, dtype in dtypes.items()])
     header.vlrs.append(laspy.VLR(user_id=LAS_METADATA_USER_ID, record_id=LAS_METADATA_RECORD_ID,
                                  description="JSON metadata", record_data=json.dumps(record).encode()))
-    # The packed records filled column by column: laspy's per-dimension setters copy and scale each one again.
-    record_array = np.zeros(xyz.shape[0], dtype=header.point_format.dtype())
+    return header
+
+
+def _las_records(header: Any, xyz: NDArray, values: dict[str, NDArray], withheld: NDArray[np.bool_],
+                 scale: float) -> Any:
+    """The packed point records of one band, filled column by column (laspy's per-dimension setters copy and
+    scale each one again)."""
+    import laspy
+
+    records = np.zeros(xyz.shape[0], dtype=header.point_format.dtype())
     for axis, name in enumerate("XYZ"):
-        record_array[name] = np.rint((xyz[:, axis] - header.offsets[axis]) / LAS_SCALE_M)
-    record_array["bit_fields"] = _RETURN_BITS
+        records[name] = np.rint((xyz[:, axis] - header.offsets[axis]) / LAS_SCALE_M)
+    records["bit_fields"] = _RETURN_BITS
     if INTENSITY_FIELD in values:
-        record_array["intensity"] = intensity_counts(values[INTENSITY_FIELD], scale)
-    marked = np.zeros(xyz.shape[0], bool) if withheld is None else np.asarray(withheld, bool).reshape(-1)[keep]
-    record_array["classification_flags"] = np.where(marked, _WITHHELD_BIT, 0)
-    record_array["classification"] = np.where(marked, LAS_CLASS_LOW_NOISE, LAS_CLASS_UNCLASSIFIED)
+        records["intensity"] = intensity_counts(values[INTENSITY_FIELD], scale)
+    records["classification_flags"] = np.where(withheld, _WITHHELD_BIT, 0)
+    records["classification"] = np.where(withheld, LAS_CLASS_LOW_NOISE, LAS_CLASS_UNCLASSIFIED)
     for name, v in values.items():
-        record_array[name] = v
-    las = laspy.LasData(header, points=laspy.PackedPointRecord(record_array, header.point_format))
-    with atomic_path(path, replace=True, what="point cloud") as staging, staging.open("wb") as stream:
-        backend = laspy.LazBackend.LazrsParallel if cores() > 1 else laspy.LazBackend.Lazrs
-        las.write(stream, do_compress=compress, laz_backend=backend if compress else None)
-    return path
+        records[name] = v
+    return laspy.PackedPointRecord(records, header.point_format)
 
 
 def las_metadata(path: str | Path) -> dict[str, object]:

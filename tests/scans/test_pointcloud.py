@@ -202,3 +202,24 @@ def test_point_cloud_writers__bad_inputs_are_refused_before_writing(tmp_path, po
     with pytest.raises(ValueError, match="unknown point cloud format"):
         write_point_cloud(tmp_path / "bad.xyz", "xyz", np.zeros((2, 3, 3)), {})
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("band_pixels", [1, 8, 13, 48])
+def test_write_las__written_a_band_of_rows_at_a_time_is_the_file_written_whole(tmp_path, cloud, band_pixels,
+                                                                                monkeypatch):
+    """Bands of one row to the whole grid (6 x 8 pixels) give the same points, fields, bounds and header."""
+    from mpi_lidar.scans import pointcloud
+
+    points, fields = cloud
+    withheld = np.zeros(points.shape[:2], bool)
+    withheld[0, :3] = True
+    whole = laspy.read(write_las(tmp_path / "whole.laz", points, fields, withheld=withheld))
+    monkeypatch.setattr(pointcloud, "LAS_BAND_PIXELS", band_pixels)
+    banded = laspy.read(write_las(tmp_path / "banded.laz", points, fields, withheld=withheld))
+    assert len(banded.points) == len(whole.points) == int(np.isfinite(points).all(-1).sum())
+    for name in ("X", "Y", "Z", "intensity", "classification", "withheld", *FIELDS, "row", "column"):
+        np.testing.assert_array_equal(np.asarray(banded[name]), np.asarray(whole[name]), err_msg=name)
+    np.testing.assert_array_equal(banded.header.offsets, whole.header.offsets)
+    np.testing.assert_allclose(banded.header.mins, whole.header.mins)
+    np.testing.assert_allclose(banded.header.maxs, whole.header.maxs)
+    assert las_metadata(tmp_path / "banded.laz") == las_metadata(tmp_path / "whole.laz")
