@@ -65,3 +65,20 @@ def test_chi_square_density__scipy_stats_value(dof):
 
     for x in (0.1, 1.0, 2.366, 9.0):
         assert _chi_square_density(x, dof) == pytest.approx(float(chi2.pdf(x, dof)), rel=1e-12)
+
+
+@pytest.mark.parametrize(("function", "root"), [(lambda x: 1.3 - x, 1.3), (lambda x: np.exp(-3 * x) - 0.2,
+                                                                          np.log(5) / 3),
+                                                (lambda x: np.tanh(8 * (0.05 - x)), 0.05)])
+def test_root__finds_the_root_of_a_falling_function_to_the_tolerance_in_few_steps(function, root):
+    from mpi_lidar.correction.amplitude_unit import _root
+
+    calls = []
+
+    def counted(x):
+        calls.append(x)
+        return float(function(x))
+
+    low, high = -0.7, 1.9
+    found = _root(counted, low, high, counted(low), counted(high), tolerance=1e-6)
+    assert abs(found - root) <= 1e-6 and len(calls) <= 2 + 40
