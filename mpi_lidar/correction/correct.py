@@ -23,6 +23,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,6 +43,7 @@ from mpi_lidar.correction.options import (
 )
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.scene import SceneGeometry, analyse_geometry
+from mpi_lidar.correction.unwrapped_depth import UnwrappedDepth
 from mpi_lidar.correction.validity import (
     UNUSABLE_FLAGS,
     depth_rules_only,
@@ -54,6 +56,7 @@ from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel, ModelCard
 from mpi_lidar.physics.noise import fused_depths
 from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.stored_map import StoredMap
 from mpi_lidar.threads import on_cores_by_rows
 
 # Rows of a tile's per-pixel work (validity, the model's inputs) that one thread takes at least: NumPy
@@ -102,14 +105,14 @@ class Correction:
     frequency_offsets_m: tuple[float, ...] | None = None
 
     def counts(self) -> dict[str, int]:
-        found = np.bincount(self.flags.ravel(), minlength=len(Flag))
+        found = code_counts(self.flags, len(Flag))
         return {flag.name.lower(): int(found[int(flag)]) for flag in Flag}
 
     def estimate_counts(self) -> dict[str, int]:
         """Pixels per estimate (:class:`~mpi_lidar.correction.options.Estimate`): none, measured, fused, corrected."""
         if self.estimate is None:
             return {}
-        found = np.bincount(self.estimate.ravel(), minlength=len(Estimate))
+        found = code_counts(self.estimate, len(Estimate))
         return {estimate.name.lower(): int(found[int(estimate)]) for estimate in Estimate}
 
     def uncertainty_summary(self) -> dict[str, float]:
@@ -118,6 +121,20 @@ class Correction:
             return {}
         median, high = np.nanpercentile(self.uncertainty_m, [50, 95])
         return {"median_m": float(median), "p95_m": float(high)}
+
+
+# Codes counted at a time (:func:`code_counts`): np.bincount widens its input to intp first, eight bytes a pixel.
+COUNT_CHUNK_PIXELS = 2**20
+
+
+def code_counts(codes: NDArray[np.uint8], length: int) -> NDArray[np.intp]:
+    """How many of ``codes`` (any shape) take each value below ``length`` (length,), a chunk of
+    ``COUNT_CHUNK_PIXELS`` at a time, so that a whole scan is never widened to intp at once."""
+    flat = codes.reshape(-1)
+    found = np.zeros(length, dtype=np.intp)
+    for start in range(0, flat.size, COUNT_CHUNK_PIXELS):
+        found += np.bincount(flat[start:start + COUNT_CHUNK_PIXELS], minlength=length)[:length]
+    return found
 
 
 def in_model_range(depth: NDArray, model: CorrectionModel, options: CorrectionOptions) -> NDArray[np.bool_]:
@@ -152,7 +169,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     clock = _StageClock()
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
     sensor = sensor or SensorConfig()
-    tiles = row_tiles(*scan.shape, options.tile_pixels)
+    tiles = scan_tiles(scan, options.tile_pixels)
     unit_note: tuple[str, ...] = ()
     if options.amplitude_scale == AUTO:
         with clock("validity"):
@@ -169,7 +186,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     with clock("validity"):
         flags, usable_depth, measured = _validity_pass(scan, options, sensor, tiles)
         if measured.moved:  # some depths wrapped: every later stage reads them unwrapped
-            scan = _unwrapped_scan(scan, measured)
+            scan = _unwrapped_scan(scan, *measured.take_moved())
     gate_started = time.perf_counter()
     with clock("gate"):
         gate = make_gate(options)
@@ -185,11 +202,12 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     predict = not (model.geometric and (scene is None or not scene.has_geometry))
     del scene  # its masks are in the flags now
     depth = usable_depth  # the scene geometry is done with it: filled in place, no copy
-    ambiguous = flags == Flag.AMBIGUOUS
+    ambiguous = np.flatnonzero(flags == Flag.AMBIGUOUS)  # indices, not a mask of the whole scan kept to the end
     depth[ambiguous] = measured.depth[ambiguous]  # a range that cannot be told: as measured
     inference_s = 0.0
     if predict:
         gate_s, inference_s = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
+    del inputs  # the blocks and planes of the geometric inputs: the model was their last reader
     with clock("validity"):
         offsets_m, offset_notes = _frequency_offsets(measured, flags, bias_m, options)
         estimate, uncertainty = _estimates(scan, sensor, tiles, flags, depth, measured.depth, options, offsets_m,
@@ -221,7 +239,9 @@ def _frequency_offsets(measured: _Measured, flags: NDArray[np.uint8], bias_m: ND
     if bias_m is None:
         return None, ("frequency offsets: not measured (no scene geometry to find pixels free of multipath); "
                       "none removed from the fused depths",)
-    quiet = np.isin(flags, [int(flag) for flag in BASELINE_FLAGS]) & (bias_m.reshape(-1) <= QUIET_BIAS_M)
+    stride = measured.offsets.stride  # only the sampled pixels: no mask of the whole scan
+    quiet = np.isin(flags[::stride], [int(flag) for flag in BASELINE_FLAGS])
+    quiet &= bias_m.reshape(-1)[::stride] <= QUIET_BIAS_M
     offsets = measured.offsets.offsets_m(quiet)
     if offsets is None:
         return None, (f"frequency offsets: not measured (fewer than {MIN_OFFSET_PIXELS} sampled pixels free of "
@@ -377,7 +397,7 @@ def unserved_reason(flags: NDArray[np.uint8], model: CorrectionModel, options: C
     :data:`SATURATED_UNITS_SHARE` of the measured pixels reads as amplitudes in another unit; no corrected pixel while
     some pixels that may need correction were out of the model's range, as a range it was not trained for.
     """
-    counts = np.bincount(flags.ravel(), minlength=len(Flag))
+    counts = code_counts(flags, len(Flag))
     measured = max(int(flags.size - counts[Flag.NOT_FINITE]), 1)
     low, high = model.card.dataset.prior.d_as_m
     if counts[Flag.SATURATED] / measured > SATURATED_UNITS_SHARE:
@@ -423,6 +443,13 @@ class _Measured:
         """Whether any depth took a wrap count."""
         return bool(self.moved_pixels)
 
+    def take_moved(self) -> tuple[NDArray[np.intp], NDArray[np.float32]]:
+        """The flat indices (k,) of the pixels whose depths took a wrap count, ascending, and their unwrapped
+        depths (k, F) [m], in one array each; the parts they came in are let go."""
+        parts = sorted(self.moved_pixels, key=lambda part: int(part[0][0]))  # each part ascending, disjoint
+        self.moved_pixels = []
+        return np.concatenate([pixels for pixels, _ in parts]), np.concatenate([depths for _, depths in parts])
+
 
 # The frequencies' relative offsets are measured on at most about this many pixels, evenly spaced: beyond that
 # the median's noise is far below the offsets, a few tenths of a millimetre.
@@ -458,9 +485,9 @@ class _OffsetSample:
             usable[picked, None], depth - depth[:, f - 1:f], np.nan)
 
     def offsets_m(self, quiet: NDArray[np.bool_]) -> NDArray[np.float64] | None:
-        """The median difference of each frequency (F,) [m] over the sampled pixels that are ``quiet`` (H*W,),
-        or None with fewer than ``MIN_OFFSET_PIXELS`` of them."""
-        taken = quiet[:: self.stride] & np.isfinite(self.differences).all(1)
+        """The median difference of each frequency (F,) [m] over the sampled pixels that are ``quiet`` (K,: of
+        every ``stride``-th pixel), or None with fewer than ``MIN_OFFSET_PIXELS`` of them."""
+        taken = quiet & np.isfinite(self.differences).all(1)
         if taken.sum() < MIN_OFFSET_PIXELS:
             return None
         return np.median(self.differences[taken].astype(np.float64), axis=0)
@@ -505,16 +532,16 @@ def _unwrapped(scan: Scan, raw: NDArray[np.float32], sensor: SensorConfig,
     return unwrapped_rows(raw, scan.frequencies_hz, sensor)
 
 
-def _unwrapped_scan(scan: Scan, measured: _Measured) -> Scan:
-    """The scan with its depth maps unwrapped into one range, in memory (F x H x W float32, as large as the
-    depth maps themselves, also for a scan kept in its store): the scene geometry, the footprint and the model
-    all read depths. Only a scan some of whose depths took a wrap count pays for it, and only a copy: the
-    validity pass kept the depths of the pixels that moved."""
-    f = len(scan.frequencies_hz)
-    depth = np.array(scan.depth, dtype=np.float32).reshape(f, -1)
-    for pixels, unwrapped in measured.moved_pixels:
-        depth[:, pixels] = unwrapped.T
-    return replace(scan, depth=depth.reshape(f, *scan.shape), depth_wrapped=False)
+def _unwrapped_scan(scan: Scan, pixels: NDArray[np.intp], depths: NDArray[np.float32]) -> Scan:
+    """The scan with its depth maps unwrapped into one range: the scene geometry, the footprint and the model all
+    read depths. The maps are read as measured, the unwrapped depths of the pixels that moved (flat indices
+    ``pixels`` (k,), ascending, ``depths`` (k, F) [m], kept by the validity pass) put in as they are read
+    (:class:`UnwrappedDepth`); only where those would take more memory than the maps is a copy of the maps
+    made, in memory (F x H x W float32, also for a scan kept in its store)."""
+    unwrapped = UnwrappedDepth(scan.depth, pixels, depths)
+    if pixels.nbytes + depths.nbytes > 4 * np.prod(scan.depth.shape, dtype=np.float64):
+        return replace(scan, depth=unwrapped.whole(), depth_wrapped=False)
+    return replace(scan, depth=cast("NDArray[np.float32]", unwrapped), depth_wrapped=False)
 
 
 def _gate(flags: NDArray[np.uint8], gate: Gate, scene: SceneGeometry | None) -> tuple[str, ...]:
@@ -588,7 +615,7 @@ def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
         cpu, wall = time.thread_time(), time.perf_counter()
         geometric = None
         if inputs is not None and model.geometric:
-            geometric = geometry_inputs(*inputs.pixels(pixels[rows], raw[rows, top].astype(np.float64)))
+            geometric = _geometric_inputs(inputs, pixels[rows], raw[rows, top])
         gate_share = (time.thread_time() - cpu, time.perf_counter() - wall)
         model.spec.transform_into(raw[rows], geometric, features[rows])
         return gate_share
@@ -598,10 +625,36 @@ def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
             max(wall for _, wall in shares))
 
 
+# Pixels whose geometric inputs are worked out at once: the sums over their partners' patches take about a
+# kilobyte a pixel while they are made.
+GEOMETRY_INPUT_PIXELS = 16_384
+
+
+def _geometric_inputs(inputs: PlaneModelInputs, pixels: NDArray, measured_range: NDArray) -> NDArray[np.float64]:
+    """A geometric model's inputs (n, 2) of flat pixel indices ``pixels`` (n,) whose highest-frequency range is
+    ``measured_range`` (n,) [m] (:meth:`PlaneModelInputs.pixels`), ``GEOMETRY_INPUT_PIXELS`` at a time."""
+    starts = range(0, max(pixels.size, 1), GEOMETRY_INPUT_PIXELS)  # no pixels: one call, for the (0, 2) shape
+    return np.concatenate([geometry_inputs(*inputs.pixels(
+        pixels[start:start + GEOMETRY_INPUT_PIXELS],
+        measured_range[start:start + GEOMETRY_INPUT_PIXELS].astype(np.float64))) for start in starts])
+
+
 def row_tiles(height: int, width: int, tile_pixels: int) -> list[slice]:
     """Flat pixel ranges of whole rows, about ``tile_pixels`` each (at least one row)."""
     rows = max(1, tile_pixels // max(width, 1))
     return [slice(top * width, min(top + rows, height) * width) for top in range(0, height, rows)]
+
+
+def scan_tiles(scan: Scan, tile_pixels: int) -> list[slice]:
+    """:func:`row_tiles` of a scan; for one kept in its store, those of each band of rows its maps are read in
+    (:meth:`StoredMap.row_bands`), so that no tile spans two bands: a stored map keeps the last band it read,
+    and a tile across two would have it read a band of twice the rows, decoding the rows it shares with the
+    bands on either side once more."""
+    h, w = scan.shape
+    if not isinstance(scan.amplitude, StoredMap):
+        return row_tiles(h, w, tile_pixels)
+    return [slice(band.start * w + tile.start, band.start * w + tile.stop)
+            for band in scan.amplitude.row_bands() for tile in row_tiles(band.stop - band.start, w, tile_pixels)]
 
 
 def _raw_tiles(scan: Scan, tiles: list[slice]) -> Iterator[tuple[slice, NDArray[np.float32]]]:
