@@ -85,7 +85,9 @@ class Correction:
     for a scan whose depths came unwrapped); ``estimate`` (H, W) which estimate each depth is
     (:class:`~mpi_lidar.correction.options.Estimate`); ``uncertainty_m`` (H, W) each depth's 1-sigma
     uncertainty [m] (NaN where it has none); ``frequency_offsets_m`` the frequencies' depth offsets relative to the
-    highest [m] that the fused depths had removed (None: none).
+    highest [m] that the fused depths had removed (None: none); ``amplitude_units_per_v2`` the scanner's amplitude
+    unit per V^2 that the scan's amplitudes were divided by (1: read as V^2), which outputs showing the
+    amplitudes in V^2 divide them by too.
     """
 
     depth: NDArray[np.float32]
@@ -103,6 +105,7 @@ class Correction:
     estimate: NDArray[np.uint8] | None = None
     uncertainty_m: NDArray[np.float32] | None = None
     frequency_offsets_m: tuple[float, ...] | None = None
+    amplitude_units_per_v2: float = 1.0
 
     def counts(self) -> dict[str, int]:
         found = code_counts(self.flags, len(Flag))
@@ -179,10 +182,11 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
             return _left_as_measured(scan, *_validity_pass(scan, depth_rules_only(options), sensor, tiles), unit,
                                      started)
         unit_note = (unit_note_of(unit),)
-        if not reads_as_v2(unit):
-            scan = _in_v2(scan, unit.amplitude_scale)
-    elif options.amplitude_scale != 1.0:  # the scanner's unit to V^2, once, in memory
-        scan = _in_v2(scan, options.amplitude_scale)
+        units_per_v2 = 1.0 if reads_as_v2(unit) else unit.amplitude_scale
+    else:
+        units_per_v2 = float(options.amplitude_scale)
+    if units_per_v2 != 1.0:  # the scanner's unit to V^2, once, in memory
+        scan = _in_v2(scan, units_per_v2)
     with clock("validity"):
         flags, usable_depth, measured = _validity_pass(scan, options, sensor, tiles)
         if measured.moved:  # some depths wrapped: every later stage reads them unwrapped
@@ -219,7 +223,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
                       bias_m, unit_note + notes, clock.seconds, calibration, unserved, measured.depth.reshape(h, w),
                       None if measured.confidence is None else measured.confidence.reshape(h, w),
                       estimate.reshape(h, w), uncertainty.reshape(h, w),
-                      None if offsets_m is None else tuple(float(o) for o in offsets_m))
+                      None if offsets_m is None else tuple(float(o) for o in offsets_m), units_per_v2)
 
 
 # Valid pixels the model leaves alone, whose depth is the baseline's: fused where the frequencies agree.

@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from mpi_lidar.correction import Correction, Flag
-from mpi_lidar.reporting.metrics import applied_correction_mm, measured_depth
+from mpi_lidar.reporting.metrics import amplitude_v2, applied_correction_mm, measured_depth
 from mpi_lidar.reporting.thumbnail import FLAG_COLOURS
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.storage.atomic import atomic_path
@@ -63,7 +63,7 @@ def maps_figure(scan: Scan, correction: Correction) -> Figure:
     limits = np.quantile(finite, [0.01, 0.99]) if finite.size else (0.0, 1.0)
     _image(axes[0, 0], raw_depth, f"raw depth {label} [m]", "viridis", limits, grid)
     _image(axes[0, 1], correction.depth, "corrected depth [m]", "viridis", limits, grid)
-    _image(axes[0, 2], scan.amplitude[-1], f"amplitude {label} [V$^2$]", "magma", None, grid)
+    _image(axes[0, 2], amplitude_v2(scan, correction), f"amplitude {label} [V$^2$]", "magma", None, grid)
     applied = applied_correction_mm(scan, correction)
     shown = np.abs(applied[np.isfinite(applied)])
     span = max(float(np.quantile(shown, 0.99)), 1e-3) if shown.size else 1.0

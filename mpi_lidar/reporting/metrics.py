@@ -20,6 +20,12 @@ def measured_depth(scan: Scan, correction: Correction, rows: slice = slice(None)
     return np.asarray(scan.depth[-1, rows])
 
 
+def amplitude_v2(scan: Scan, correction: Correction) -> np.ndarray:
+    """The highest frequency's amplitude (H, W) in V^2: the scan's, divided by the scanner's unit per V^2 that
+    correction read them in (:attr:`Correction.amplitude_units_per_v2`)."""
+    return np.asarray(scan.amplitude[-1], dtype=np.float32) / np.float32(correction.amplitude_units_per_v2)
+
+
 def metric_regions(scan: Scan, correction: Correction, rows: slice = slice(None)) -> dict[str, np.ndarray]:
     """Where the metrics are taken, per region, for a range of rows: pixels with a reference depth and a
     valid measurement (whole map), and those of them in the reference mask (masked region)."""

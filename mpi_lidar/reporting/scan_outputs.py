@@ -14,7 +14,7 @@ import numpy as np
 
 from mpi_lidar.correction import Correction, CorrectionOptions
 from mpi_lidar.correction.corrected_store import write_corrected_store
-from mpi_lidar.reporting.metrics import measured_depth, metric_regions
+from mpi_lidar.reporting.metrics import amplitude_v2, measured_depth, metric_regions
 from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.reporting.point_cloud_files import point_cloud_formats, write_point_clouds
 from mpi_lidar.reporting.report import REPORT_MARKER, Embed, error_histogram_figure, save_figure
@@ -103,7 +103,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
             measured = measured_depth(scan, correction)
             with _cpu(cpu_s, "write"):
                 files += write_point_clouds(staging, formats, cloud_rays, measured, correction.depth,
-                                            correction.flags, scan.amplitude[-1],
+                                            correction.flags, amplitude_v2(scan, correction),
                                             getattr(correction, "uncertainty_m", None))
             if level == OutputLevel.FULL and rays is not None:
                 with _cpu(cpu_s, "figures"):

@@ -59,3 +59,23 @@ def test_point_cloud_formats__default_by_level_and_unknown_refused(model_dir, ar
     with pytest.raises(MpiLidarError, match="unknown point cloud format 'xyz'"):
         correct_archive([str(archived[1])], model_dir, tmp_path / "out", CorrectionOptions(), point_clouds=["xyz"])
     assert not (tmp_path / "out").exists(), "refused before anything is written"
+
+
+@pytest.mark.parametrize("amplitude_scale", [4000.0, "auto"])
+def test_light__amplitudes_in_the_scanners_unit_reach_the_laz_in_v2(model_dir, archived, tmp_path, amplitude_scale):
+    """A scan in counts (4000 per V^2), its unit given or read: the LAZ's amplitude_v2 is the V^2 amplitude."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from mpi_lidar.scans.store import write_scan
+
+    scan = archived[0]
+    counts = write_scan(replace(scan, amplitude=(np.asarray(scan.amplitude) * 4000).astype(np.float32)),
+                        tmp_path / "counts.scan.zarr")
+    outcome = process_scan(counts, model_dir, tmp_path / "out", CorrectionOptions(amplitude_scale=amplitude_scale),
+                           outputs="light")
+    las = laspy.read(Path(outcome.output) / "corrected.laz")
+    expected = np.asarray(scan.amplitude[-1])[np.asarray(las.row), np.asarray(las.column)]
+    # the unit read from the frequencies' scatter is within its reading's sd of 4000, not exactly it
+    np.testing.assert_allclose(np.asarray(las.amplitude_v2), expected, rtol=1e-6 if amplitude_scale != "auto" else 0.05)
