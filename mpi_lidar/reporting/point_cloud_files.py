@@ -160,13 +160,14 @@ def write_point_clouds(directory: Path, formats: tuple[PointCloudFormat, ...], r
                                strict=True):
             write_ply(directory / name, point_cloud(depth, whole_rays), fields, colors, comments)
             written.append(name)
-    for fmt in (PointCloudFormat.LAS, PointCloudFormat.LAZ):
-        if fmt in formats:
+    las_formats = [fmt for fmt in (PointCloudFormat.LAS, PointCloudFormat.LAZ) if fmt in formats]
+    if las_formats:
+        band = _las_band(rays, measured_depth, corrected_depth, flags, amplitude_v2, uncertainty_m)
+        # Every pixel with a finite raw or corrected range has a point (rays are finite).
+        placed = np.isfinite(corrected_depth) | np.isfinite(measured_depth)
+        per_count = intensity_scale(np.where(placed, amplitude_v2, np.nan))
+        for fmt in las_formats:
             (name,) = POINT_CLOUD_FILES[fmt]
-            band = _las_band(rays, measured_depth, corrected_depth, flags, amplitude_v2, uncertainty_m)
-            # Every pixel with a finite raw or corrected range has a point (rays are finite).
-            placed = np.isfinite(corrected_depth) | np.isfinite(measured_depth)
-            per_count = intensity_scale(np.where(placed, amplitude_v2, np.nan))
             write_las_bands(directory / name, np.shape(flags), band, per_count, compress=fmt == PointCloudFormat.LAZ,
                             descriptions={"flag": flag_description()}, metadata=point_cloud_metadata())
             written.append(name)

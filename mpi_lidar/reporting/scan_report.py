@@ -13,8 +13,9 @@ from mpi_lidar.scans.scan import Scan
 
 # What a report at each output level says the next level up would add.
 _MORE = {
-    OutputLevel.DATA: " Level light adds this report and a thumbnail; full the maps, histogram and point clouds.",
-    OutputLevel.LIGHT: " Level full adds the maps, the error histogram, the point-cloud views and point clouds.",
+    OutputLevel.DATA: (" Level light adds this report, the LAZ point cloud and a thumbnail; full the maps, histogram "
+                       "and PLY files."),
+    OutputLevel.LIGHT: " Level full adds the maps, the error histogram, the point-cloud views and the PLY files.",
     OutputLevel.FULL: "",
 }
 
