@@ -33,14 +33,18 @@ def two_path_scan(name: str, height: int = 24, width: int = 32, multipath: bool 
     )
 
 
-def inverse_variance_mean(scan: Scan, offsets_m: tuple[float, ...] | None = None) -> np.ndarray:
-    """Each pixel's frequencies' depths less their ``offsets_m`` (F,) [m], averaged with weights 1 / sd^2 of the
-    noise model at their amplitudes, (H, W) [m]: the fused depth, worked out here directly from the scan's maps."""
+def inverse_variance_mean(scan: Scan, offsets_m: tuple[float, ...] | None = None, window: bool = False) -> np.ndarray:
+    """Each pixel's frequencies' depths less their ``offsets_m`` (F,) [m] (and with the integration window's leakage
+    removed first where ``window``), averaged with weights 1 / sd^2 of the noise model at their amplitudes, (H, W)
+    [m]: the fused depth, worked out here directly from the scan's maps."""
     from mpi_lidar.config import SensorConfig
     from mpi_lidar.physics.noise import depth_noise_m
+    from mpi_lidar.physics.window import window_corrections_m
 
     f = len(scan.frequencies_hz)
     depth = np.asarray(scan.depth, dtype=np.float64).reshape(f, -1).T - np.asarray(offsets_m or np.zeros(f))
     amplitude = np.asarray(scan.amplitude, dtype=np.float64).reshape(f, -1).T
+    if window:
+        depth += window_corrections_m(depth, amplitude, tuple(scan.frequencies_hz), SensorConfig())
     weight = 1.0 / depth_noise_m(SensorConfig(), tuple(scan.frequencies_hz), np.maximum(amplitude, 1e-12)) ** 2
     return ((weight * depth).sum(1) / weight.sum(1)).reshape(scan.shape)

@@ -55,6 +55,7 @@ from mpi_lidar.learning.error_model import corrected_sigma_m
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel, ModelCard
 from mpi_lidar.physics.noise import fused_depths
+from mpi_lidar.physics.window import window_corrections_m
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.stored_map import StoredMap
 from mpi_lidar.threads import on_cores_by_rows
@@ -85,7 +86,8 @@ class Correction:
     for a scan whose depths came unwrapped); ``estimate`` (H, W) which estimate each depth is
     (:class:`~mpi_lidar.correction.options.Estimate`); ``uncertainty_m`` (H, W) each depth's 1-sigma
     uncertainty [m] (NaN where it has none); ``frequency_offsets_m`` the frequencies' depth offsets relative to the
-    highest [m] that the fused depths had removed (None: none); ``amplitude_units_per_v2`` the scanner's amplitude
+    highest [m] that the fused depths had removed (None: none), after the integration window's leakage where
+    ``window_leakage_removed`` (:func:`window_corrections_m`); ``amplitude_units_per_v2`` the scanner's amplitude
     unit per V^2 that the scan's amplitudes were divided by (1: read as V^2), which outputs showing the
     amplitudes in V^2 divide them by too.
     """
@@ -106,6 +108,7 @@ class Correction:
     uncertainty_m: NDArray[np.float32] | None = None
     frequency_offsets_m: tuple[float, ...] | None = None
     amplitude_units_per_v2: float = 1.0
+    window_leakage_removed: bool = False
 
     def counts(self) -> dict[str, int]:
         found = code_counts(self.flags, len(Flag))
@@ -213,8 +216,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
         gate_s, inference_s = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
     del inputs  # the blocks and planes of the geometric inputs: the model was their last reader
     with clock("validity"):
-        offsets_m, offset_notes = _frequency_offsets(measured, flags, bias_m, options)
-        estimate, uncertainty = _estimates(scan, sensor, tiles, flags, depth, measured.depth, options, offsets_m,
+        offsets, offset_notes = _frequency_offsets(measured, flags, bias_m, options)
+        estimate, uncertainty = _estimates(scan, sensor, tiles, flags, depth, measured.depth, options, offsets,
                                            calibration, None if bias_m is None else bias_m.reshape(-1), model.card)
     notes += offset_notes
     h, w = scan.shape
@@ -223,44 +226,67 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
                       bias_m, unit_note + notes, clock.seconds, calibration, unserved, measured.depth.reshape(h, w),
                       None if measured.confidence is None else measured.confidence.reshape(h, w),
                       estimate.reshape(h, w), uncertainty.reshape(h, w),
-                      None if offsets_m is None else tuple(float(o) for o in offsets_m), units_per_v2)
+                      None if offsets.offsets_m is None else tuple(float(o) for o in offsets.offsets_m),
+                      units_per_v2, offsets.window)
 
 
 # Valid pixels the model leaves alone, whose depth is the baseline's: fused where the frequencies agree.
 BASELINE_FLAGS = (Flag.NOT_NEEDED, Flag.NO_MULTIPATH, Flag.UNCALIBRATED, Flag.OUT_OF_RANGE)
 
 
+@dataclass(frozen=True)
+class _Offsets:
+    """What the fused depths remove from each frequency's depth: the integration window's leakage (``window``,
+    :func:`window_corrections_m`) and then the frequencies' offsets relative to the highest (F,) [m] (None: none)."""
+
+    offsets_m: NDArray | None = None
+    window: bool = False
+
+
 def _frequency_offsets(measured: _Measured, flags: NDArray[np.uint8], bias_m: NDArray | None,
-                       options: CorrectionOptions) -> tuple[NDArray | None, tuple[str, ...]]:
-    """The frequencies' depth offsets relative to the highest (F,) [m] that the fused depth removes, and what the
-    report says of them: the options' (a sensor profile's) where they give them, else the scan's own, measured on
-    its valid pixels that the scene geometry expects free of multipath (``bias_m`` (H, W) [m]); none where it
-    has too few such pixels or no geometry."""
+                       options: CorrectionOptions) -> tuple[_Offsets, tuple[str, ...]]:
+    """What the fused depths remove (:class:`_Offsets`), and what the report says of it: the options' (a sensor
+    profile's) offsets where they give them, else the scan's own, measured on its valid pixels that the scene
+    geometry expects free of multipath (``bias_m`` (H, W) [m]); nothing where it has too few such pixels or no
+    geometry.
+
+    The scan also says whether its sensor has the default window's leakage: the leakage is removed where that
+    leaves the frequencies' measured offsets smaller (in sum of squares) than it finds them. A sensor with it
+    shows the leakage's differences between frequencies as offsets; removing it where a sensor has none would
+    show them, reversed.
+    """
     if Baseline(options.baseline) == Baseline.RAW:
-        return None, ()  # nothing is fused
+        return _Offsets(), ()  # nothing is fused
     if options.frequency_offsets_m is not None:
-        return np.asarray(options.frequency_offsets_m, dtype=np.float64), ()
+        return _Offsets(np.asarray(options.frequency_offsets_m, dtype=np.float64)), ()
     if bias_m is None:
-        return None, ("frequency offsets: not measured (no scene geometry to find pixels free of multipath); "
-                      "none removed from the fused depths",)
+        return _Offsets(), ("frequency offsets: not measured (no scene geometry to find pixels free of multipath); "
+                            "none removed from the fused depths",)
     stride = measured.offsets.stride  # only the sampled pixels: no mask of the whole scan
     quiet = np.isin(flags[::stride], [int(flag) for flag in BASELINE_FLAGS])
     quiet &= bias_m.reshape(-1)[::stride] <= QUIET_BIAS_M
-    offsets = measured.offsets.offsets_m(quiet)
-    if offsets is None:
-        return None, (f"frequency offsets: not measured (fewer than {MIN_OFFSET_PIXELS} sampled pixels free of "
-                      "multipath); none removed from the fused depths",)
-    listed = ", ".join(f"{1e3 * o:+.3f}" for o in offsets)
-    return offsets, (f"frequency offsets: {listed} mm relative to the highest frequency, measured on the pixels "
-                     "free of multipath, removed from the fused depths",)
+    as_measured = measured.offsets.offsets_m(quiet, window=False)
+    if as_measured is None:
+        return _Offsets(), (f"frequency offsets: not measured (fewer than {MIN_OFFSET_PIXELS} sampled pixels free "
+                            "of multipath); none removed from the fused depths",)
+    windowed = measured.offsets.offsets_m(quiet, window=True)
+    assert windowed is not None  # the same pixels
+    window = bool(np.sum(windowed**2) < np.sum(as_measured**2))
+    offsets, other = (windowed, as_measured) if window else (as_measured, windowed)
+    listed, other_listed = (", ".join(f"{1e3 * o:+.3f}" for o in values) for values in (offsets, other))
+    leakage = "removed first" if window else "left in"
+    return _Offsets(offsets, window), (
+        f"frequency offsets: {listed} mm relative to the highest frequency, measured on the pixels free of "
+        f"multipath, removed from the fused depths; the integration window's leakage {leakage} (the offsets "
+        f"would be {other_listed} mm otherwise)",)
 
 
 def _estimates(scan: Scan, sensor: SensorConfig, tiles: list[slice], flags: NDArray[np.uint8],
                depth: NDArray[np.float32], measured_depth: NDArray[np.float32], options: CorrectionOptions,
-               offsets_m: NDArray | None, footprint: FootprintEstimate | None, bias_m: NDArray | None,
+               offsets: _Offsets, footprint: FootprintEstimate | None, bias_m: NDArray | None,
                card: ModelCard) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
     """Which estimate each pixel's depth is (:class:`Estimate`) and its 1-sigma uncertainty [m], (H*W,) each, tile
-    by tile; the baseline's pixels take the fused depth (:func:`fused_depths`, ``offsets_m`` removed) into
+    by tile; the baseline's pixels take the fused depth (:func:`fused_depths`, ``offsets`` removed) into
     ``depth`` in place where ``options.baseline`` is fused and their frequencies agree within noise.
 
     Uncertainty: the fused depth's sd under the noise model; the measured depth's sd, times the frequencies' Birge
@@ -283,7 +309,8 @@ def _estimates(scan: Scan, sensor: SensorConfig, tiles: list[slice], flags: NDAr
             present = np.flatnonzero(np.isin(tile_flags, known))
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
                 fused = fused_depths(raw[rows][present], scan.frequencies_hz, sensor,
-                                     noise_scale=options.noise_scale, offsets_m=offsets_m)
+                                     noise_scale=options.noise_scale, offsets_m=offsets.offsets_m,
+                                     window=offsets.window)
             # Frequencies that disagree beyond their noise (multipath, a flying pixel) widen the measured sd by
             # their Birge ratio.
             measured_sigma = fused.top_sigma_m * np.where(fused.consistent, 1.0, fused.birge_ratio)
@@ -467,34 +494,42 @@ QUIET_BIAS_M = 2e-5
 @dataclass
 class _OffsetSample:
     """Every ``stride``-th pixel's depth at each frequency less the highest frequency's (K, F) [m] (NaN where
-    invalid): what the frequencies' relative offsets are measured from, once the scene says which pixels are
-    free of multipath."""
+    invalid), as measured and with the integration window's leakage removed from each
+    (:func:`window_corrections_m`): what the frequencies' relative offsets are measured from, once the scene says
+    which pixels are free of multipath."""
 
     stride: int
     differences: NDArray[np.float32]
+    window_differences: NDArray[np.float32]
 
     @classmethod
     def empty(cls, pixels: int, frequencies: int) -> _OffsetSample:
         stride = max(1, -(-pixels // OFFSET_SAMPLE_PIXELS))
-        return cls(stride, np.full((-(-pixels // stride), frequencies), np.nan, dtype=np.float32))
+        shape = (-(-pixels // stride), frequencies)
+        return cls(stride, np.full(shape, np.nan, dtype=np.float32), np.full(shape, np.nan, dtype=np.float32))
 
-    def fill(self, start: int, rows: NDArray, usable: NDArray) -> None:
+    def fill(self, start: int, rows: NDArray, usable: NDArray, frequencies_hz: tuple[float, ...],
+             sensor: SensorConfig) -> None:
         """The sampled pixels among the rows (n, 2F) of unwrapped raw measurements that start at pixel ``start``
         (``usable`` (n,): valid, of a known range)."""
         first = -(-start // self.stride) * self.stride - start  # the first sampled pixel in these rows
         picked = np.arange(first, rows.shape[0], self.stride)
         f = self.differences.shape[1]
         depth = rows[picked, :f]
-        self.differences[(start + picked) // self.stride] = np.where(
-            usable[picked, None], depth - depth[:, f - 1:f], np.nan)
+        windowed = depth + window_corrections_m(depth, rows[picked, f:], frequencies_hz, sensor)
+        at = (start + picked) // self.stride
+        for differences, depths in ((self.differences, depth), (self.window_differences, windowed)):
+            differences[at] = np.where(usable[picked, None], depths - depths[:, f - 1:f], np.nan)
 
-    def offsets_m(self, quiet: NDArray[np.bool_]) -> NDArray[np.float64] | None:
+    def offsets_m(self, quiet: NDArray[np.bool_], window: bool) -> NDArray[np.float64] | None:
         """The median difference of each frequency (F,) [m] over the sampled pixels that are ``quiet`` (K,: of
-        every ``stride``-th pixel), or None with fewer than ``MIN_OFFSET_PIXELS`` of them."""
-        taken = quiet & np.isfinite(self.differences).all(1)
+        every ``stride``-th pixel), with the window's leakage removed first or not, or None with fewer than
+        ``MIN_OFFSET_PIXELS`` of them."""
+        differences = self.window_differences if window else self.differences
+        taken = quiet & np.isfinite(differences).all(1)
         if taken.sum() < MIN_OFFSET_PIXELS:
             return None
-        return np.median(self.differences[taken].astype(np.float64), axis=0)
+        return np.median(differences[taken].astype(np.float64), axis=0)
 
 
 def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, tiles: list[slice],
@@ -513,7 +548,8 @@ def _validity_pass(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
             part_flags = validity_flags(part, scan.frequencies_hz, options, sensor, confidence)
             where = slice(start + rows.start, start + rows.stop)
             flags[where] = part_flags
-            measured.offsets.fill(where.start, part, ~np.isin(part_flags, [int(flag) for flag in UNUSABLE_FLAGS]))
+            measured.offsets.fill(where.start, part, ~np.isin(part_flags, [int(flag) for flag in UNUSABLE_FLAGS]),
+                                  scan.frequencies_hz, sensor)
             usable_depth[where] = usable_depth_of(part, part_flags)
             measured.depth[where] = np.where(part_flags == Flag.AMBIGUOUS, raw[rows, f - 1], part[:, f - 1])
             if measured.confidence is not None and confidence is not None:

@@ -19,7 +19,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mpi_lidar.config import Config
+from functools import lru_cache
+
+from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
 from mpi_lidar.physics import demod
 from mpi_lidar.physics.sensor import PhotonWaveform, SensorModel
 
@@ -119,6 +121,14 @@ class MomentSensor(SensorModel):
         p = mean[..., 0] + l11 * z[..., 0]
         q = mean[..., 1] + l21 * z[..., 0] + l22 * z[..., 1]
         return demod.taps_from_quadratures(p, q)
+
+
+@lru_cache(maxsize=4)
+def moment_model(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> MomentSensor:
+    """The moment model of ``sensor`` at ``frequencies_hz`` with the default window, rounding off: the closed-form
+    moments, which is all a noise prediction or the window's leakage (:mod:`mpi_lidar.physics.window`) needs."""
+    return MomentSensor(Config(sensor=sensor, frequencies_hz=frequencies_hz,
+                               simulator=SimulatorConfig(round_photons=False)))
 
 
 def _cov2(pp: NDArray, pq: NDArray, qq: NDArray) -> NDArray[np.float64]:

@@ -14,17 +14,11 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
-from mpi_lidar.physics.moments import MomentSensor
+from mpi_lidar.config import SensorConfig
+from mpi_lidar.physics.moments import moment_model
 from mpi_lidar.physics.sensor import received_voltage_amplitude
 from mpi_lidar.physics.unwrap import unwrap_depths
-
-
-@lru_cache(maxsize=4)
-def _noise_model(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> MomentSensor:
-    # Rounding off: the closed-form moments, which is all a noise prediction needs.
-    return MomentSensor(Config(sensor=sensor, frequencies_hz=frequencies_hz,
-                               simulator=SimulatorConfig(round_photons=False)))
+from mpi_lidar.physics.window import window_corrections_m
 
 
 def noise_floor_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
@@ -56,7 +50,7 @@ def _quadrature_variance_line(sensor: SensorConfig, frequencies_hz: tuple[float,
 def _moment_quadrature_noise(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray,
                              ) -> NDArray:
     """:func:`quadrature_noise_v2` from the moment model's full tap covariance."""
-    model = _noise_model(sensor, tuple(frequencies_hz))
+    model = moment_model(sensor, tuple(frequencies_hz))
     r = received_voltage_amplitude(np.maximum(amplitude_v2, 0.0), sensor.modulation_contrast,
                                    sensor.demodulation_amplitude_v)
     waveforms = model.waveforms_from_phasors(r, r.astype(np.complex128))
@@ -119,7 +113,8 @@ class Fused:
 
 
 def fused_depths(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig, *,
-                 noise_scale: float = 1.0, offsets_m: NDArray | tuple[float, ...] | None = None) -> Fused:
+                 noise_scale: float = 1.0, offsets_m: NDArray | tuple[float, ...] | None = None,
+                 window: bool = False) -> Fused:
     """Maximum-likelihood depth of raw rows (n, 2F) of unwrapped depths [m] and amplitudes [V^2]: each frequency's
     depth less its offset, weighted by the inverse variance of the noise model at its amplitude.
 
@@ -128,8 +123,11 @@ def fused_depths(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: Sensor
     0.68 of the highest frequency's sd. ``offsets_m`` (F,): each frequency's fixed depth offset relative to the
     highest (a sensor's, as ``mpi-lidar calibrate`` measures it), subtracted first; None: none. ``noise_scale``
     scales every sd (a sensor's noise over the model's): it moves the sds and the consistency test, not the mean.
+    ``window``: each depth first has the integration window's leakage removed
+    (:func:`~mpi_lidar.physics.window.window_corrections_m`), the offsets then being those that remain.
     """
     f = len(frequencies_hz)
+    window_m = window_corrections_m(raw[:, :f], raw[:, f:], tuple(frequencies_hz), sensor) if window else None
     offsets = np.zeros(f) if offsets_m is None else np.asarray(offsets_m, dtype=np.float64)
     # The variance is a + b A per frequency (quadrature_noise_v2): one line per column, summed column by column,
     # since a row reduction over F values is several times slower.
@@ -141,7 +139,8 @@ def fused_depths(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: Sensor
         amplitude = np.maximum(raw[:, f + column].astype(np.float64), 1e-12)
         variance = scale2 * (line_offset[column] + line_slope[column] * amplitude) / amplitude**2
         weights.append(1.0 / (variance * metres_per_rad[column] ** 2))
-        depths.append(raw[:, column].astype(np.float64) - offsets[column])
+        depth = raw[:, column].astype(np.float64) - offsets[column]
+        depths.append(depth if window_m is None else depth + window_m[:, column])
     total = sum(weights[1:], weights[0])
     mean = sum((w * d for w, d in zip(weights[1:], depths[1:], strict=True)), weights[0] * depths[0]) / total
     chi2 = sum(w * (d - mean) ** 2 for w, d in zip(weights, depths, strict=True))
