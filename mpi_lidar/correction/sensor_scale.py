@@ -593,8 +593,6 @@ def _quiet_inner_blocks(blocks: geometry.FacingBlocks, flat: NDArray, options: C
     Pixels interpolate block values from the neighbouring blocks, so a block is as quiet as its neighbourhood;
     past the scan's border a block is its own neighbour.
     """
-    from scipy.ndimage import maximum_filter
-
     hb, wb = blocks.usable.shape
     labels = flat.reshape(hb, wb)
     padded = np.pad(labels, 1, mode="edge")
@@ -605,10 +603,35 @@ def _quiet_inner_blocks(blocks: geometry.FacingBlocks, flat: NDArray, options: C
     given = 0.0 if options.footprint_area_m2 == AUTO else float(options.footprint_area_m2)
     footprint_m2 = max(given, GENEROUS_FOOTPRINT_FACTOR * DEFAULT_FOOTPRINT_AREA_M2)
     bias_m = blocks.block_potential(footprint_m2).bias_m.reshape(hb, wb)
-    quiet = maximum_filter(bias_m, size=3, mode="nearest") <= MAX_FLAT_BIAS_M
+    quiet = _neighbourhood_max(bias_m) <= MAX_FLAT_BIAS_M
     finite = np.nansum(geometry.to_blocks(blocks.finite.astype(np.float64), blocks.block_pixels), axis=-1)
     whole = blocks.keep.sum(-1) >= MIN_KEPT_SHARE * finite
     return (inner & quiet & whole).ravel()
+
+
+# The eight neighbours of a cell (row step, column step).
+_NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
+
+
+def _neighbourhood_max(values: NDArray) -> NDArray:
+    """Each cell's largest value over itself and its eight neighbours (2-D), a cell past the border being the
+    nearest one on it; NaN where any of the nine is NaN."""
+    h, w = values.shape
+    padded = np.pad(values, 1, mode="edge")
+    largest = values.copy()
+    for dy, dx in _NEIGHBOURS:
+        np.maximum(largest, padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w], out=largest)
+    return largest
+
+
+def _any_neighbour(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Cells (2-D) with one of their eight neighbours set in ``mask``; past the border there is no neighbour."""
+    h, w = mask.shape
+    padded = np.pad(mask, 1, constant_values=False)
+    found = np.zeros_like(mask)
+    for dy, dx in _NEIGHBOURS:
+        found |= padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+    return found
 
 
 def _block_residuals(scan: Scan, usable_depth: NDArray, blocks: geometry.FacingBlocks,
@@ -648,16 +671,11 @@ def _beside_other_surfaces(blocks: geometry.FacingBlocks) -> NDArray[np.bool_]:
     A pixel's own distance from the plane does not count, so that the pixels the fit trimmed for their noise keep
     their residuals, and their neighbours, left out for it, are left out whatever their own noise.
     """
-    from scipy.ndimage import convolve
-
     hb, wb = blocks.usable.shape
     b = blocks.block_pixels
     height, width = blocks.shape
     inlier = blocks.keep.reshape(hb, wb, b, b).swapaxes(1, 2).reshape(hb * b, wb * b)[:height, :width]
-    ring = np.ones((3, 3), dtype=np.uint8)
-    ring[1, 1] = 0
-    # Past the scan's border there is no neighbour.
-    return np.asarray(convolve((~inlier).astype(np.uint8), ring, mode="constant", cval=0) > 0)
+    return _any_neighbour(~inlier)
 
 
 def _pixels_of_blocks(blocks: geometry.FacingBlocks, chosen: NDArray) -> NDArray[np.intp]:

@@ -337,3 +337,19 @@ def test_measure_sensor_scale__a_corner_has_too_few_flat_pixels():
     found = measure_sensor_scale(scan, depth_usable(scan), DEPTH_RULES, SENSOR)
     assert not found.significant and found.pixels < 200
     assert found.reason.startswith(f"only {found.pixels} flat pixels")
+
+
+def test_neighbourhood_helpers__equal_scipy_ndimage_filters():
+    from scipy.ndimage import convolve, maximum_filter
+
+    from mpi_lidar.correction.sensor_scale import _any_neighbour, _neighbourhood_max
+
+    rng = np.random.default_rng(0)
+    ring = np.ones((3, 3), dtype=np.uint8)
+    ring[1, 1] = 0
+    for _ in range(200):
+        values = rng.random((int(rng.integers(1, 9)), int(rng.integers(1, 9))))
+        np.testing.assert_array_equal(_neighbourhood_max(values), maximum_filter(values, size=3, mode="nearest"))
+        outliers = values > 0.8
+        np.testing.assert_array_equal(_any_neighbour(outliers),
+                                      convolve(outliers.astype(np.uint8), ring, mode="constant") > 0)
