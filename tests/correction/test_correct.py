@@ -215,6 +215,8 @@ def test_fused_depth__removes_the_window_s_leakage_only_from_a_sensor_that_has_i
     scan = render(flat_wall(20.0, 1.0, 0.7, height=48, width=64), config, np.random.default_rng(3))
     correction = correct_scan(scan, load_model(small_model), CorrectionOptions(amplitude_scale=1.0, noise_scale=0.2))
     assert correction.window_leakage_removed is not whole_cycles
+    said = "removed first" if not whole_cycles else "left in"
+    assert f"the integration window's leakage {said}" in correction.notes[-1], correction.notes
     fused = correction.estimate == Estimate.FUSED
     assert fused.mean() > 0.9
     # At 1 m the leakage leaves the highest frequency 0.18 mm short, which no relative offset removes; a fifth of
