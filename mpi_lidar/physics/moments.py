@@ -16,10 +16,10 @@ sum P = C0 and the quadrature sum Q = C3; their 4x4 covariance has rank 2.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-from functools import lru_cache
 
 from mpi_lidar.config import Config, SensorConfig, SimulatorConfig
 from mpi_lidar.physics import demod

@@ -33,8 +33,8 @@ class _Leakage:
     leakage (1e-3, so to about 1e-6 rad), constant + c2 cos 2 phi + s2 sin 2 phi + (s1 + s1_per_v2 / A) sin phi
     + (c1 + c1_per_v2 / A) cos phi [rad] at the amplitude A [V^2]."""
 
-    constant: np.float32
-    c2: np.float32
+    constant: float
+    c2: float
     s2: float
     s1: float
     c1: float
@@ -44,10 +44,11 @@ class _Leakage:
 
     def phase_correction(self, phase: NDArray, amplitude_v2: NDArray) -> NDArray:
         cos, sin = np.cos(phase), np.sin(phase)
-        first_cos, first_sin = self.c1, self.s1
+        first_cos: float | NDArray = self.c1
+        first_sin: float | NDArray = self.s1
         if self.c1_per_v2 or self.s1_per_v2:  # a chain without signal-free offset has none: its 1 / A is skipped
             inverse = 1.0 / amplitude_v2
-            first_cos, first_sin = first_cos + self.c1_per_v2 * inverse, first_sin + self.s1_per_v2 * inverse
+            first_cos, first_sin = self.c1 + self.c1_per_v2 * inverse, self.s1 + self.s1_per_v2 * inverse
         # c2 cos 2 phi + s2 sin 2 phi + s1 sin phi + c1 cos phi, factored to fewer passes over the pixels
         return self.constant + cos * (self.c2 * cos + 2 * self.s2 * sin + first_cos) + sin * (first_sin - self.c2 * sin)
 
@@ -86,7 +87,7 @@ def _leakages(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> tuple[
         leak = s / sensor.modulation_contrast
         offset = s * half * (sensor.demodulation_amplitude_v / sums.bins) * model.chain.offset_v
         leakages.append(_Leakage(
-            constant=(e[1, 0] - e[0, 1]) / 2, c2=(e[1, 0] + e[0, 1]) / 2, s2=(e[1, 1] - e[0, 0]) / 2,
-            s1=leak[0], c1=-leak[1], s1_per_v2=offset[0], c1_per_v2=-offset[1],
+            constant=float(e[1, 0] - e[0, 1]) / 2, c2=float(e[1, 0] + e[0, 1]) / 2, s2=float(e[1, 1] - e[0, 0]) / 2,
+            s1=float(leak[0]), c1=-float(leak[1]), s1_per_v2=float(offset[0]), c1_per_v2=-float(offset[1]),
             metres_per_rad=sensor.speed_of_light_m_per_s / (4 * np.pi * frequency)))
     return tuple(leakages)

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_coupling, pair_geometry, vector_length
+from mpi_lidar.scans.neighbours import bilinear, pairs_within
 from mpi_lidar.threads import on_cores
 
 
@@ -282,12 +283,11 @@ class FacingBlocks:
         return (ys + 0.5) / self.block_pixels - 0.5, (xs + 0.5) / self.block_pixels - 0.5
 
     def to_pixels(self, block_values: NDArray, coordinates: tuple[NDArray, NDArray] | None = None) -> NDArray:
-        """Bilinear interpolation of one value per block (Hb*Wb,) at pixel coordinates (default: every pixel)."""
-        from scipy.ndimage import map_coordinates
-
+        """Bilinear interpolation of one value per block (Hb*Wb,) at pixel coordinates (default: every pixel),
+        the edge blocks' values continued beyond them."""
         hb, wb = self.usable.shape
-        where = self.block_grid() if coordinates is None else coordinates
-        return map_coordinates(block_values.reshape(hb, wb), where, order=1, mode="nearest")
+        rows, columns = self.block_grid() if coordinates is None else coordinates
+        return bilinear(block_values.reshape(hb, wb), rows, columns)
 
     def coupling_to_pixels(self, block_values: NDArray, coordinates: tuple[NDArray, NDArray]) -> NDArray:
         """A coupling per block (Hb*Wb,) at pixel coordinates, 0 where it reaches no block with coupling.
@@ -417,8 +417,6 @@ def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float
     memory is that of one tile; ``rays`` may be anything that gives rows of rays by slicing
     (:class:`mpi_lidar.scans.scan.RayRows`), the depth any float array.
     """
-    from scipy.spatial import cKDTree
-
     h, w = depth.shape
     b = block_size_pixels(depth, rays, block_m)
     bands = block_tiles(h, w, b, band_pixels)
@@ -441,7 +439,7 @@ def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float
     if index.size >= 2:
         c, n = centres.reshape(-1, 3)[index], normals.reshape(-1, 3)[index]
         a_blk, cos_blk, noise = area.ravel()[index], block_cos_i.ravel()[index], rms.ravel()[index]
-        found = cKDTree(c).query_pairs(max_range_m, output_type="ndarray")
+        found = pairs_within(c, max_range_m)
         if found.size:
             i, j = found[:, 0], found[:, 1]
             pairs = _facing_pairs(i, j, c, n, cos_blk, a_blk, noise[i] + noise[j], min_cos)
