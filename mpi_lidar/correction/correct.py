@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
+from mpi_lidar.correction.amplitude_in_v2 import AmplitudeInV2
 from mpi_lidar.correction.amplitude_unit import V2_TOLERANCE, AmplitudeUnit, measure_amplitude_unit, reads_as_v2
 from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
 from mpi_lidar.correction.gates import Gate, make_gate
@@ -375,8 +376,8 @@ def footprint_left_open(card: ModelCard, footprint: FootprintEstimate | None) ->
 
 
 def _in_v2(scan: Scan, units_per_v2: float) -> Scan:
-    """The scan with its amplitudes divided by the scanner's unit per V^2, in memory."""
-    return replace(scan, amplitude=(np.asarray(scan.amplitude) / units_per_v2).astype(np.float32))
+    """The scan with its amplitudes divided by the scanner's unit per V^2 as they are read (no copy of the maps)."""
+    return replace(scan, amplitude=cast("NDArray[np.float32]", AmplitudeInV2(scan.amplitude, units_per_v2)))
 
 
 def unit_note_of(unit: AmplitudeUnit) -> str:

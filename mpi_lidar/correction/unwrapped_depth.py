@@ -14,6 +14,8 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.scans.stored_map import StoredMap
+
 
 class UnwrappedDepth:
     """Depth maps (F, H, W) [m] as measured, with the depths of the pixels that took a wrap count replaced by their
@@ -33,6 +35,8 @@ class UnwrappedDepth:
         self.shape: tuple[int, ...] = tuple(measured.shape)
         self.ndim = len(self.shape)
         self.dtype = np.dtype(np.float32)
+        # Where the maps are read from: a stored map is read a band at a time, by one thread (Scan.in_memory).
+        self.in_store = isinstance(measured, StoredMap)
 
     def __array__(self, dtype: np.dtype | None = None, copy: bool | None = None) -> NDArray:
         return np.asarray(self.whole(), dtype=dtype)

@@ -110,8 +110,10 @@ class Scan:
         return np.ascontiguousarray(stacked.T, dtype=np.float32)
 
     def in_memory(self) -> bool:
-        """Whether the depth and amplitude maps are in memory, not read from the store (:class:`StoredMap`)."""
-        return not isinstance(self.depth, StoredMap) and not isinstance(self.amplitude, StoredMap)
+        """Whether the depth and amplitude maps are in memory, not read from the store (:class:`StoredMap`, or a
+        view of one that says so with ``in_store``)."""
+        return not any(isinstance(maps, StoredMap) or getattr(maps, "in_store", False)
+                       for maps in (self.depth, self.amplitude))
 
     def content_sha256(self) -> str:
         """Identity of what correction reads: frequencies, depth and amplitude maps (and whether the depths are
