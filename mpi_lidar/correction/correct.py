@@ -258,8 +258,9 @@ def _frequency_offsets(measured: _Measured, flags: NDArray[np.uint8], bias_m: ND
     """
     if Baseline(options.baseline) == Baseline.RAW:
         return _Offsets(), ()  # nothing is fused
-    if options.frequency_offsets_m is not None:
-        return _Offsets(np.asarray(options.frequency_offsets_m, dtype=np.float64)), ()
+    if options.frequency_offsets_m is not None:  # a profile's, measured with the leakage removed or not
+        return _Offsets(np.asarray(options.frequency_offsets_m, dtype=np.float64),
+                        bool(options.window_leakage_removed)), ()
     if bias_m is None:
         return _Offsets(), ("frequency offsets: not measured (no scene geometry to find pixels free of multipath); "
                             "none removed from the fused depths",)

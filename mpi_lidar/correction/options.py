@@ -8,7 +8,7 @@ from enum import IntEnum, StrEnum
 from typing import Annotated, Final, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
 from mpi_lidar.config import describe_validation_error
 from mpi_lidar.correction.gate_names import GATES as GATES  # re-exported: the gates of the options
@@ -159,6 +159,9 @@ class CorrectionOptions(BaseModel):
     # [m] (from a sensor profile): the fused depth's weights, sds and offsets. None: no offsets.
     noise_scale: Annotated[float, Field(gt=0, le=100)] = 1.0
     frequency_offsets_m: tuple[Annotated[float, Field(ge=-1, le=1)], ...] | None = None
+    # Whether those offsets are what is left once the integration window's leakage is removed (the profile's
+    # window_leakage_removed); None: measured on the depths as they are.
+    window_leakage_removed: StrictBool | None = None
     # What the pixels the model does not correct get (Baseline).
     baseline: Baseline = Baseline.FUSED
     tile_pixels: Annotated[int, Field(ge=1, le=MAX_TILE_PIXELS, strict=True)] = 262_144
@@ -182,7 +185,7 @@ class CorrectionOptions(BaseModel):
             del pixels["near_range_fraction"]
         if pixels["amplitude_scale"] == 1.0:  # V^2, as before the scale existed
             del pixels["amplitude_scale"]
-        for name, neutral in (("noise_scale", 1.0), ("frequency_offsets_m", None)):
+        for name, neutral in (("noise_scale", 1.0), ("frequency_offsets_m", None), ("window_leakage_removed", None)):
             if pixels[name] == neutral:  # the noise model's noise, no offsets: as before they existed
                 del pixels[name]
         return hashlib.sha256(json.dumps(pixels, sort_keys=True).encode()).hexdigest()

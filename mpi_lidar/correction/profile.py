@@ -29,7 +29,7 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Final, Literal, TypedDict
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, model_validator
 
 from mpi_lidar.config import describe_validation_error
 from mpi_lidar.correction.footprint import FootprintEstimate
@@ -78,6 +78,9 @@ class SensorProfile(BaseModel):
     noise_scale: Annotated[float, Field(gt=0, le=100, strict=True)] | None = None
     range_m: tuple[Depth, Depth] | None = None
     frequency_offsets_m: Annotated[tuple[Offset, ...], Field(max_length=MAX_FREQUENCIES)] | None = None
+    # Whether the offsets are those left once the integration window's leakage is removed from each frequency's
+    # depth (the sensor has the leakage); None, as in profiles written before it existed: measured as they are.
+    window_leakage_removed: StrictBool | None = None
     calibration: dict[str, str | int | float | bool | list[str] | None] | None = None
 
     @model_validator(mode="after")
@@ -99,7 +102,8 @@ class SensorProfile(BaseModel):
 
     def noise_options(self) -> dict[str, object]:
         """The correction options of this profile's measured noise (the fused depth's weights and offsets)."""
-        measured = {"noise_scale": self.noise_scale, "frequency_offsets_m": self.frequency_offsets_m}
+        measured = {"noise_scale": self.noise_scale, "frequency_offsets_m": self.frequency_offsets_m,
+                    "window_leakage_removed": self.window_leakage_removed if self.frequency_offsets_m else None}
         return {key: value for key, value in measured.items() if value is not None}
 
     def simulation(self) -> dict[str, object]:
@@ -169,7 +173,8 @@ def write_profile(profile: SensorProfile, path: str | Path) -> Path:
              f"schema = {_toml(PROFILE_SCHEMA)}"]
     lines += [f"{key} = {_toml(value)}" for key, value in profile.options().items()]
     measured = {"frequencies_hz": profile.frequencies_hz, "noise_scale": profile.noise_scale,
-                "range_m": profile.range_m, "frequency_offsets_m": profile.frequency_offsets_m}
+                "range_m": profile.range_m, "frequency_offsets_m": profile.frequency_offsets_m,
+                "window_leakage_removed": profile.window_leakage_removed}
     lines += [f"{key} = {_toml(value)}" for key, value in measured.items() if value is not None]
     if profile.calibration:
         lines += ["", "[calibration]"]

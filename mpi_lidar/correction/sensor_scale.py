@@ -47,6 +47,7 @@ from mpi_lidar.correction.options import AUTO, CorrectionOptions
 from mpi_lidar.correction.scene import SceneGeometry, scene_blocks
 from mpi_lidar.correction.validity import depth_noise_m
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
+from mpi_lidar.physics.window import window_corrections_m
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
 
@@ -165,12 +166,15 @@ class FlatSurfaceResiduals:
 
 
 def measure_sensor_scale(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, sensor: SensorConfig, *,
-                         scene: SceneGeometry | None = None, fix_noise_scale: float | None = None) -> SensorScale:
-    """The amplitude scale, noise scale and depth offsets of a scan, from its flat surfaces.
+                         scene: SceneGeometry | None = None, fix_noise_scale: float | None = None,
+                         window: bool = False) -> SensorScale:
+    """The amplitude scale, noise scale and depth offsets of a scan, from its flat surfaces; with ``window``, of
+    its depths with the integration window's leakage removed (:func:`window_corrections_m`, which reads the
+    amplitudes in V^2).
 
     :func:`flat_surface_residuals` then :func:`estimate_sensor_scale`; the parameters are theirs.
     """
-    flat = flat_surface_residuals(scan, usable_depth, options, scene=scene)
+    flat = flat_surface_residuals(scan, usable_depth, options, scene=scene, window_sensor=sensor if window else None)
     return estimate_sensor_scale(flat.amplitude, flat.residual_m, scan.frequencies_hz, sensor,
                                  fix_noise_scale=fix_noise_scale, leverage=flat.leverage)
 
@@ -525,7 +529,8 @@ def _nothing_measured(frequencies: int, pixels: int, fix_noise_scale: float | No
 
 
 def flat_surface_residuals(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, *,
-                           scene: SceneGeometry | None = None, max_pixels: int = MAX_PIXELS) -> FlatSurfaceResiduals:
+                           scene: SceneGeometry | None = None, max_pixels: int = MAX_PIXELS,
+                           window_sensor: SensorConfig | None = None) -> FlatSurfaceResiduals:
     """Each frequency's depth minus its block's plane, on the inner blocks of the scan's flat surfaces that no
     surface faces.
 
@@ -558,6 +563,8 @@ def flat_surface_residuals(scan: Scan, usable_depth: NDArray, options: Correctio
         The scan's scene geometry where it was analysed already (its blocks and surfaces are used).
     max_pixels : int
         At most this many pixels: whole blocks, evenly spaced among those taken.
+    window_sensor : SensorConfig | None
+        Where given, each frequency's depth has this sensor's integration window's leakage removed first.
 
     Returns
     -------
@@ -577,7 +584,7 @@ def flat_surface_residuals(scan: Scan, usable_depth: NDArray, options: Correctio
         chosen = chosen[np.linspace(0, chosen.size - 1, keep).round().astype(np.intp)]
     if chosen.size == 0:
         return _no_residuals(frequencies)
-    return _block_residuals(scan, usable_depth, blocks, chosen)
+    return _block_residuals(scan, usable_depth, blocks, chosen, window_sensor)
 
 
 def _no_residuals(frequencies: int) -> FlatSurfaceResiduals:
@@ -635,9 +642,10 @@ def _any_neighbour(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
 
 
 def _block_residuals(scan: Scan, usable_depth: NDArray, blocks: geometry.FacingBlocks,
-                     chosen: NDArray) -> FlatSurfaceResiduals:
+                     chosen: NDArray, window_sensor: SensorConfig | None = None) -> FlatSurfaceResiduals:
     """Residuals of the pixels of the blocks ``chosen`` (K,) (flat block indices) from planes fitted to their mean
-    depth over the frequencies; only pixels whose mean depth lies within ``PLANE_WINDOW_SIGMAS`` of the plane."""
+    depth over the frequencies; only pixels whose mean depth lies within ``PLANE_WINDOW_SIGMAS`` of the plane.
+    With ``window_sensor``, of the depths less that sensor's window leakage."""
     b = blocks.block_pixels
     pixels = _pixels_of_blocks(blocks, chosen)
     present = np.flatnonzero(pixels >= 0)
@@ -646,6 +654,8 @@ def _block_residuals(scan: Scan, usable_depth: NDArray, blocks: geometry.FacingB
     depth[present] = np.asarray(scan.depth[:, y, x], dtype=np.float64).T
     amplitude = np.full_like(depth, np.nan)
     amplitude[present] = np.asarray(scan.amplitude[:, y, x], dtype=np.float64).T
+    if window_sensor is not None:
+        depth[present] += window_corrections_m(depth[present], amplitude[present], scan.frequencies_hz, window_sensor)
     rays = np.full((pixels.size, 3), np.nan)
     rays[present] = scan.pixel_rays(y, x)
     usable = np.zeros(pixels.size, dtype=bool)

@@ -34,6 +34,9 @@ class ScanEstimate:
     estimate: FootprintEstimate
     scale: SensorScale | None = None
     depths_m: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    # The same flat surfaces' scales with the integration window's leakage removed from the depths first: their
+    # offsets tell whether the sensor has it (pool_scales).
+    window_scale: SensorScale | None = None
 
 
 # Usable depths each scan keeps for the working range's percentiles.
@@ -68,10 +71,13 @@ def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfi
     if not scale.significant and scale.pixels > 0:  # one noise regime: the unit, with the noise model's noise
         with_model_noise = measure_sensor_scale(scan, by_depth, options, sensor, fix_noise_scale=1.0)
         scale = with_model_noise if with_model_noise.significant else scale
+    window_scale = None
     if scale.significant:
         raw = raw.copy()
         raw[:, len(scan.frequencies_hz):] /= scale.amplitude_scale
         scan = replace(scan, amplitude=(np.asarray(scan.amplitude) / scale.amplitude_scale).astype(np.float32))
+        window_scale = measure_sensor_scale(scan, by_depth, options, sensor, window=True,
+                                            fix_noise_scale=None if scale.noise_scale_sigma > 0 else scale.noise_scale)
     usable_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, options, sensor, confidence))
     valid = np.isfinite(usable_depth)
     blocks = scene_blocks(scan, usable_depth, options)
@@ -81,7 +87,8 @@ def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfi
         valid &= np.isfinite(np.asarray(scan.reference_depth, dtype=np.float64)).ravel()
     depths = usable_depth[np.isfinite(usable_depth)].astype(np.float64)
     sample = depths[np.linspace(0, depths.size - 1, min(DEPTH_SAMPLE, depths.size)).astype(np.intp)]
-    return ScanEstimate(source, estimate_footprint(scan, blocks, valid, sensor, reference=reference), scale, sample)
+    return ScanEstimate(source, estimate_footprint(scan, blocks, valid, sensor, reference=reference), scale, sample,
+                        window_scale)
 
 
 def calibrate_scans(inputs: list[str], out: str | Path, options: CorrectionOptions | None = None,
@@ -118,7 +125,8 @@ def calibrate_scans(inputs: list[str], out: str | Path, options: CorrectionOptio
     measured: dict[str, object] = {"saturation_amplitude_v2": options.saturation_amplitude_v2,
                                    "min_amplitude_sigmas": options.min_amplitude_sigmas,
                                    "frequencies_hz": next(iter(frequencies)) if frequencies else None}
-    measured.update(pool_scales([r.scale for r in results if r.scale is not None]))
+    measured.update(pool_scales([r.scale for r in results if r.scale is not None],
+                                [r.window_scale for r in results if r.window_scale is not None]))
     depths = np.concatenate([r.depths_m for r in results]) if results else np.zeros(0)
     near, far = (float(np.quantile(depths, 0.01)), float(np.quantile(depths, 0.99))) if depths.size else (0, 0)
     if 0 < near < far:  # a working range only where the depths span one
@@ -135,9 +143,14 @@ def printable_path(path: str | Path) -> str:
     return os.fsencode(path).decode("utf-8", "backslashreplace")
 
 
-def pool_scales(scales: list[SensorScale]) -> dict[str, object]:
+def pool_scales(scales: list[SensorScale], window_scales: list[SensorScale] | None = None) -> dict[str, object]:
     """The profile's amplitude_scale, noise_scale and frequency_offsets_m from the significant scans' estimates,
-    each weighted by its inverse variance (the scales in log); empty where no scan measured them."""
+    each weighted by its inverse variance (the scales in log); empty where no scan measured them.
+
+    ``window_scales``: the same scans' estimates with the integration window's leakage removed from the depths. The
+    profile says whether its sensor has the leakage (``window_leakage_removed``): it does where the pooled offsets
+    are smaller (in sum of squares) with the leakage removed, and its offsets are then those.
+    """
     good = [s for s in scales if s.significant]
     if not good:
         return {}
@@ -149,10 +162,21 @@ def pool_scales(scales: list[SensorScale]) -> dict[str, object]:
         noise_weight = np.array([(s.noise_scale / s.noise_scale_sigma) ** 2 for s in fitted])
         pooled["noise_scale"] = float(np.exp(np.average([np.log(s.noise_scale) for s in fitted],
                                                         weights=noise_weight)))
-    offsets = np.array([s.offsets_m for s in good])
-    weights = 1.0 / np.maximum(np.array([s.offsets_sigma_m for s in good]), 1e-9) ** 2
-    pooled["frequency_offsets_m"] = tuple(float(o) for o in (offsets * weights).sum(0) / weights.sum(0))
+    offsets = _pooled_offsets(good)
+    windowed = [s for s in window_scales or [] if np.isfinite(s.offsets_m).all()]
+    if len(windowed) == len(good):
+        with_window = _pooled_offsets(windowed)
+        pooled["window_leakage_removed"] = bool(np.sum(with_window**2) < np.sum(offsets**2))
+        offsets = with_window if pooled["window_leakage_removed"] else offsets
+    pooled["frequency_offsets_m"] = tuple(float(o) for o in offsets)
     return pooled
+
+
+def _pooled_offsets(scales: list[SensorScale]) -> NDArray[np.float64]:
+    """The frequencies' offsets (F,) [m] of the scans' estimates, each weighted by its inverse variance."""
+    offsets = np.array([s.offsets_m for s in scales])
+    weights = 1.0 / np.maximum(np.array([s.offsets_sigma_m for s in scales]), 1e-9) ** 2
+    return (offsets * weights).sum(0) / weights.sum(0)
 
 
 def _describe(estimate: FootprintEstimate) -> str:

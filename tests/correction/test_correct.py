@@ -226,6 +226,19 @@ def test_fused_depth__removes_the_window_s_leakage_only_from_a_sensor_that_has_i
     assert np.abs(np.asarray(correction.frequency_offsets_m)).max() < 1e-4, "nothing left to remove but noise"
 
 
+@pytest.mark.parametrize("window_leakage_removed", [None, True])
+def test_fused_depth__a_profile_s_offsets_say_whether_the_leakage_goes_first(small_model, window_leakage_removed):
+    scan = render(flat_wall(20.0, 1.0, 0.7, height=48, width=64), Config(), np.random.default_rng(3))
+    offsets = (-2e-5, 1e-5, 0.0, 0.0)
+    options = CorrectionOptions(frequency_offsets_m=offsets, window_leakage_removed=window_leakage_removed)
+    correction = correct_scan(scan, load_model(small_model), options)
+    assert correction.window_leakage_removed is bool(window_leakage_removed)
+    assert correction.frequency_offsets_m == offsets
+    fused = correction.estimate == Estimate.FUSED
+    expected = inverse_variance_mean(scan, offsets, window=bool(window_leakage_removed))
+    np.testing.assert_allclose(correction.depth[fused], expected[fused], rtol=0, atol=2e-6)
+
+
 def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
     correction = correct_scan(scan, load_model(small_model), CorrectionOptions(baseline="raw"))

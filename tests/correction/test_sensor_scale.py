@@ -353,3 +353,33 @@ def test_neighbourhood_helpers__equal_scipy_ndimage_filters():
         outliers = values > 0.8
         np.testing.assert_array_equal(_any_neighbour(outliers),
                                       convolve(outliers.astype(np.uint8), ring, mode="constant") > 0)
+
+
+def test_measure_sensor_scale__with_the_window_s_leakage_removed_a_wall_s_offsets_are_noise():
+    from mpi_lidar.correction.sensor_scale import measure_sensor_scale
+    from mpi_lidar.correction.validity import depth_rules_only
+
+    scan = render(flat_wall(20.0, 1.0, 0.7, height=96, width=128), Config(), np.random.default_rng(0))
+    raw, options = scan.raw_pixels(), CorrectionOptions()
+    by_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, depth_rules_only(options), SENSOR))
+    as_they_are = measure_sensor_scale(scan, by_depth, options, SENSOR, fix_noise_scale=1.0)
+    windowed = measure_sensor_scale(scan, by_depth, options, SENSOR, fix_noise_scale=1.0, window=True)
+    assert as_they_are.significant and windowed.significant
+    assert as_they_are.offsets_m[0] < -0.3e-3, "the leakage at 12.5 MHz, 1 m: -0.4 mm relative to 31.25 MHz"
+    assert (np.abs(windowed.offsets_m) <= 4 * windowed.offsets_sigma_m + 1e-12).all(), windowed.offsets_m
+
+
+def test_pool_scales__keeps_the_leakage_removed_where_that_leaves_smaller_offsets():
+    from mpi_lidar.workflows.calibrate import pool_scales
+
+    def scale(offsets_m):
+        return SensorScale(4000.0, 40.0, 1.0, 0.0, np.array(offsets_m), np.full(4, 2e-5), 5000, True, "")
+
+    leaking, left = scale([-4e-4, -2.4e-4, -1e-4, 0.0]), scale([1e-5, -1e-5, 0.0, 0.0])
+    pooled = pool_scales([leaking, leaking], [left, left])
+    assert pooled["window_leakage_removed"] is True
+    np.testing.assert_allclose(pooled["frequency_offsets_m"], left.offsets_m)
+    reversed_ = pool_scales([left, left], [leaking, leaking])
+    assert reversed_["window_leakage_removed"] is False
+    np.testing.assert_allclose(reversed_["frequency_offsets_m"], left.offsets_m)
+    assert "window_leakage_removed" not in pool_scales([leaking])

@@ -308,9 +308,10 @@ def test_options__footprint_accepts_auto_or_a_positive_number():
 
 def test_profile__round_trip_and_no_overwrite(tmp_path):
     pooled = FootprintEstimate(0.02, 0.001, 900, 2, (EstimateMethod.REFERENCE,), 3)
-    profile = SensorProfile.from_estimate(pooled, ["a", "b"], saturation_amplitude_v2=0.5, min_amplitude_sigmas=4.0)
+    profile = SensorProfile.from_estimate(pooled, ["a", "b"], saturation_amplitude_v2=0.5, min_amplitude_sigmas=4.0,
+                                          frequency_offsets_m=(-1e-4, 0.0), window_leakage_removed=True)
     path = write_profile(profile, tmp_path / "sensor.toml")
-    assert read_profile(path) == profile
+    assert read_profile(path) == profile and read_profile(path).window_leakage_removed is True
     with pytest.raises(MpiLidarError, match="already exists"):
         write_profile(profile, path)
     assert read_profile(path) == profile
