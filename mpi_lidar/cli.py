@@ -456,8 +456,18 @@ def calibrate(scans: tuple[str, ...], out: Path, no_reference: bool) -> None:
     click.echo(f"footprint {profile.footprint_area_m2:.4g} +- {sigma:.2g} m^2; amplitude unit "
                f"{profile.amplitude_scale:.4g} per V^2; noise scale "
                + ("not measured" if profile.noise_scale is None else f"{profile.noise_scale:.3g}")
+               + _offsets_said(profile.frequency_offsets_m, profile.window_leakage_removed)
                + (f"; range {profile.range_m[0]:.2f}-{profile.range_m[1]:.2f} m" if profile.range_m else "")
                + f"; sensor profile written to {out}")
+
+
+def _offsets_said(offsets_m: tuple[float, ...] | None, window_leakage_removed: bool | None) -> str:
+    """What calibrate says of the frequencies' offsets and the window's leakage."""
+    if offsets_m is None:
+        return "; frequency offsets not measured"
+    listed = ", ".join(f"{1e3 * o:+.3f}" for o in offsets_m)
+    leakage = "removed first" if window_leakage_removed else "left in"
+    return f"; frequency offsets {listed} mm (the integration window's leakage {leakage})"
 
 
 @cli.command("import-scan")
