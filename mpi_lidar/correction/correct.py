@@ -214,7 +214,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     depth[ambiguous] = measured.depth[ambiguous]  # a range that cannot be told: as measured
     inference_s = 0.0
     if predict:
-        gate_s, inference_s = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
+        gate_s, inference_s, beyond = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
+        notes += _beyond_prior_note(beyond, model)
     del inputs  # the blocks and planes of the geometric inputs: the model was their last reader
     with clock("validity"):
         offsets, offset_notes = _frequency_offsets(measured, flags, bias_m, options)
@@ -604,20 +605,22 @@ def _gate(flags: NDArray[np.uint8], gate: Gate, scene: SceneGeometry | None) -> 
 
 def _predict(scan: Scan, model: CorrectionModel, sensor: SensorConfig, tiles: list[slice], gate: Gate,
              flags: NDArray[np.uint8], depth: NDArray[np.float32], inputs: PlaneModelInputs | None,
-             clock: _StageClock, gate_s: float) -> tuple[float, float]:
+             clock: _StageClock, gate_s: float) -> tuple[float, float, int]:
     """The model on the pixels the gate lets through, tile by tile (the second pass): their corrected depth into
     ``depth`` (H*W,) and CORRECTED into ``flags`` in place. Returns the gate's wall seconds (``gate_s`` plus the
-    pixel-wise gate's and the geometric inputs' share) and the inference's."""
-    inference_s = 0.0
+    pixel-wise gate's and the geometric inputs' share), the inference's, and how many corrected pixels have
+    geometric inputs beyond the model's training prior (:func:`_beyond_prior_note`)."""
+    inference_s, beyond = 0.0, 0
+    reach = model.card.dataset.prior.multipath_reach()
     for pixels, raw in _raw_tiles(scan, tiles):
         tile_cpu, tile_started = time.process_time(), time.perf_counter()
         valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
         needs = valid[gate.needs_correction(raw[valid], scan.frequencies_hz, sensor)]
         gate_cpu, gate_wall = time.process_time() - tile_cpu, time.perf_counter() - tile_started
         if needs.size:
-            depth[pixels.start + needs], inputs_cpu, inputs_wall = _predict_pixels(
-                model, raw[needs], pixels.start + needs, inputs)
-            gate_cpu, gate_wall = gate_cpu + inputs_cpu, gate_wall + inputs_wall
+            depth[pixels.start + needs], inputs_cpu, inputs_wall, tile_beyond = _predict_pixels(
+                model, raw[needs], pixels.start + needs, inputs, reach)
+            gate_cpu, gate_wall, beyond = gate_cpu + inputs_cpu, gate_wall + inputs_wall, beyond + tile_beyond
         flags[pixels.start + needs] = Flag.CORRECTED
         # The pixel-wise gate and the geometric inputs are the gate's share of the tile; the model's inputs and
         # its prediction the rest.
@@ -625,7 +628,17 @@ def _predict(scan: Scan, model: CorrectionModel, sensor: SensorConfig, tiles: li
         clock.add("inference", time.process_time() - tile_cpu - gate_cpu)
         gate_s += gate_wall
         inference_s += time.perf_counter() - tile_started - gate_wall
-    return gate_s, inference_s
+    return gate_s, inference_s, beyond
+
+
+def _beyond_prior_note(beyond: int, model: CorrectionModel) -> tuple[str, ...]:
+    """What a report says of the corrected pixels whose multipath lies beyond the model's training prior."""
+    reach = model.card.dataset.prior.multipath_reach()
+    if not beyond or reach is None:
+        return ()
+    return (f"{beyond:,} corrected pixels have multipath beyond what the model was trained on (rho_ABA above "
+            f"{reach[0]:g} or d_AB above {reach[1]:g} m, from the scene geometry): the model extrapolates there, "
+            "and their uncertainty may be too small",)
 
 
 def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
@@ -642,10 +655,11 @@ def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
             "threshold were not corrected (flag uncalibrated)")
 
 
-def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
-                    inputs: PlaneModelInputs | None) -> tuple[NDArray[np.float64], float, float]:
-    """Corrected depth of raw rows (n, 2F) of flat pixel indices ``pixels`` (n,), and the CPU seconds and the
-    longest wall seconds the geometric inputs took (the gate's share).
+def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray, inputs: PlaneModelInputs | None,
+                    reach: tuple[float, float] | None = None) -> tuple[NDArray[np.float64], float, float, int]:
+    """Corrected depth of raw rows (n, 2F) of flat pixel indices ``pixels`` (n,), the CPU seconds and the longest
+    wall seconds the geometric inputs took (the gate's share), and how many rows' geometric inputs lie beyond
+    ``reach`` (the largest rho_ABA and d_AB [m] of the training prior; none counted without it).
 
     The model's inputs, with the geometric ones of ``inputs`` where the model takes them, are built in
     row ranges on the cores into one array; the model then predicts them all at once.
@@ -653,18 +667,20 @@ def _predict_pixels(model: CorrectionModel, raw: NDArray, pixels: NDArray,
     features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)
     top = raw.shape[1] // 2 - 1  # the highest frequency's depth column
 
-    def build(rows: slice) -> tuple[float, float]:
+    def build(rows: slice) -> tuple[float, float, int]:
         cpu, wall = time.thread_time(), time.perf_counter()
-        geometric = None
+        geometric, beyond = None, 0
         if inputs is not None and model.geometric:
             geometric = _geometric_inputs(inputs, pixels[rows], raw[rows, top])
+            if reach is not None:
+                beyond = int(((geometric[:, 0] > reach[0]) | (geometric[:, 1] > reach[1])).sum())
         gate_share = (time.thread_time() - cpu, time.perf_counter() - wall)
         model.spec.transform_into(raw[rows], geometric, features[rows])
-        return gate_share
+        return (*gate_share, beyond)
 
     shares = on_cores_by_rows(build, raw.shape[0], PARALLEL_MIN_ROWS)
-    return (model.depth_from_features(raw, features), sum(cpu for cpu, _ in shares),
-            max(wall for _, wall in shares))
+    return (model.depth_from_features(raw, features), sum(cpu for cpu, _, _ in shares),
+            max(wall for _, wall, _ in shares), sum(count for _, _, count in shares))
 
 
 # Pixels whose geometric inputs are worked out at once: the sums over their partners' patches take about a

@@ -87,6 +87,20 @@ class PriorCard(_Dump):
             raise ValueError(f"d_as_m {list(self.d_as_m)} is not a (low, high) range")
         return self
 
+    def multipath_reach(self) -> tuple[float, float] | None:
+        """The largest rho_ABA [1] and d_AB [m] of the training rows' multipath, from the prior's scheme and ranges
+        as written (:func:`mpi_lidar.simulation.sampling.sample_theta`); None where the card lacks them."""
+        written = self.model_extra or {}
+        try:
+            scheme = written.get("scheme", "reciprocal")
+            if scheme == "reciprocal":  # rho_ABA = coupling x the partner's albedo
+                rho_aba = float(written["coupling"][1]) * float(written["albedo"][1])
+            else:
+                rho_aba = float(written["rho" if scheme == "independent" else "rho_aba"][1])
+            return rho_aba, float(written["d_ab_m"][1])
+        except (KeyError, TypeError, ValueError, IndexError):
+            return None
+
 
 class SimulatorCard(_Dump):
     """The simulator settings of the training rows (:class:`mpi_lidar.config.SimulatorConfig` as written)."""

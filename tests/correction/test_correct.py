@@ -239,6 +239,23 @@ def test_fused_depth__a_profile_s_offsets_say_whether_the_leakage_goes_first(sma
     np.testing.assert_allclose(correction.depth[fused], expected[fused], rtol=0, atol=2e-6)
 
 
+def test_correct_scan__says_how_many_corrected_pixels_lie_beyond_the_model_s_prior(tmp_path):
+    from tests.model_factory import tiny_model
+
+    model = load_model(tiny_model(tmp_path / "model", geometric=True))
+    reach = model.card.dataset.prior.multipath_reach()
+    assert reach is not None and reach[1] == pytest.approx(model.card.dataset.prior.model_extra["d_ab_m"][1])
+    sharp = correct_scan(render(corner(60.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2)),
+                         model, CorrectionOptions(gate="all", footprint_area_m2=0.041))
+    said = [note for note in sharp.notes if "beyond what the model was trained on" in note]
+    assert len(said) == 1, sharp.notes
+    beyond = int(said[0].split(" corrected pixels")[0].replace(",", ""))
+    assert 0 < beyond <= sharp.counts()["corrected"]
+    wall = correct_scan(render(flat_wall(20.0, height=40, width=64), Config(), np.random.default_rng(2)), model,
+                        CorrectionOptions(gate="all", footprint_area_m2=0.041))
+    assert not any("beyond what the model" in note for note in wall.notes), "a wall has no multipath to extrapolate"
+
+
 def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
     correction = correct_scan(scan, load_model(small_model), CorrectionOptions(baseline="raw"))

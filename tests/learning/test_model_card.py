@@ -214,3 +214,18 @@ def test_load_model__a_model_with_the_earlier_geometric_input_is_refused_with_wh
     _rewrite(model_dir, _set("feature_names", earlier))
     with pytest.raises(MpiLidarError, match=r"earlier geometric input 'geometric_coupling'.*retrain it"):
         load_model(model_dir)
+
+
+@pytest.mark.parametrize("written, reach", [
+    ({"scheme": "reciprocal", "coupling": [0.0, 0.5], "albedo": [0.14, 0.8], "d_ab_m": [0.0, 0.15]}, (0.4, 0.15)),
+    ({"scheme": "independent", "rho": [0.0, 0.9], "d_ab_m": [0.0, 0.3]}, (0.9, 0.3)),
+    ({"scheme": "explicit", "rho_aba": [0.0, 0.7], "d_ab_m": [0.0, 0.2]}, (0.7, 0.2)),
+    ({"coupling": [0.0, 1.0], "albedo": [0.14, 1.0], "d_ab_m": [0.0, 0.15]}, (1.0, 0.15)),
+    ({"scheme": "reciprocal"}, None),
+    ({"scheme": "explicit", "rho_aba": "high", "d_ab_m": [0.0, 0.2]}, None),
+])
+def test_prior_card__multipath_reach_follows_the_scheme_as_written(written, reach):
+    from mpi_lidar.learning.model import PriorCard
+
+    found = PriorCard.model_validate({"d_as_m": [1.4, 2.4], **written}).multipath_reach()
+    assert found == (None if reach is None else pytest.approx(reach))
