@@ -465,7 +465,9 @@ def _offsets_said(offsets_m: tuple[float, ...] | None, window_leakage_removed: b
     """What calibrate says of the frequencies' offsets and the window's leakage."""
     if offsets_m is None:
         return "; frequency offsets not measured"
-    listed = ", ".join(f"{1e3 * o:+.3f}" for o in offsets_m)
+    from mpi_lidar.correction.correct import offsets_mm
+
+    listed = offsets_mm(offsets_m)
     leakage = "removed first" if window_leakage_removed else "left in"
     return f"; frequency offsets {listed} mm (the integration window's leakage {leakage})"
 

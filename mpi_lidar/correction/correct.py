@@ -214,8 +214,10 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     depth[ambiguous] = measured.depth[ambiguous]  # a range that cannot be told: as measured
     inference_s = 0.0
     if predict:
-        gate_s, inference_s, beyond = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s)
-        notes += _beyond_prior_note(beyond, model)
+        reach = model.card.dataset.prior.multipath_reach()
+        gate_s, inference_s, beyond = _predict(scan, model, sensor, tiles, gate, flags, depth, inputs, clock, gate_s,
+                                               reach)
+        notes += _beyond_prior_note(beyond, reach)
     del inputs  # the blocks and planes of the geometric inputs: the model was their last reader
     with clock("validity"):
         offsets, offset_notes = _frequency_offsets(measured, flags, bias_m, options)
@@ -276,12 +278,17 @@ def _frequency_offsets(measured: _Measured, flags: NDArray[np.uint8], bias_m: ND
     assert windowed is not None  # the same pixels
     window = bool(np.sum(windowed**2) < np.sum(as_measured**2))
     offsets, other = (windowed, as_measured) if window else (as_measured, windowed)
-    listed, other_listed = (", ".join(f"{1e3 * o:+.3f}" for o in values) for values in (offsets, other))
+    listed, other_listed = offsets_mm(offsets), offsets_mm(other)
     leakage = "removed first" if window else "left in"
     return _Offsets(offsets, window), (
         f"frequency offsets: {listed} mm relative to the highest frequency, measured on the pixels free of "
         f"multipath, removed from the fused depths; the integration window's leakage {leakage} (the offsets "
         f"would be {other_listed} mm otherwise)",)
+
+
+def offsets_mm(offsets_m: NDArray | tuple[float, ...]) -> str:
+    """The frequencies' offsets [m] as a report lists them: millimetres, signed, comma-separated."""
+    return ", ".join(f"{1e3 * o:+.3f}" for o in offsets_m)
 
 
 def _estimates(scan: Scan, sensor: SensorConfig, tiles: list[slice], flags: NDArray[np.uint8],
@@ -605,13 +612,14 @@ def _gate(flags: NDArray[np.uint8], gate: Gate, scene: SceneGeometry | None) -> 
 
 def _predict(scan: Scan, model: CorrectionModel, sensor: SensorConfig, tiles: list[slice], gate: Gate,
              flags: NDArray[np.uint8], depth: NDArray[np.float32], inputs: PlaneModelInputs | None,
-             clock: _StageClock, gate_s: float) -> tuple[float, float, int]:
+             clock: _StageClock, gate_s: float, reach: tuple[float, float] | None = None
+             ) -> tuple[float, float, int]:
     """The model on the pixels the gate lets through, tile by tile (the second pass): their corrected depth into
     ``depth`` (H*W,) and CORRECTED into ``flags`` in place. Returns the gate's wall seconds (``gate_s`` plus the
     pixel-wise gate's and the geometric inputs' share), the inference's, and how many corrected pixels have
-    geometric inputs beyond the model's training prior (:func:`_beyond_prior_note`)."""
+    geometric inputs beyond ``reach``, the largest rho_ABA and d_AB [m] of the model's training prior
+    (:meth:`~mpi_lidar.learning.model.PriorCard.multipath_reach`; None: none counted)."""
     inference_s, beyond = 0.0, 0
-    reach = model.card.dataset.prior.multipath_reach()
     for pixels, raw in _raw_tiles(scan, tiles):
         tile_cpu, tile_started = time.process_time(), time.perf_counter()
         valid = np.flatnonzero(flags[pixels] == Flag.NOT_NEEDED)
@@ -631,9 +639,9 @@ def _predict(scan: Scan, model: CorrectionModel, sensor: SensorConfig, tiles: li
     return gate_s, inference_s, beyond
 
 
-def _beyond_prior_note(beyond: int, model: CorrectionModel) -> tuple[str, ...]:
-    """What a report says of the corrected pixels whose multipath lies beyond the model's training prior."""
-    reach = model.card.dataset.prior.multipath_reach()
+def _beyond_prior_note(beyond: int, reach: tuple[float, float] | None) -> tuple[str, ...]:
+    """What a report says of the ``beyond`` corrected pixels whose multipath lies past ``reach``, the largest
+    rho_ABA and d_AB [m] of the model's training prior."""
     if not beyond or reach is None:
         return ()
     return (f"{beyond:,} corrected pixels have multipath beyond what the model was trained on (rho_ABA above "
