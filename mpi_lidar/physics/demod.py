@@ -99,6 +99,7 @@ def depth_from_phase(phase: ArrayLike, frequency_hz: ArrayLike, c: float) -> NDA
     frequency_hz : Modulation frequency, broadcast against phase. [Hz]
     c : Speed of light. [m/s]
     """
+    # c * phi first, as the datasets were made: the same bits
     return c * np.asarray(phase, dtype=np.float64) / (4 * np.pi * np.asarray(frequency_hz, dtype=np.float64))
 
 
@@ -108,6 +109,17 @@ def depth_and_amplitude(
     """Depth [m] and amplitude [V^2] from taps of shape (..., F, 4), eq 5-7."""
     freqs = np.asarray(frequencies_hz, dtype=np.float64)
     return depth_from_phase(phase_from_taps(taps), freqs, c), amplitude_from_taps(taps)
+
+
+def metres_per_radian(frequency_hz: ArrayLike, c: float) -> NDArray[np.float64]:
+    """Depth per radian of phase at a modulation frequency, c / (4 pi f) (eq 7). [m/rad]
+
+    Parameters
+    ----------
+    frequency_hz : Modulation frequency. [Hz]
+    c : Speed of light the phase is converted with. [m/s]
+    """
+    return c / (4 * np.pi * np.asarray(frequency_hz, dtype=np.float64))
 
 
 def unambiguous_range(frequency_hz: ArrayLike, c: float) -> NDArray[np.float64]:
