@@ -18,7 +18,7 @@ NO_TESTS = { rc=$$?; [ $$rc -ne 5 ] || echo "pytest collected no tests (exit 5):
 test: $(VENV)/.installed system-deps
 	$(VENV)/bin/python -m pytest || $(NO_TESTS)
 
-# The unit tests only (tests/conftest.py marks every test unit or integration).
+# The unit tests only (every test is marked unit or integration; tests/conftest.py refuses one that is not).
 test-quick: $(VENV)/.installed
 	$(VENV)/bin/python -m pytest -m unit -q || $(NO_TESTS)
 

@@ -32,8 +32,8 @@ from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import footprint
 from mpi_lidar.correction.footprint import _albedo, _estimate
 from mpi_lidar.correction.footprint._fit import FootprintFit
-from mpi_lidar.correction.validity import depth_noise_m
 from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
+from mpi_lidar.physics.noise import depth_noise_m
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import DEFAULT_PATCH_SPACING_M, corner, render
@@ -61,7 +61,7 @@ def exact_unit_phasors(scan: Scan, angle_deg: float, albedo: float, pixels: NDAr
     left_normal, right_normal = corner_normals(angle_deg)
     normals = np.where(right[:, None], right_normal, left_normal)
     cos_i = np.abs(np.einsum("ni,ni->n", rays.reshape(-1, 3), normals))
-    area = (reference**2 * geometry._pixel_solid_angle(rays)).ravel() / np.maximum(cos_i, 0.1) * PARTNER_STEP**2
+    area = (reference**2 * geometry.pixel_solid_angle(rays)).ravel() / np.maximum(cos_i, 0.1) * PARTNER_STEP**2
     sampled = np.zeros(reference.shape, dtype=bool)
     sampled[::PARTNER_STEP, ::PARTNER_STEP] = True
     patch = sampled.ravel() & np.isfinite(reference).ravel()

@@ -6,7 +6,7 @@ Run: .venv/bin/python -m benchmarks.results PAGE [--docs DIR] -- [the benchmark'
 PAGE names a page of ``docs/results/`` (:data:`PAGES` says which benchmark module fills it). The benchmark runs
 in a child process with the options after ``--``; its standard output (the markdown tables) replaces the page's
 "latest run" block, between :data:`BEGIN` and :data:`END`, with the command, the machine and the date above it.
-The rest of the page (the discussion and earlier dated measurements) is kept as it is. A page without the block
+The rest of the page (the discussion) is kept as it is: a page holds only its latest run. A page without the block
 gets it after its first paragraph. A benchmark that fails leaves the page untouched and its exit status is this
 command's.
 """

@@ -34,8 +34,8 @@ import numpy as np
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import GATES, INVALID_FLAGS, CorrectionOptions, Flag, analyse_geometry, correct_scan
-from mpi_lidar.correction.correct import Correction
 from mpi_lidar.correction.options import Baseline, Estimate
+from mpi_lidar.correction.result import Correction
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2, footprint_area
 from mpi_lidar.scans.scan import Scan

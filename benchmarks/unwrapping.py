@@ -29,10 +29,10 @@ import numpy as np
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
-from mpi_lidar.correction.validity import depth_noise_m, noise_floor_v2
 from mpi_lidar.physics.demod import unambiguous_range
 from mpi_lidar.physics.inverse import unwrapped_weighted_depth
 from mpi_lidar.physics.moments import MomentSensor
+from mpi_lidar.physics.noise import depth_noise_m, noise_floor_v2
 from mpi_lidar.physics.unwrap import MIN_UNWRAP_CONFIDENCE, ambiguous, combined_ambiguity_m, unwrap_depths
 
 BANDS_M = ((0.5, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 8.0), (8.0, 12.0), (12.0, 16.0), (16.0, 24.0))

@@ -2,11 +2,13 @@
 
 Every parameter of the flow is an option, spelled as the parameter with dashes (``min_bias_mm`` is
 ``--min-bias-mm``); a list takes one or more values and may be repeated (``--scans a b --scans c``), a
-boolean is ``--name`` / ``--no-name``. The options are read from the flow's own signature, so they and
-their defaults are the flow's, which are ``mpi-lidar``'s (:data:`CLI_SPELLINGS` adds the CLI's spelling where
-a parameter is named otherwise). At the end the flow run's id, final state and result are printed as one JSON
-object on stdout; a flow run that fails prints one ``error:`` line (:func:`failure_line`) and exits 1, a bad
-option exits 2.
+boolean is ``--name`` / ``--no-name``. The options are read from the flow's own signature and its parameter
+schema, so they, their choices, defaults and help are the flow's, which are ``mpi-lidar``'s
+(:data:`CLI_SPELLINGS` adds the CLI's spelling where a parameter is named otherwise). A flow of
+:data:`CHECKS` has its parameters checked as the command line checks its options before the flow runs. At the
+end the flow run's id, final state and result are printed as one JSON object on stdout; a flow run that fails
+prints one ``error:`` line (:func:`failure_line`) and exits 1; a bad option prints one ``error:`` line (or
+argparse's usage) and exits 2, before any flow run starts.
 
 Without ``PREFECT_API_URL`` the run reports to a temporary Prefect server of its own, started while the
 flow's modules import. The console shows warnings and errors only (the flow and task runs' INFO lines still
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import enum
 import importlib
 import inspect
 import json
@@ -29,7 +32,7 @@ import typing
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import wait as wait_all
-from typing import Any, Literal
+from typing import Any
 
 # Quiet console for a run from the terminal, set before anything imports Prefect or Dask (their worker processes
 # inherit it); the environment wins where it says otherwise.
@@ -64,6 +67,9 @@ SUMMARIES = {
 }
 # The command line's other spellings of a flow parameter: mpi-lidar correct --point-cloud, evaluate --out.
 CLI_SPELLINGS = {"point_clouds": ["--point-cloud"], "report": ["--out"]}
+# What checks a flow's parameters, as the command line checks its options, before a run starts: a callable
+# that takes the parameters by name and raises MpiLidarError for a bad one.
+CHECKS = {"correct-archive": "mpi_lidar.workflows.batch_options:batch_options"}
 
 
 def quiet_environment() -> None:
@@ -73,8 +79,17 @@ def quiet_environment() -> None:
 
 
 def load_flow(name: str) -> Any:
-    module, attribute = FLOWS[name].split(":")
+    return _load(FLOWS[name])
+
+
+def _load(where: str) -> Any:
+    module, attribute = where.split(":")
     return getattr(importlib.import_module(module), attribute)
+
+
+def _plain(value: object) -> object:
+    """A default as the command line gives it: an enum member as its value."""
+    return value.value if isinstance(value, enum.Enum) else value
 
 
 def _without_none(annotation: Any) -> Any:
@@ -85,10 +100,24 @@ def _without_none(annotation: Any) -> Any:
     return annotation
 
 
+def _choices(annotation: Any) -> list[str] | None:
+    """The values the annotation allows, as its JSON schema lists them (a ``Literal``, an enum); None: any."""
+    from pydantic import TypeAdapter
+
+    if annotation in (int, float, str):
+        return None
+    try:
+        listed = TypeAdapter(annotation).json_schema().get("enum")
+    except Exception:  # a type without a JSON schema takes any text
+        return None
+    return None if listed is None else [str(v) for v in listed]
+
+
 def _converter(annotation: Any) -> tuple[Callable[[str], object], list[str] | None]:
-    """How one value of the annotation is read from text, and its choices (a ``Literal``'s values)."""
-    if typing.get_origin(annotation) is Literal:
-        return str, [str(v) for v in typing.get_args(annotation)]
+    """How one value of the annotation is read from text, and its choices (a ``Literal``'s or an enum's)."""
+    choices = _choices(annotation)
+    if choices is not None:
+        return str, choices
     members = typing.get_args(annotation) if typing.get_origin(annotation) in (typing.Union, types.UnionType) else ()
     if members:  # e.g. float | str: footprint_area_m2 is a number or "auto"
         readers = [_converter(m)[0] for m in members]
@@ -107,27 +136,33 @@ def _converter(annotation: Any) -> tuple[Callable[[str], object], list[str] | No
 
 
 def build_parser(name: str, flow: Any) -> argparse.ArgumentParser:
-    """An option per parameter of ``flow``, with its type, choices and default read from its signature."""
+    """An option per parameter of ``flow``, with its type, choices and default read from its signature and its
+    help from the flow's parameter schema (the ``Args:`` section of its docstring)."""
+    from flows.parameters import description
+
     fn = flow.fn
-    doc = inspect.getdoc(fn) or SUMMARIES[name]
-    parser = argparse.ArgumentParser(prog=f"python -m flows {name}", description=doc,
+    parser = argparse.ArgumentParser(prog=f"python -m flows {name}",
+                                     description=description(inspect.getdoc(fn)) or SUMMARIES[name],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    hints = typing.get_type_hints(fn)
+    hints = typing.get_type_hints(fn, include_extras=True)  # Annotated kept: its schema may narrow the choices
+    helps = {key: schema.get("description") for key, schema in flow.parameters.properties.items()}
     for parameter in inspect.signature(fn).parameters.values():
         annotation = _without_none(hints[parameter.name])
         flags = [f"--{parameter.name.replace('_', '-')}", *CLI_SPELLINGS.get(parameter.name, [])]
         required = parameter.default is inspect.Parameter.empty
-        default = None if required else parameter.default
-        shown = "required" if required else f"default: {default}"
+        default = None if required else _plain(parameter.default)
+        listed = typing.get_origin(annotation) is list
+        said = ("required" if required else f"default: {default}") + ("; one or more, repeatable" if listed else "")
+        shown = f"{helps[parameter.name]} ({said})" if helps.get(parameter.name) else said
         if annotation is bool:
             parser.add_argument(*flags, dest=parameter.name, action=argparse.BooleanOptionalAction,
                                 default=default, required=required, help=shown)
             continue
-        if typing.get_origin(annotation) is list:
+        if listed:
             read, choices = _converter(typing.get_args(annotation)[0])
             parser.add_argument(*flags, dest=parameter.name, type=read, choices=choices, nargs="+",
                                 action="extend", default=None, required=required,
-                                help=f"one or more; repeatable ({shown})")
+                                help=shown)
             continue
         read, choices = _converter(annotation)
         parser.add_argument(*flags, dest=parameter.name, type=read, choices=choices, default=default,
@@ -203,6 +238,20 @@ def _usage() -> str:
             "options):\n" + "\n".join(lines))
 
 
+def _refused(name: str, args: dict[str, object]) -> str | None:
+    """Why the flow's parameters are refused (:data:`CHECKS`), before a run starts; None if they are not."""
+    from mpi_lidar.errors import MpiLidarError
+    from mpi_lidar.redact import redact
+
+    if name not in CHECKS:
+        return None
+    try:
+        _load(CHECKS[name])(args)
+    except MpiLidarError as exc:
+        return redact(str(exc))
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse, run the flow in this process, print its result; returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -225,6 +274,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             stop_api()
         raise
     debug = args.pop("debug")
+    refused = _refused(name, args)
+    if refused:
+        if server is not None:
+            wait_all([server])
+            stop_api()
+        print(f"error: {refused}", file=sys.stderr)
+        return 2
     if not debug:
         console_without_tracebacks()
     if server is not None:

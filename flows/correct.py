@@ -20,27 +20,25 @@ import re
 import time
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Literal
 
 from prefect import flow, task
 from prefect.artifacts import create_link_artifact, create_markdown_artifact, create_table_artifact
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
+from flows.parameters import declared_parameters
 from flows.runtime import PrefectExecutor, dask_task_runner, shared_api
-from mpi_lidar.correction import GATES, CorrectionOptions, ScanOutcome
-from mpi_lidar.correction.profile import profile_options
+from mpi_lidar.correction import CorrectionOptions, GateName, ScanOutcome
+from mpi_lidar.correction.options import USER_OPTIONS, Baseline
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.batch_report import batch_report, write_batch_report
+from mpi_lidar.reporting.output_levels import OutputLevel
+from mpi_lidar.scans.pointcloud import PointCloudFormat
+from mpi_lidar.workflows.batch_options import BATCH_OPTIONS, BatchOptions, FailOn, batch_options
 from mpi_lidar.workflows.correct_archive import batch_failure, correct_archive, process_scan
 
 TABLE_ARTIFACT_KEY = "correction-table"
 SUMMARY_ARTIFACT_KEY = "correction-summary"
-Gate = Literal[GATES]  # the values of mpi_lidar.correction.GateName, as a parameter schema enum
-FailOn = Literal["degraded", "unchanged", "failed"]  # mpi_lidar.workflows.correct_archive.FAIL_ON
-Outputs = Literal["full", "light", "data"]  # mpi_lidar.reporting.output_levels.OutputLevel
-PointCloud = Literal["las", "laz", "ply"]  # mpi_lidar.scans.pointcloud.PointCloudFormat
-Baseline = Literal["fused", "raw"]  # mpi_lidar.correction.options.Baseline
 
 # One scan: the library's process_scan itself (validity mask, gate, inference, outputs), as a task run named
 # after its source. A bad scan returns a 'failed' outcome, so the one retry is for infrastructure failures.
@@ -129,7 +127,8 @@ def correct_and_publish(scans: list[str], model: str, out: str, options: Correct
     ``workers`` processes of a LocalCluster, or the Dask cluster at ``scheduler``, run the scans; with
     neither (``workers=0``) they run in the flow's process, as ``mpi-lidar correct --workers 0``. Returns
     the outcomes, by source, and the seconds the batch took. ``outputs``: each scan's output level;
-    ``point_clouds``: the point-cloud formats each scan writes (None: ply and las at full, none below).
+    ``point_clouds``: the point-cloud formats each scan writes (None: the level's, laz at light, ply and laz at
+    full, none at data).
     """
     runner = dask_task_runner(workers, scheduler) if workers > 0 or scheduler else None
     started = time.perf_counter()
@@ -143,36 +142,34 @@ def correct_and_publish(scans: list[str], model: str, out: str, options: Correct
 
 
 @flow(name="correct-archive")
-def correct_archive_flow(scans: list[str], model: str, out: str, gate: Gate = "geometry",
+@declared_parameters((CorrectionOptions, USER_OPTIONS), (BatchOptions, BATCH_OPTIONS))
+def correct_archive_flow(scans: list[str], model: str, out: str, gate: GateName = GateName.GEOMETRY,
                          min_bias_mm: float | None = None, footprint_area_m2: float | str | None = None,
-                         sensor: str | None = None, amplitude_scale: float | str | None = None,
-                         max_invalid_share: float | None = None, fail_on: list[FailOn] | None = None,
-                         allow_unserved: bool = False, workers: int = 0, scheduler: str | None = None,
-                         outputs: Outputs = "light",
-                         point_clouds: list[PointCloud] | None = None,
-                         baseline: Baseline = "fused") -> dict[str, object]:
-    """Correct every scan of ``scans`` (stores, directories or globs) with ``model`` into ``out``.
+                         amplitude_scale: float | str | None = None, baseline: Baseline = Baseline.FUSED,
+                         max_invalid_share: float | None = None, sensor: str | None = None,
+                         fail_on: list[FailOn] | None = None, allow_unserved: bool = False,
+                         outputs: OutputLevel = OutputLevel.LIGHT,
+                         point_clouds: list[PointCloudFormat] | None = None, workers: int = 0,
+                         scheduler: str | None = None) -> dict[str, object]:
+    """Correct every scan of ``scans`` with ``model`` into ``out``, as ``mpi-lidar correct`` does.
 
-    The options are those of ``mpi-lidar correct``: ``gate``, ``min_bias_mm`` [mm], ``footprint_area_m2``
-    [m^2] or "auto", ``sensor`` (a sensor profile's path), ``amplitude_scale`` (the scanner's amplitude unit
-    per V^2) and ``max_invalid_share`` (None keeps the default), ``fail_on`` (statuses that end the flow Failed
-    after the summary is written; failed always does, unserved unless ``allow_unserved``), ``workers`` (0, the
-    default of ``mpi-lidar correct``: in the flow's process, every core on each scan and no Dask cluster
-    started; N: a LocalCluster of N processes), ``scheduler``, ``outputs`` (light: store, metrics, report and
-    thumbnail; data; full), ``point_clouds`` (formats written at any level, as ``--point-cloud``; None: ply and
-    las at full, none below) and ``baseline`` (what the pixels the model does not correct get: fused or raw).
-    Returns the flow run's id, the wall time and each source's status.
+    Its options are this flow's parameters, by the same names (``--min-bias-mm`` is ``min_bias_mm``; None keeps
+    the default, or the sensor profile's), checked as it checks them before any scan runs. With ``workers=0``
+    the scans run in the flow's process, every core on each, and no Dask cluster is started. The flow ends
+    Failed, after the summary is written, when a scan failed, is unserved (unless ``allow_unserved``) or has a
+    status of ``fail_on``. Returns the flow run's id, the wall time and each source's status.
+
+    Args:
+        scans: Scan stores, directories or globs.
+        model: Model directory.
+        out: Output directory.
     """
-    options = CorrectionOptions.from_cli(gate=gate, min_bias_mm=min_bias_mm, footprint_area_m2=footprint_area_m2,
-                                         max_invalid_share=max_invalid_share, amplitude_scale=amplitude_scale,
-                                         baseline=baseline, **profile_options(sensor))
-    fail_on = list(fail_on or [])
-    batch_failure([], fail_on)  # an unknown status is refused before any scan runs
-    outcomes, wall_s = correct_and_publish(scans, model, out, options, workers, scheduler, outputs,
-                                           None if point_clouds is None else tuple(point_clouds))
+    options, batch = batch_options(locals())  # the parameters, by name
+    outcomes, wall_s = correct_and_publish(scans, model, out, options, batch.workers, batch.scheduler,
+                                           batch.outputs.value, batch.point_cloud_formats())
     result = {"flow_run_id": str(flow_run.id), "wall_s": wall_s,
               "statuses": {o.source: o.status for o in outcomes}}
-    failure = batch_failure(outcomes, fail_on, allow_unserved)
+    failure = batch_failure(outcomes, batch.fail_on, batch.allow_unserved)
     if failure:
         raise MpiLidarError(failure)
     return result

@@ -17,8 +17,8 @@ from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from flows.runtime import PrefectExecutor, dask_task_runner, describe_workers, shared_api
+from mpi_lidar.calibration.profile import read_profile
 from mpi_lidar.config import Config, config_sha256, resolve_config, validate_overrides
-from mpi_lidar.correction.profile import read_profile
 from mpi_lidar.reporting import report
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.generate import CHUNK_RETRIES, GenerationReport, generate

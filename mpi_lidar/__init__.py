@@ -8,8 +8,9 @@ Each is imported on first access (PEP 562), so ``import mpi_lidar`` stays light 
 
 from __future__ import annotations
 
-from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
+
+from mpi_lidar.lazy import lazy_exports
 
 try:
     __version__ = version("mpi-lidar")
@@ -46,15 +47,4 @@ __all__ = [  # noqa: RUF022 (grouped as in _EXPORTS)
     "verify_store",
 ]
 
-
-def __getattr__(name: str) -> object:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'mpi_lidar' has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value  # the next access does not come here
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, __all__)

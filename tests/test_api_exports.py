@@ -14,6 +14,8 @@ from mpi_lidar.correction import CorrectionOptions
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 
 def test_api__correct_scan_and_correct_archive_come_from_the_package():
     from mpi_lidar.correction.correct import correct_scan as defined_scan

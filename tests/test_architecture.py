@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import grimp
+import pytest
+
+pytestmark = pytest.mark.unit
 
 
 def _cycles(graph: grimp.ImportGraph) -> list[list[str]]:

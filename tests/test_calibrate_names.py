@@ -8,11 +8,13 @@ import tomllib
 
 import pytest
 
-from mpi_lidar.correction.profile import SensorProfile, profile_options, read_profile, write_profile
+from mpi_lidar.calibration.profile import SensorProfile, profile_options, read_profile, write_profile
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import corner
 from mpi_lidar.workflows.calibrate import calibrate_scans, printable_path
 from tests.correction.footprint.test_estimate import rendered
+
+pytestmark = pytest.mark.unit
 
 
 @pytest.mark.parametrize(("raw", "text"), [(b"/data/caf\xff/a.scan.zarr", "/data/caf\\xff/a.scan.zarr"),

@@ -24,6 +24,8 @@ from mpi_lidar.config import (
 )
 from mpi_lidar.errors import ConfigError
 
+pytestmark = pytest.mark.unit
+
 NYQUIST_HZ = 1 / (2 * 6e-9)  # 83.3 MHz
 
 

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import pytest
+
 from mpi_lidar import constants
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.physics import sensor
+
+pytestmark = pytest.mark.unit
 
 
 def test_si_constants__are_the_exact_2019_si_values():

@@ -24,6 +24,8 @@ from mpi_lidar.scans.store import write_scan
 from tests.cli_runner import assert_one_error_line, call_main
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 
 def real_enospc() -> OSError:
     """The OSError a write to a full disk raises: /dev/full answers every write with ENOSPC."""

@@ -20,9 +20,9 @@ import zarr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from mpi_lidar.calibration.profile import read_profile
 from mpi_lidar.config import Config, load_config
 from mpi_lidar.correction.options import MAX_FOOTPRINT_AREA_M2
-from mpi_lidar.correction.profile import read_profile
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, load_model
 from mpi_lidar.scans.importers import load_npz
@@ -92,6 +92,7 @@ def hostile_toml(draw) -> str:
 # Hypothesis notes a change of the global `random` state while it draws an example, whoever made it. The
 # strategy draws nothing from `random`, but the threads that the previous example's simulate command left
 # behind (Dask's and Prefect's, which jitter with `random`) can run just then.
+@pytest.mark.unit
 @pytest.mark.filterwarnings("ignore:Do not use the `random` module inside strategies"
                             ":hypothesis.errors.HypothesisDeprecationWarning")
 @hostile
@@ -128,6 +129,7 @@ def hostile_profile(draw) -> str:
     return "\n".join(lines) + "\n"
 
 
+@pytest.mark.unit
 @hostile
 @given(text=hostile_profile())
 def test_profile_reader__hostile_toml(tmp_path_factory, text):
@@ -163,6 +165,7 @@ def hostile_npz(draw) -> dict[str, np.ndarray]:
     return arrays
 
 
+@pytest.mark.unit
 @hostile
 @given(arrays=hostile_npz())
 def test_npz_reader__hostile_archives(tmp_path_factory, monkeypatch, capsys, arrays):
@@ -216,6 +219,8 @@ def _mutate_store(store: Path, draw, arrays) -> None:
         shutil.rmtree(store / draw(arrays), ignore_errors=True)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @hostile
 @given(data=st.data())
 def test_scan_reader__hostile_stores(tmp_path_factory, scan_store, data):
@@ -242,6 +247,8 @@ def dataset_store(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @hostile
 @given(data=st.data())
 def test_dataset_reader__hostile_stores(tmp_path_factory, dataset_store, data):
@@ -273,6 +280,7 @@ def _paths(value: object, prefix: tuple = ()) -> list[tuple]:
     return found
 
 
+@pytest.mark.integration
 @hostile
 @given(data=st.data())
 def test_card_reader__hostile_cards(tmp_path_factory, monkeypatch, capsys, model_dir, small_dataset, data):

@@ -10,7 +10,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from tests.conftest import INTEGRATION_FIXTURES, marker_kind
+from tests.conftest import mark_directory, marker_kind
+
+pytestmark = pytest.mark.unit
 
 TESTS = Path(__file__).resolve().parent
 
@@ -55,47 +57,44 @@ def test_tests__install_no_package():
 
 
 class _Item:
-    """Just enough of a pytest.Item for :func:`tests.conftest.marker_kind`."""
+    """Just enough of a pytest.Item for :func:`tests.conftest.marker_kind` and :func:`tests.conftest.mark_directory`:
+    the marks it carries, its own and those of its class, module and directory alike."""
 
-    def __init__(self, path: str, fixturenames: tuple[str, ...] = (), marks: tuple[str, ...] = (),
-                 name: str = "test_function__case"):
+    def __init__(self, path: str, marks: tuple[str, ...] = (), name: str = "test_function__case"):
         self.path = TESTS / path
-        self.name = name
         self.nodeid = f"{path}::{name}"
-        self.fixturenames = fixturenames
         self._marks = [SimpleNamespace(name=name) for name in marks]
 
     def iter_markers(self):
         return iter(self._marks)
 
-    def get_closest_marker(self, name):
-        return next((mark for mark in self._marks if mark.name == name), None)
+    def add_marker(self, name: str) -> None:
+        self._marks.append(SimpleNamespace(name=name))
 
 
-@pytest.mark.parametrize(("item", "kind"), [
-    (_Item("physics/test_demod.py"), "unit"),
-    (_Item("integration/test_load.py"), "integration"),
-    (_Item("flows/test_learning.py"), "integration"),
-    (_Item("learning/test_train.py", fixturenames=("small_model",)), "integration"),
-    (_Item("physics/test_moments.py", marks=("slow",)), "integration"),
-    (_Item("integration/test_load.py", marks=("unit",)), "unit"),
-    (_Item("physics/test_demod.py", marks=("integration",)), "integration"),
-    (_Item("learning/test_baselines.py", name="test_table2_cli__writes_report"), "integration"),
-    (_Item("workflows/test_bench.py"), "integration"),
+@pytest.mark.parametrize(("marks", "kind"), [
+    (("unit",), "unit"),
+    (("integration",), "integration"),
+    (("slow", "integration"), "integration"),
+    (("parametrize", "unit", "timeout"), "unit"),
 ])
-def test_marker_kind__by_directory_fixture_and_own_mark(item, kind):
-    assert marker_kind(item) == kind
+def test_marker_kind__is_the_one_kind_the_test_carries(marks, kind):
+    assert marker_kind(_Item("physics/test_demod.py", marks=marks)) == kind
 
 
-def test_marker_kind__both_marks_is_a_usage_error():
-    with pytest.raises(pytest.UsageError, match="both unit and integration"):
-        marker_kind(_Item("physics/test_demod.py", marks=("unit", "integration")))
+@pytest.mark.parametrize(("marks", "said"), [
+    ((), "neither unit nor integration"),
+    (("slow",), "neither unit nor integration"),
+    (("unit", "integration"), "both unit and integration"),
+    (("unit", "slow"), "slow and unit"),
+])
+def test_marker_kind__a_test_without_exactly_one_kind_is_a_usage_error(marks, said):
+    with pytest.raises(pytest.UsageError, match=said):
+        marker_kind(_Item("physics/test_demod.py", marks=marks))
 
 
-def test_marker_kind__integration_fixtures_exist():
-    defined = set()
-    for conftest in [*TESTS.rglob("conftest.py"), *TESTS.rglob("test_*.py")]:
-        for node in ast.walk(ast.parse(conftest.read_text())):
-            if isinstance(node, ast.FunctionDef) and any("fixture" in ast.unparse(d) for d in node.decorator_list):
-                defined.add(node.name)
-    assert defined >= INTEGRATION_FIXTURES, INTEGRATION_FIXTURES - defined
+def test_mark_directory__marks_the_items_below_it_and_no_other():
+    inside, nested, outside = _Item("flows/test_learning.py"), _Item("flows/x/test_y.py"), _Item("test_flows.py")
+    mark_directory([inside, nested, outside], TESTS / "flows", "integration")
+    assert [marker_kind(item) for item in (inside, nested)] == ["integration", "integration"]
+    assert list(outside.iter_markers()) == []

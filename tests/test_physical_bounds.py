@@ -12,6 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from mpi_lidar.calibration.profile import FREQUENCY_BOUNDS_HZ, MAX_OFFSET_M, read_profile
 from mpi_lidar.correction.options import (
     AMPLITUDE_SCALE_BOUNDS,
     MAX_AMPLITUDE_V2,
@@ -23,7 +24,6 @@ from mpi_lidar.correction.options import (
     NO_SATURATION_V2,
     CorrectionOptions,
 )
-from mpi_lidar.correction.profile import FREQUENCY_BOUNDS_HZ, MAX_OFFSET_M, read_profile
 from mpi_lidar.errors import MpiLidarError
 from tests.cli_runner import assert_one_error_line, call_main
 
@@ -57,6 +57,7 @@ def toml_number(value: float) -> str:
     return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) else repr(value)
 
 
+@pytest.mark.unit
 @given(name=st.sampled_from(sorted(OPTION_BOUNDS)), value=st.floats(allow_nan=True, allow_infinity=True))
 @bounds_settings
 def test_correction_options__a_value_is_accepted_exactly_within_its_bounds(name, value):
@@ -73,6 +74,7 @@ def test_correction_options__a_value_is_accepted_exactly_within_its_bounds(name,
         assert inside(low, high, low_allowed, value) and getattr(options, name) == value
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("name", [*sorted(OPTION_BOUNDS), "tile_pixels"])
 @pytest.mark.parametrize("value", [True, False, "1", "0.5"])
 def test_correction_options__booleans_and_strings_are_no_numbers(name, value):
@@ -80,6 +82,7 @@ def test_correction_options__booleans_and_strings_are_no_numbers(name, value):
         CorrectionOptions(**{name: value})
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("given_value", ["1e9", "1e308", 1e9, 1e308, True, "-0.1", "nan", "inf", 0])
 def test_from_cli__footprint_past_its_physical_bound_is_one_line(given_value):
     with pytest.raises(MpiLidarError) as refused:
@@ -87,18 +90,21 @@ def test_from_cli__footprint_past_its_physical_bound_is_one_line(given_value):
     assert "(0, 1]" in str(refused.value) and "\n" not in str(refused.value)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("given_value", ["1e-30", 1e12, False, "-4000"])
 def test_from_cli__amplitude_scale_past_its_physical_bound_is_one_line(given_value):
     with pytest.raises(MpiLidarError, match=r"\[1e-06, 1e\+09\]"):
         CorrectionOptions.from_cli(amplitude_scale=given_value)
 
 
+@pytest.mark.integration
 def test_from_cli__values_within_bounds_and_auto():
     options = CorrectionOptions.from_cli(footprint_area_m2="1.0", amplitude_scale="4000", min_bias_mm=2.5)
     assert (options.footprint_area_m2, options.amplitude_scale, options.min_multipath_bias_m) == (1.0, 4000.0, 0.0025)
     assert CorrectionOptions.from_cli(footprint_area_m2="auto", amplitude_scale="AUTO").amplitude_scale == "auto"
 
 
+@pytest.mark.unit
 @given(name=st.sampled_from(sorted(PROFILE_BOUNDS)),
        value=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.booleans(),
                        st.integers(min_value=-10, max_value=10**12)))
@@ -120,6 +126,7 @@ def test_read_profile__each_number_strict_and_within_its_bounds(tmp_path, name, 
         assert getattr(profile, name) == value
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(("line", "fragment"), [
     ("footprint_area_m2 = true", "footprint_area_m2"),
     ("frequencies_hz = [12.5e6, true]", "frequencies_hz"),
@@ -144,6 +151,7 @@ def test_read_profile__nonsense_refused(tmp_path, line, fragment):
         read_profile(path)
 
 
+@pytest.mark.unit
 def test_read_profile__a_calibrated_profile_reads_back(tmp_path):
     path = tmp_path / "sensor.toml"
     path.write_text(PROFILE + "frequencies_hz = [12500000.0, 31250000.0]\nnoise_scale = 1.02\nrange_m = [0.6, 7.5]\n"
@@ -152,6 +160,7 @@ def test_read_profile__a_calibrated_profile_reads_back(tmp_path):
     assert profile.range_m == (0.6, 7.5) and profile.amplitude_scale == 4000.0
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("args", [("--footprint-area-m2", "1e9"), ("--footprint-area-m2", "1e308"),
                                   ("--amplitude-scale", "1e-30")])
 def test_correct__option_past_its_bound_is_one_line_and_writes_nothing(tmp_path, monkeypatch, capsys, args):
@@ -163,6 +172,7 @@ def test_correct__option_past_its_bound_is_one_line_and_writes_nothing(tmp_path,
     assert not out.exists()
 
 
+@pytest.mark.unit
 def test_correct__profile_with_a_boolean_footprint_is_one_line(tmp_path: Path, monkeypatch, capsys):
     sensor = tmp_path / "sensor.toml"
     sensor.write_text(PROFILE.replace("0.0231", "true"))

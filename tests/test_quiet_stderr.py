@@ -18,6 +18,8 @@ from mpi_lidar.scans.store import write_scan
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.integration
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

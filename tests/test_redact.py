@@ -15,6 +15,8 @@ from mpi_lidar.redact import MASK, install_log_redaction, redact
 from mpi_lidar.workflows.cluster import check_scheduler_address
 from tests.cli_runner import assert_one_error_line, call_main
 
+pytestmark = pytest.mark.unit
+
 SECRET = "hunter2-Zq9"
 
 

@@ -11,11 +11,13 @@ from pathlib import Path
 
 import pytest
 
+from mpi_lidar.calibration.profile import read_profile
 from mpi_lidar.config import load_config
-from mpi_lidar.correction.profile import read_profile
 from mpi_lidar.errors import ConfigError, MpiLidarError
 from mpi_lidar.safe_files import MAX_CONFIG_BYTES, read_small_bytes, read_small_text, regular_file_size
 from tests.cli_runner import assert_one_error_line, call_main
+
+pytestmark = pytest.mark.unit
 
 READERS: dict[str, Callable[[Path], object]] = {
     "config file": load_config,

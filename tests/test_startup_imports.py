@@ -25,10 +25,12 @@ def _loaded_after(statement: str) -> list[str]:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.integration
 def test_import_cli__loads_no_heavy_library():
     assert _loaded_after("import mpi_lidar.cli") == []
 
 
+@pytest.mark.unit
 def test_cli_help__the_whole_process_loads_no_heavy_library():
     done = subprocess.run([sys.executable, "-X", "importtime", "-m", "mpi_lidar.cli", "--help"],
                           capture_output=True, text=True, check=True)
@@ -39,6 +41,7 @@ def test_cli_help__the_whole_process_loads_no_heavy_library():
     assert imported.isdisjoint(HEAVY), sorted(imported & set(HEAVY))
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("module", ["mpi_lidar.correction.correct", "mpi_lidar.learning.model",
                                     "mpi_lidar.learning.train", "mpi_lidar.learning.evaluate",
                                     "mpi_lidar.scans.importers"])
@@ -47,11 +50,13 @@ def test_import_correction_path__xgboost_waits_for_a_booster(module):
     assert _loaded_after(f"import {module}") == []
 
 
+@pytest.mark.unit
 def test_import_correct_archive__reporting_waits_for_a_figure():
     """The default output levels draw no matplotlib figure: their modules import none until level full draws."""
     assert _loaded_after("import mpi_lidar.workflows.correct_archive") == []
 
 
+@pytest.mark.unit
 def test_load_model__imports_xgboost_without_scikit_learn_which_still_imports_after(tmp_path):
     """Loading a booster needs none of XGBoost's scikit-learn estimators; scikit-learn stays importable."""
     from tests.model_factory import tiny_model

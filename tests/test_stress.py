@@ -30,9 +30,12 @@ from mpi_lidar.physics.inverse import (
     prony_two_path,
 )
 from mpi_lidar.physics.moments import MomentSensor
+from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.physics.transport import two_path_phase_bias
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.sampling import sample_theta
+
+pytestmark = pytest.mark.unit
 
 FREQS = np.array(PAPER_FREQUENCIES_HZ)
 C = 3.0e8
@@ -150,7 +153,7 @@ def test_measure__zero_to_saturated_returns_are_finite_and_flagged():
         raw = np.hstack([depth, amplitude])
         assert np.all(np.isfinite(raw)) and np.all(amplitude >= 0)
         assert np.all((depth >= 0) & (depth < RANGES))
-        flags = validity_flags(raw, PAPER_FREQUENCIES_HZ, options, SensorConfig())
+        flags = validity_flags(raw, options, NoiseModel.for_sensor(SensorConfig(), PAPER_FREQUENCIES_HZ))
         no_light = grid[:, 1] == 0
         assert np.all(np.isin(flags[no_light], [Flag.NO_RETURN, Flag.INCONSISTENT]))
         saturated = (0.1794 * grid[:, 1] / grid[:, 0] ** 2) > 1.2 * options.saturation_amplitude_v2

@@ -9,6 +9,8 @@ import pytest
 
 from mpi_lidar.threads import cores, on_cores
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture
 def four_cores(monkeypatch):

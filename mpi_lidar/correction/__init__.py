@@ -7,8 +7,9 @@ statuses (``from mpi_lidar.correction import CorrectionOptions``) come without t
 
 from __future__ import annotations
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from mpi_lidar.lazy import lazy_exports
 
 if TYPE_CHECKING:  # the names for type checkers; at run time __getattr__ imports them
     from mpi_lidar.correction.correct import Correction, correct_scan, in_model_range
@@ -25,7 +26,8 @@ if TYPE_CHECKING:  # the names for type checkers; at run time __getattr__ import
     )
     from mpi_lidar.correction.outcome import ScanOutcome, Unserved
     from mpi_lidar.correction.scene import NO_GEOMETRY_INPUTS_NOTE, NO_GEOMETRY_NOTE, SceneGeometry, analyse_geometry
-    from mpi_lidar.correction.validity import depth_noise_m, noise_floor_v2, quadrature_noise_v2, validity_flags
+    from mpi_lidar.correction.validity import validity_flags
+    from mpi_lidar.physics.noise import NoiseModel, depth_noise_m, noise_floor_v2, quadrature_noise_v2
 
 _MODULES = {
     "mpi_lidar.correction.correct": ("Correction", "correct_scan", "in_model_range"),
@@ -34,27 +36,18 @@ _MODULES = {
                                      "GateName", "ScanStatus", "UnservedReason"),
     "mpi_lidar.correction.outcome": ("ScanOutcome", "Unserved"),
     "mpi_lidar.correction.scene": ("NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "SceneGeometry", "analyse_geometry"),
-    "mpi_lidar.correction.validity": ("depth_noise_m", "noise_floor_v2", "quadrature_noise_v2", "validity_flags"),
+    "mpi_lidar.correction.validity": ("validity_flags",),
+    "mpi_lidar.physics.noise": ("NoiseModel", "depth_noise_m", "noise_floor_v2", "quadrature_noise_v2"),
 }
 _EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = [
     "CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "ConsistencyGate",
-    "CorrectAll", "Correction", "CorrectionOptions", "Flag", "Gate", "GateName", "GeometryGate", "ScanOutcome",
+    "CorrectAll", "Correction", "CorrectionOptions", "Flag", "Gate", "GateName", "GeometryGate", "NoiseModel",
+    "ScanOutcome",
     "ScanStatus", "SceneGeometry", "Unserved", "UnservedReason", "analyse_geometry", "correct_scan",
     "depth_noise_m", "in_model_range",
     "make_gate", "noise_floor_v2", "quadrature_noise_v2", "validity_flags",
 ]
 
-
-def __getattr__(name: str) -> object:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'mpi_lidar.correction' has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value  # the next access does not come here
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, __all__)

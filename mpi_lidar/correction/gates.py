@@ -13,9 +13,8 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.options import CorrectionOptions, GateName
-from mpi_lidar.physics.noise import fused_depths
+from mpi_lidar.physics.noise import NoiseModel
 
 if TYPE_CHECKING:
     from mpi_lidar.correction.scene import SceneGeometry
@@ -28,20 +27,21 @@ class Gate:
     Contract: :meth:`candidates` takes the scan's :class:`SceneGeometry` (None where the scan's geometry was not
     analysed) and returns a bool (H*W,) of the pixels that may need correction (the others get NO_MULTIPATH),
     or None where every pixel may. :meth:`needs_correction` takes the raw measurements (n, 2F) of valid pixels
-    and returns a bool (n,): True where the model should correct; it must be much cheaper than inference, since
-    its purpose is to skip work. Both are pure functions of their arguments. ``uses_geometry`` says whether the
-    gate needs the scene's geometry analysed.
+    [m, V^2] and the scan's noise model and returns a bool (n,): True where the model should correct; it must be
+    much cheaper than inference, since its purpose is to skip work. Both are pure functions of their arguments.
+    ``uses_geometry`` says whether the gate needs the scene's geometry analysed, ``pixel_wise`` whether
+    :meth:`needs_correction` decides anything (the validity pass then asks it for every valid pixel).
     """
 
     name: ClassVar[GateName]
     uses_geometry: ClassVar[bool] = False
+    pixel_wise: ClassVar[bool] = False
 
     def candidates(self, scene: SceneGeometry | None) -> NDArray[np.bool_] | None:
         """Bool (H*W,) of pixels that may need correction, from the whole scan; None: every pixel may."""
         return None
 
-    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig
-                         ) -> NDArray[np.bool_]:
+    def needs_correction(self, raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
         """Bool (n,) of the valid pixels (raw rows (n, 2F)) the model should correct: here every one."""
         return np.ones(raw.shape[0], dtype=bool)
 
@@ -59,22 +59,19 @@ class ConsistencyGate(Gate):
 
     A pixel with no multipath has the same depth at every frequency up to noise; chi^2 of the depths around
     their inverse-variance mean, with each depth's noise predicted by the moment model at the measured
-    amplitude (:func:`mpi_lidar.correction.validity.depth_noise_m`), follows chi^2(F-1).
+    amplitude (:meth:`mpi_lidar.physics.noise.NoiseModel.chi2`), follows chi^2(F-1).
     Pixels below the (1 - p) quantile are skipped. At Table I noise and d_AB <= 15 cm the multipath offset
     is almost the same at every frequency, so this test misses most multipath: it is cheap, not sufficient.
     """
 
     name: ClassVar[GateName] = GateName.CONSISTENCY
+    pixel_wise: ClassVar[bool] = True
     p_value: float = 0.01
 
-    def needs_correction(self, raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig
-                         ) -> NDArray[np.bool_]:
-        f = len(frequencies_hz)
-        # chi^2 about the inverse-variance mean: (F - 1) times the squared Birge ratio of the fused depth.
-        chi2 = (f - 1) * fused_depths(raw, tuple(frequencies_hz), sensor).birge_ratio.astype(np.float64) ** 2
+    def needs_correction(self, raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
         from scipy.special import chdtri  # the quantile without scipy.stats's imports (0.3 s)
 
-        return np.asarray(chi2 > chdtri(f - 1, self.p_value))
+        return np.asarray(noise.chi2(raw) > chdtri(len(noise.frequencies_hz) - 1, self.p_value))
 
 
 @dataclass(frozen=True)

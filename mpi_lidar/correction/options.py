@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from typing import Annotated, Final, Literal
 
@@ -82,6 +83,10 @@ class ScanStatus(StrEnum):
     FAILED = "failed"
 
 
+# The statuses --fail-on / fail_on may name; failed always fails a batch, unserved unless allowed.
+FAIL_ON = (ScanStatus.DEGRADED, ScanStatus.UNCHANGED, ScanStatus.FAILED)
+
+
 class UnservedReason(StrEnum):
     """Why a model cannot serve a scan (status unserved), as recorded in ``metrics.json`` and the summary.
 
@@ -120,12 +125,17 @@ Fraction = Annotated[float, Field(gt=0, lt=1, strict=True)]
 class CorrectionOptions(BaseModel):
     """Thresholds of the validity mask and the gate, bounds checked.
 
-    Their hash is part of a corrected scan's identity.
+    Their hash is part of a corrected scan's identity. The fields a user sets carry their help text as their
+    description; :data:`USER_OPTIONS` names the option of ``mpi-lidar correct`` and the parameter of the
+    correction flow that set each.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
-    gate: GateName = GateName.GEOMETRY
+    gate: GateName = Field(GateName.GEOMETRY, description=(
+        "Which valid pixels get corrected: where the scan's geometry allows multipath (geometry; on scans without "
+        "geometry a pixel-wise model corrects every valid pixel and a geometric model, the default, leaves them as "
+        "measured: status unchanged), every valid pixel (all), or frequency disagreement (consistency)."))
     min_amplitude_sigmas: Annotated[float, Field(ge=0, le=MAX_SIGMAS, strict=True)] = 5.0
     # A perfect reflector at 0.5 m; set it from your sensor.
     saturation_amplitude_v2: Annotated[float, Field(gt=0, le=NO_SATURATION_V2, strict=True)] = 0.7176
@@ -142,19 +152,25 @@ class CorrectionOptions(BaseModel):
     # left as measured (flag ambiguous). At 0.999 fewer than 0.1 % of the pixels kept are expected to be
     # unwrapped wrong where the noise model holds (mpi_lidar.physics.unwrap).
     min_unwrap_confidence: Fraction = MIN_UNWRAP_CONFIDENCE
-    min_multipath_bias_m: Annotated[float, Field(ge=0, le=MAX_BIAS_M, strict=True)] = 0.004
+    min_multipath_bias_m: Annotated[float, Field(ge=0, le=MAX_BIAS_M, strict=True)] = Field(0.004, description=(
+        "Geometry gate: correct pixels whose expected multipath bias reaches this (1 mm suits geometric models on "
+        "weak multipath, see docs/results/scenes.md)."))
     geometry_block_m: Annotated[float, Field(gt=0, le=MAX_BLOCK_M, strict=True)] = geometry.DEFAULT_BLOCK_M
     partner_range_m: Annotated[float, Field(gt=0, le=MAX_DEPTH_M, strict=True)] = geometry.DEFAULT_MAX_RANGE_M
-    # The receiver footprint A_fp [m^2] that scales the geometric coupling, or "auto": each scan estimates its
-    # own from the depth and amplitude near its facing surfaces (mpi_lidar.correction.footprint).
-    footprint_area_m2: Annotated[float, Field(gt=0, le=MAX_FOOTPRINT_AREA_M2, strict=True)] | Literal["auto"] = AUTO
-    # The scanner's amplitude unit per V^2, the noise model's unit: a scan's amplitudes are divided by it before
-    # anything reads them (thresholds, albedo, the model's inputs). 1: amplitudes in V^2. "auto": each scan
-    # reads its own from the scatter of its frequencies (mpi_lidar.correction.amplitude_unit), a unit within a
-    # factor of 2 of V^2 read as V^2; where that is not significant the scan's pixels are left as measured and it
-    # ends unserved (amplitude_units).
+    # auto: mpi_lidar.correction.footprint, from the depth and amplitude near the scan's facing surfaces.
+    footprint_area_m2: Annotated[float, Field(gt=0, le=MAX_FOOTPRINT_AREA_M2, strict=True)] | Literal["auto"] = Field(
+        AUTO, description=(
+            "Effective receiver footprint of your sensor, which scales the geometric coupling, or auto: each scan "
+            "measures its own from its facing surfaces, and pixels that depend on an estimate that is not "
+            "significant are not corrected (flag uncalibrated)."))
+    # The noise model's unit: the thresholds, the albedo and the model's inputs all read amplitudes in V^2.
+    # auto: mpi_lidar.correction.amplitude_unit.
     amplitude_scale: (Annotated[float, Field(ge=AMPLITUDE_SCALE_BOUNDS[0], le=AMPLITUDE_SCALE_BOUNDS[1], strict=True)]
-                      | Literal["auto"]) = AUTO
+                      | Literal["auto"]) = Field(AUTO, description=(
+        "The scanner's amplitude unit per V^2 (e.g. 4000 for amplitudes in counts of 1/4000 V^2; 1: amplitudes in "
+        "V^2): amplitudes are divided by it before anything reads them. auto: each scan reads its own from the "
+        "scatter of its frequencies' depths (a unit within a factor of 2 of V^2 is read as V^2); a scan where "
+        "that reading is not significant is left as measured (status unserved)."))
     # The sensor's depth noise over the noise model's and each frequency's depth offset relative to the highest
     # [m] (from a sensor profile): the fused depth's weights, sds and offsets. None: no offsets.
     noise_scale: Annotated[float, Field(gt=0, le=100)] = 1.0
@@ -162,13 +178,17 @@ class CorrectionOptions(BaseModel):
     # Whether those offsets are what is left once the integration window's leakage is removed (the profile's
     # window_leakage_removed); None: measured on the depths as they are.
     window_leakage_removed: StrictBool | None = None
-    # What the pixels the model does not correct get (Baseline).
-    baseline: Baseline = Baseline.FUSED
+    baseline: Baseline = Field(Baseline.FUSED, description=(
+        "What the valid pixels the model does not correct get: fused, their frequencies' depths fused by inverse "
+        "variance where they agree within noise (about 0.7 of the highest frequency's noise); raw, the highest "
+        "frequency's depth as measured."))
     tile_pixels: Annotated[int, Field(ge=1, le=MAX_TILE_PIXELS, strict=True)] = 262_144
     # Above this share of invalid pixels a scan is 'degraded', not 'corrected': past half the map the
     # outputs describe the sensor setup (gain, saturation level, range) more than the scene, and a batch
     # should say so rather than report success. It only names how a scan ended, never changes a pixel.
-    max_invalid_share: Annotated[float, Field(ge=0, le=1, strict=True)] = 0.5
+    max_invalid_share: Annotated[float, Field(ge=0, le=1, strict=True)] = Field(0.5, description=(
+        "A scan with more invalid pixels (not finite, no return, saturated, inconsistent) than this share is "
+        "'degraded'."))
     # The sensor profile (sensor.toml) the footprint and thresholds came from: the hash of its values.
     sensor_profile_sha256: str | None = None
 
@@ -204,24 +224,80 @@ class CorrectionOptions(BaseModel):
 
         ``min_bias_mm`` is the geometry gate's threshold in millimetres (``min_multipath_bias_m`` x 1000);
         ``footprint_area_m2`` a number or "auto"; ``sensor_profile`` the options a sensor profile sets
-        (:meth:`mpi_lidar.correction.profile.SensorProfile.options`), which the other arguments override.
+        (:meth:`mpi_lidar.calibration.profile.SensorProfile.options`), which the other arguments override.
         Out-of-range values are refused with one line.
         """
+        given = {"gate": gate, "min_bias_mm": min_bias_mm,
+                 "footprint_area_m2": _positive_or_auto("footprint_area_m2", footprint_area_m2,
+                                                        "square metres (e.g. 0.02)"),
+                 "max_invalid_share": max_invalid_share,
+                 "amplitude_scale": _positive_or_auto("amplitude_scale", amplitude_scale, "units per V^2 (e.g. 4000)"),
+                 "baseline": baseline}
         overrides = {**(sensor_profile or {}),
-                     **{k: v for k, v in {"min_multipath_bias_m": None if min_bias_mm is None else min_bias_mm / 1e3,
-                                          "footprint_area_m2": _positive_or_auto("footprint_area_m2",
-                                                                                 footprint_area_m2,
-                                                                                 "square metres (e.g. 0.02)"),
-                                          "max_invalid_share": max_invalid_share,
-                                          "amplitude_scale": _positive_or_auto("amplitude_scale", amplitude_scale,
-                                                                               "units per V^2 (e.g. 4000)"),
-                                          "baseline": baseline,
-                                          }.items() if v is not None}}
+                     **{option.field: option.to_field(value) for option in USER_OPTIONS
+                        if (value := given[option.name]) is not None}}
         try:
-            return cls(gate=gate, **overrides)
+            return cls(**overrides)
         except ValidationError as exc:
             problems = describe_validation_error(exc, "options", shown=None, verbatim=True)
             raise MpiLidarError(f"invalid correction options ({problems})") from None
+
+
+@dataclass(frozen=True)
+class UserOption:
+    """A field of an options model that a user sets (:class:`CorrectionOptions`, and the batch's
+    :class:`~mpi_lidar.workflows.batch_options.BatchOptions`): the option :attr:`flag` of ``mpi-lidar correct``
+    and the parameter ``name`` of the correction flow (and of :meth:`CorrectionOptions.from_cli`).
+
+    Its help is the field's description, followed by ``[unit]`` where one is given. ``per_field_unit``: the
+    option's value per unit of the field's (1e3 mm per m), 1 where both are in one unit. ``profile_sets``: a
+    sensor profile (``--sensor``) sets the field too, and the option overrides the profile's value. An option of
+    a number defaults to None: the field's default (or the profile's) applies.
+    """
+
+    field: str
+    name: str
+    unit: str = ""
+    per_field_unit: float = 1.0
+    metavar: str | None = None
+    profile_sets: bool = False
+    spelling: str | None = None  # the option where it is not --<name with dashes>
+
+    @property
+    def flag(self) -> str:
+        """The command line's option: ``--min-bias-mm`` for ``min_bias_mm``."""
+        return self.spelling or f"--{self.name.replace('_', '-')}"
+
+    def help_text(self, model: type[BaseModel]) -> str:
+        """The option's help: the field's description in ``model``, then the option's unit in brackets."""
+        description = model.model_fields[self.field].description or ""
+        return f"{description} [{self.unit}]" if self.unit else description
+
+    def default_said(self, model: type[BaseModel]) -> str:
+        """The default the option's None stands for, as help says it: the field's in ``model``, in the option's
+        unit, or a sensor profile's."""
+        default = model.model_fields[self.field].default
+        default = getattr(default, "value", default)  # an enum's member as its value
+        number = isinstance(default, int | float) and not isinstance(default, bool)
+        said = f"{default * self.per_field_unit:g}" if number else str(default)
+        return f"the --sensor profile's, else {said}" if self.profile_sets else said
+
+    def to_field(self, value: object) -> object:
+        """The option's value in the field's unit."""
+        if self.per_field_unit == 1 or not isinstance(value, int | float):
+            return value
+        return value / self.per_field_unit
+
+
+# The fields a user sets, in the order of their options in `mpi-lidar correct --help`.
+USER_OPTIONS: Final = (
+    UserOption("gate", "gate"),
+    UserOption("min_multipath_bias_m", "min_bias_mm", unit="mm", per_field_unit=1e3),
+    UserOption("footprint_area_m2", "footprint_area_m2", unit="m^2", metavar="auto|A", profile_sets=True),
+    UserOption("amplitude_scale", "amplitude_scale", metavar="auto|N", profile_sets=True),
+    UserOption("baseline", "baseline"),
+    UserOption("max_invalid_share", "max_invalid_share"),
+)
 
 
 # The physical bounds of the options that also take "auto": (lowest, highest, whether the lowest is allowed).

@@ -27,6 +27,7 @@ from mpi_lidar.correction.footprint import (
     surface_labels,
 )
 from mpi_lidar.correction.options import AUTO, CorrectionOptions, GateName
+from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.threads import on_cores
@@ -97,7 +98,7 @@ def scene_blocks(scan: Scan, usable_depth: NDArray, options: CorrectionOptions) 
 
 
 def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, sensor: SensorConfig, *,
-                     with_model_inputs: bool = False) -> SceneGeometry:
+                     with_model_inputs: bool = False, noise: NoiseModel | None = None) -> SceneGeometry:
     """The scene-geometry stage of one scan.
 
     Parameters
@@ -113,6 +114,9 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         The sensor (noise model, Gamma_R) the footprint fit needs.
     with_model_inputs : bool
         Also work out a geometric model's per-pixel inputs (:attr:`SceneGeometry.model_inputs`).
+    noise : NoiseModel | None
+        The scan's noise model, which weighs the footprint fit (None: the sensor's, scaled by
+        ``options.noise_scale``).
 
     Returns
     -------
@@ -133,7 +137,8 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         potential = blocks.block_potential(footprint_m2)
     else:
         measured_albedo = block_albedo(scan, blocks, sensor, options.tile_pixels)
-        estimate = estimate_footprint(scan, blocks, np.isfinite(usable_depth), sensor,
+        noise = noise or NoiseModel.for_sensor(sensor, scan.frequencies_hz, options.noise_scale)
+        estimate = estimate_footprint(scan, blocks, np.isfinite(usable_depth), sensor, noise=noise,
                                       measured_albedo=measured_albedo, surfaces=surfaces)
         if estimate.significant:
             footprint_m2 = estimate.area_m2

@@ -187,6 +187,6 @@ def table2(data_path: str | Path, model_dir: str | Path | None = None, *, train_
         "ReLU (the paper: LeakyReLU, PyTorch on a GPU). XGBoost: the model directory's own training (xgboost.dask).",
         "Why we differ: at Table I noise the multipath offset is nearly the same at the four frequencies while "
         "their noise is 1-11 mm, so no estimator can reach the paper's 1.96 mm; an independent estimate of the "
-        "Bayes limit under this prior is about 5.7 mm (docs/results/limits.md).",
+        "Bayes limit under this prior is 5.93 +- 0.18 mm (docs/results/limits.md).",
     ]
     return Table2(rows, notes)

@@ -1,47 +1,172 @@
-"""The sensor's noise model at a measured amplitude, and what it weighs: the unwrapping of wrapped depths.
+"""The sensor's noise at a measured amplitude, and everything it weighs: unwrapping, consistency and fusion.
 
-:func:`quadrature_noise_v2` is the moment model's (:class:`~mpi_lidar.physics.moments.MomentSensor`) noise of a
-tap quadrature for single-path light, :func:`depth_noise_m` the depth noise it gives, :func:`noise_floor_v2` the
-amplitude of no light; :func:`unwrapped_rows` turns raw rows of wrapped depths into one range per row, each
-frequency weighted by its noise (:func:`mpi_lidar.physics.unwrap.unwrap_depths`).
+:class:`NoiseModel` is the one object every stage of a scan's correction asks: each frequency's quadrature
+variance is a line in the amplitude, sigma_q^2 = a_f + b_f A (read and thermal noise, plus shot noise in proportion
+to the light), times a noise scale; the depth noise is sigma_q / A times c / 4 pi f. The default sensor's lines come
+from the moment model (:class:`~mpi_lidar.physics.moments.MomentSensor`, :meth:`NoiseModel.for_sensor`); a law
+measured from a scan is the same object with other coefficients. The module's functions (:func:`depth_noise_m`,
+:func:`noise_floor_v2`, :func:`unwrapped_rows`, :func:`fused_depths`) are the default sensor's model, for the
+simulator and the benchmarks.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
+from mpi_lidar.physics.demod import metres_per_radian
 from mpi_lidar.physics.moments import moment_model
 from mpi_lidar.physics.sensor import received_voltage_amplitude
 from mpi_lidar.physics.unwrap import unwrap_depths
 from mpi_lidar.physics.window import window_corrections_m
 
+# Amplitudes below this [V^2] divide as this: a pixel without light has an unbounded, not an infinite, noise.
+MIN_AMPLITUDE_V2 = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseModel:
+    """One scan's depth noise per frequency, built once and handed to every stage that weighs a measurement.
+
+    The quadrature variance of frequency f at amplitude A [V^2] is ``noise_scale^2 (a_f + b_f A)``; the depth sd is
+    its root over A times c / (4 pi f) (eq 7).
+
+    Attributes
+    ----------
+    frequencies_hz : Modulation frequencies (F,). [Hz]
+    speed_of_light_m_per_s : The speed of light phases are converted with. [m/s]
+    read_variance_v4 : a_f, the quadrature variance with no light (F,). [V^4]
+    shot_variance_v2 : b_f, its growth per unit of amplitude (F,). [V^2]
+    noise_scale : The sensor's noise over these lines (a sensor profile's ``noise_scale``). [1]
+    sensor : The sensor whose integration window's leakage fusion may remove
+        (:func:`~mpi_lidar.physics.window.window_corrections_m`).
+    """
+
+    frequencies_hz: tuple[float, ...]
+    speed_of_light_m_per_s: float
+    read_variance_v4: NDArray[np.float64]
+    shot_variance_v2: NDArray[np.float64]
+    noise_scale: float
+    sensor: SensorConfig
+
+    @classmethod
+    def for_sensor(cls, sensor: SensorConfig, frequencies_hz: tuple[float, ...], noise_scale: float = 1.0,
+                   ) -> NoiseModel:
+        """The moment model's noise of ``sensor`` (Table I's law by default), scaled by ``noise_scale``."""
+        offset, slope = _quadrature_variance_line(sensor, tuple(frequencies_hz))
+        return cls(tuple(frequencies_hz), sensor.speed_of_light_m_per_s, offset, slope, float(noise_scale), sensor)
+
+    def scaled(self, noise_scale: float) -> NoiseModel:
+        """The same law with another noise scale."""
+        return replace(self, noise_scale=float(noise_scale))
+
+    @property
+    def metres_per_radian(self) -> NDArray[np.float64]:
+        """c / (4 pi f) per frequency (F,). [m/rad]"""
+        return metres_per_radian(self.frequencies_hz, self.speed_of_light_m_per_s)
+
+    def quadrature_sigma_v2(self, amplitude_v2: NDArray) -> NDArray:
+        """Std of a tap quadrature (n, F) [V^2] for single-path light of the measured amplitudes (n, F) [V^2]."""
+        sigma = np.sqrt(self.read_variance_v4 + self.shot_variance_v2 * np.maximum(amplitude_v2, 0.0))
+        return sigma if self.noise_scale == 1.0 else self.noise_scale * sigma
+
+    @property
+    def floor_v2(self) -> NDArray[np.float64]:
+        """Std of each tap quadrature with no light (F,) [V^2]: the amplitude of a pixel with no return."""
+        return self.quadrature_sigma_v2(np.zeros((1, len(self.frequencies_hz))))[0]
+
+    def depth_sigma_m(self, amplitude_v2: NDArray) -> NDArray:
+        """Std of the measured depth (n, F) [m] of single-path light of the measured amplitudes (n, F) [V^2].
+
+        sigma_f = sigma_q(A_f) / A_f * c / (4 pi f): the quadrature noise over the amplitude is the phase noise
+        [rad]. Amplitudes below ``MIN_AMPLITUDE_V2`` divide as it.
+        """
+        noise = self.quadrature_sigma_v2(amplitude_v2)
+        return noise / np.maximum(amplitude_v2, MIN_AMPLITUDE_V2) * self.metres_per_radian[None, :]
+
+    def unwrap(self, raw: NDArray, *, equal_amplitudes: bool = False,
+               ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+        """Raw rows (n, 2F) of wrapped depths [m] and amplitudes [V^2] with the depths unwrapped into one range, and
+        the unwrapping's confidence per row (n,) [1] (:func:`mpi_lidar.physics.unwrap.unwrap_depths`).
+
+        Each frequency is weighted by its depth sd at its amplitude; ``equal_amplitudes``: by the sd's shape at one
+        amplitude, 1 / f, for amplitudes whose unit is not known yet. A row whose unwrapping fails (a non-finite
+        value) keeps its measured depths, with confidence 0; a row that takes no wrap count keeps its bytes.
+        """
+        f = len(self.frequencies_hz)
+        if equal_amplitudes:
+            sigma = np.broadcast_to(1.0 / np.asarray(self.frequencies_hz), (raw.shape[0], f))
+        else:
+            sigma = self.depth_sigma_m(np.asarray(raw[:, f:], dtype=np.float64))
+        result = unwrap_depths(raw[:, :f], sigma, self.frequencies_hz, self.speed_of_light_m_per_s)
+        rows = np.array(raw, dtype=np.float32)
+        moved = np.isfinite(result.depth_m) & (result.wrap_counts != 0)  # a count of 0 keeps the bytes as measured
+        rows[:, :f][moved] = result.depth_m[moved]
+        return rows, result.confidence
+
+    def fuse(self, raw: NDArray, *, offsets_m: NDArray | tuple[float, ...] | None = None,
+             window: bool = False) -> Fused:
+        """Maximum-likelihood depth of raw rows (n, 2F) of unwrapped depths [m] and amplitudes [V^2]: each
+        frequency's depth less its offset, weighted by its inverse variance at its amplitude.
+
+        Under independent Gaussian noise of sds sigma_f the mean sum_f w_f d_f / sum_f w_f with w_f = sigma_f^-2 is
+        the maximum-likelihood range and reaches the Cramer-Rao bound, sigma = (sum_f w_f)^-1/2: at 12.5-31.25 MHz
+        about 0.68 of the highest frequency's sd. ``offsets_m`` (F,): each frequency's fixed depth offset relative
+        to the highest [m], subtracted first; None: none. The noise scale moves the sds and the consistency test,
+        not the mean. ``window``: each depth first has the integration window's leakage removed
+        (:func:`~mpi_lidar.physics.window.window_corrections_m`), the offsets then being those that remain.
+        """
+        f = len(self.frequencies_hz)
+        freqs = self.frequencies_hz
+        window_m = window_corrections_m(raw[:, :f], raw[:, f:], freqs, self.sensor) if window else None
+        offsets = np.zeros(f) if offsets_m is None else np.asarray(offsets_m, dtype=np.float64)
+        # Summed column by column: a row reduction over F values is several times slower.
+        metres_per_rad = self.metres_per_radian
+        scale2 = self.noise_scale**2
+        depths, weights = [], []
+        for column in range(f):
+            amplitude = np.maximum(raw[:, f + column].astype(np.float64), MIN_AMPLITUDE_V2)
+            variance = scale2 * (self.read_variance_v4[column] + self.shot_variance_v2[column] * amplitude) \
+                / amplitude**2
+            weights.append(1.0 / (variance * metres_per_rad[column] ** 2))
+            depth = raw[:, column].astype(np.float64) - offsets[column]
+            depths.append(depth if window_m is None else depth + window_m[:, column])
+        total = sum(weights[1:], weights[0])
+        mean = sum((w * d for w, d in zip(weights[1:], depths[1:], strict=True)), weights[0] * depths[0]) / total
+        chi2 = sum(w * (d - mean) ** 2 for w, d in zip(weights, depths, strict=True))
+        top = int(np.argmax(freqs))
+        with np.errstate(invalid="ignore"):  # rows without a finite depth: NaN chi2, not consistent
+            consistent = chi2 <= _chi2_quantile(f - 1)
+        return Fused(mean.astype(np.float32), (total**-0.5).astype(np.float32),
+                     (weights[top] ** -0.5).astype(np.float32), consistent,
+                     np.sqrt(chi2 / max(f - 1, 1)).astype(np.float32))
+
+    def chi2(self, raw: NDArray) -> NDArray[np.float64]:
+        """chi^2 of each row's depths about their inverse-variance mean (n,): chi^2(F - 1) where they see one range."""
+        f = len(self.frequencies_hz)
+        return (f - 1) * self.fuse(raw).birge_ratio.astype(np.float64) ** 2
+
 
 def noise_floor_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
-    """Std of each tap quadrature with no light [V^2]: the amplitude of a pixel with no return is of this order."""
-    return quadrature_noise_v2(sensor, frequencies_hz, np.zeros((1, len(frequencies_hz))))[0]
+    """Std of each tap quadrature with no light [V^2] of the default sensor's model (:attr:`NoiseModel.floor_v2`)."""
+    return NoiseModel.for_sensor(sensor, frequencies_hz).floor_v2
 
 
 def quadrature_noise_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray) -> NDArray:
-    """Std of a tap quadrature (n, F) [V^2] for single-path light of the measured amplitudes (n, F) [V^2].
-
-    Shot noise grows with the signal, so the depth noise of a pixel is this over its amplitude, times c / 4 pi f.
-    The moment model's variance is a + b A in the amplitude A (thermal and amplifier noise, plus shot noise in
-    proportion to the light), so it is worked out at two amplitudes once per sensor and evaluated as that line.
-    """
-    offset, slope = _quadrature_variance_line(sensor, tuple(frequencies_hz))
-    return np.sqrt(offset + slope * np.maximum(amplitude_v2, 0.0))
+    """Std of a tap quadrature (n, F) [V^2] of the sensor's model (:meth:`NoiseModel.quadrature_sigma_v2`)."""
+    return NoiseModel.for_sensor(sensor, frequencies_hz).quadrature_sigma_v2(amplitude_v2)
 
 
 @lru_cache(maxsize=8)
 def _quadrature_variance_line(sensor: SensorConfig, frequencies_hz: tuple[float, ...],
                               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Offset [V^4] and slope [V^2] per frequency (F,) of the moment model's quadrature variance against the
-    amplitude: its variance at no light, and its growth per V^2 (at 1 V^2)."""
+    amplitude: its variance at no light, and its growth per V^2 (at 1 V^2). The moment model's variance is a + b A
+    in the amplitude A, so it is worked out at two amplitudes once per sensor."""
     variance = _moment_quadrature_noise(sensor, frequencies_hz, np.array([[0.0], [1.0]]).repeat(
         len(frequencies_hz), axis=1)) ** 2
     return variance[0], variance[1] - variance[0]
@@ -59,32 +184,14 @@ def _moment_quadrature_noise(sensor: SensorConfig, frequencies_hz: tuple[float, 
 
 
 def depth_noise_m(sensor: SensorConfig, frequencies_hz: tuple[float, ...], amplitude_v2: NDArray) -> NDArray:
-    """Std of the measured depth (n, F) [m] of single-path light of the measured amplitudes (n, F) [V^2].
-
-    sigma_f = sigma_q(Gamma_f) / Gamma_f * c / (4 pi f): the quadrature noise (:func:`quadrature_noise_v2`) over
-    the amplitude is the phase noise [rad], and c / 4 pi f [m/rad] turns phase into depth. Amplitudes below
-    1e-12 V^2 divide as 1e-12.
-    """
-    metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * np.asarray(frequencies_hz, dtype=np.float64))
-    noise = quadrature_noise_v2(sensor, tuple(frequencies_hz), amplitude_v2)
-    return noise / np.maximum(amplitude_v2, 1e-12) * metres_per_rad[None, :]
+    """Std of the measured depth (n, F) [m] of the sensor's model (:meth:`NoiseModel.depth_sigma_m`)."""
+    return NoiseModel.for_sensor(sensor, frequencies_hz).depth_sigma_m(amplitude_v2)
 
 
 def unwrapped_rows(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig,
                    ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
-    """Raw rows (n, 2F) whose depths are each frequency's wrapped depth, with the depths unwrapped into one
-    range (:func:`mpi_lidar.physics.unwrap.unwrap_depths`, each weighted by the noise model's sd at its
-    amplitude, :func:`depth_noise_m`), and the unwrapping's confidence per row (n,) [1].
-
-    A row whose unwrapping fails (a non-finite value) keeps its measured depths, with confidence 0.
-    """
-    f = len(frequencies_hz)
-    sigma = depth_noise_m(sensor, frequencies_hz, np.asarray(raw[:, f:], dtype=np.float64))
-    result = unwrap_depths(raw[:, :f], sigma, frequencies_hz, sensor.speed_of_light_m_per_s)
-    rows = np.array(raw, dtype=np.float32)
-    moved = np.isfinite(result.depth_m) & (result.wrap_counts != 0)  # a count of 0 keeps the bytes as measured
-    rows[:, :f][moved] = result.depth_m[moved]
-    return rows, result.confidence
+    """Raw rows (n, 2F) unwrapped by the sensor's model (:meth:`NoiseModel.unwrap`), and their confidence (n,)."""
+    return NoiseModel.for_sensor(sensor, frequencies_hz).unwrap(raw)
 
 
 # Fusion keeps a pixel's highest-frequency depth where its frequencies disagree beyond this chi-square p-value
@@ -115,41 +222,8 @@ class Fused:
 def fused_depths(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig, *,
                  noise_scale: float = 1.0, offsets_m: NDArray | tuple[float, ...] | None = None,
                  window: bool = False) -> Fused:
-    """Maximum-likelihood depth of raw rows (n, 2F) of unwrapped depths [m] and amplitudes [V^2]: each frequency's
-    depth less its offset, weighted by the inverse variance of the noise model at its amplitude.
-
-    Under independent Gaussian noise of sds sigma_f the mean sum_f w_f d_f / sum_f w_f with w_f = sigma_f^-2 is the
-    maximum-likelihood range and reaches the Cramer-Rao bound, sigma = (sum_f w_f)^-1/2: at 12.5-31.25 MHz about
-    0.68 of the highest frequency's sd. ``offsets_m`` (F,): each frequency's fixed depth offset relative to the
-    highest (a sensor's, as ``mpi-lidar calibrate`` measures it), subtracted first; None: none. ``noise_scale``
-    scales every sd (a sensor's noise over the model's): it moves the sds and the consistency test, not the mean.
-    ``window``: each depth first has the integration window's leakage removed
-    (:func:`~mpi_lidar.physics.window.window_corrections_m`), the offsets then being those that remain.
-    """
-    f = len(frequencies_hz)
-    window_m = window_corrections_m(raw[:, :f], raw[:, f:], tuple(frequencies_hz), sensor) if window else None
-    offsets = np.zeros(f) if offsets_m is None else np.asarray(offsets_m, dtype=np.float64)
-    # The variance is a + b A per frequency (quadrature_noise_v2): one line per column, summed column by column,
-    # since a row reduction over F values is several times slower.
-    line_offset, line_slope = _quadrature_variance_line(sensor, tuple(frequencies_hz))
-    metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * np.asarray(frequencies_hz, dtype=np.float64))
-    scale2 = noise_scale**2
-    depths, weights = [], []
-    for column in range(f):
-        amplitude = np.maximum(raw[:, f + column].astype(np.float64), 1e-12)
-        variance = scale2 * (line_offset[column] + line_slope[column] * amplitude) / amplitude**2
-        weights.append(1.0 / (variance * metres_per_rad[column] ** 2))
-        depth = raw[:, column].astype(np.float64) - offsets[column]
-        depths.append(depth if window_m is None else depth + window_m[:, column])
-    total = sum(weights[1:], weights[0])
-    mean = sum((w * d for w, d in zip(weights[1:], depths[1:], strict=True)), weights[0] * depths[0]) / total
-    chi2 = sum(w * (d - mean) ** 2 for w, d in zip(weights, depths, strict=True))
-    top = int(np.argmax(frequencies_hz))
-    with np.errstate(invalid="ignore"):  # rows without a finite depth: NaN chi2, not consistent
-        consistent = chi2 <= _chi2_quantile(f - 1)
-    return Fused(mean.astype(np.float32), (total**-0.5).astype(np.float32),
-                 (weights[top] ** -0.5).astype(np.float32), consistent,
-                 np.sqrt(chi2 / max(f - 1, 1)).astype(np.float32))
+    """The sensor's model's fused depths of raw rows (n, 2F) (:meth:`NoiseModel.fuse`)."""
+    return NoiseModel.for_sensor(sensor, frequencies_hz, noise_scale).fuse(raw, offsets_m=offsets_m, window=window)
 
 
 @lru_cache(maxsize=8)

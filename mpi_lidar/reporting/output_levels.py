@@ -10,8 +10,9 @@ from mpi_lidar.errors import MpiLidarError
 class OutputLevel(StrEnum):
     """What a scan's outputs hold; each level holds what the next one holds.
 
-    full: the store, metrics, report, maps, error histogram, point clouds and the 3-D view. light: the store,
-    metrics, report and a thumbnail. data: the store and metrics only.
+    full: the store, metrics, report, maps, error histogram, point-cloud views, the point clouds (PLY and LAZ)
+    and the 3-D view. light: the store, metrics, report, a thumbnail and the LAZ point cloud. data: the store and
+    metrics only. Any level writes the point-cloud formats asked for instead (``--point-cloud``).
     """
 
     FULL = "full"
@@ -21,7 +22,7 @@ class OutputLevel(StrEnum):
 
 OUTPUT_LEVELS = tuple(level.value for level in OutputLevel)  # from most to least
 # The default of a batch (``mpi-lidar correct``, the correction flow): the store, the report, a thumbnail and
-# the LAZ point cloud cost little beside the correction itself (the LAZ 16-19 % of a megapixel scan's,
+# the LAZ point cloud cost little beside the correction itself (the LAZ 15-20 % of a megapixel scan's,
 # docs/results/point-clouds.md); ``full`` (maps, histogram, point clouds as PLY and LAZ, 3-D view) costs as much
 # as the correction again on a megapixel scan (docs/results/correction.md). ``--point-cloud`` picks the formats
 # at any level. The pipeline's three demo scenes are written ``full``.

@@ -39,7 +39,7 @@ POINT_CLOUD_FILES: dict[PointCloudFormat, tuple[str, ...]] = {
 }
 # Written at level full unless ``point_clouds`` says otherwise: the LAZ and the raw and corrected PLY files.
 FULL_POINT_CLOUDS = (PointCloudFormat.PLY, PointCloudFormat.LAZ)
-# The formats each level writes by default. The default level (light) writes the LAZ: it costs 16-19 % of a
+# The formats each level writes by default. The default level (light) writes the LAZ: it costs 15-20 % of a
 # megapixel scan's correction (docs/results/point-clouds.md), within the 20 % the default outputs may add.
 LEVEL_POINT_CLOUDS: dict[OutputLevel, tuple[PointCloudFormat, ...]] = {
     OutputLevel.FULL: FULL_POINT_CLOUDS,

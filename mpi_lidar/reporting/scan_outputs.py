@@ -14,6 +14,7 @@ import numpy as np
 
 from mpi_lidar.correction import Correction, CorrectionOptions
 from mpi_lidar.correction.corrected_store import write_corrected_store
+from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.reporting.metrics import amplitude_v2, measured_depth, metric_regions
 from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.reporting.point_cloud_files import point_cloud_formats, write_point_clouds
@@ -68,7 +69,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
         )
     formats = point_cloud_formats(outputs, point_clouds)
     cpu_s = {} if cpu_s is None else cpu_s
-    notes: list[str] = list(correction.notes)
+    notes: list[str] = list(correction_notes(correction))
     if scan.reference_depth is None:
         notes.append("no reference depth: errors, error maps and histogram skipped")
     with atomic_path(target, replace=True, what="scan outputs") as staging, ThreadPoolExecutor(1) as beside:

@@ -1,13 +1,11 @@
 """``thumbnail.png``: the corrected depth and the flags side by side, drawn without matplotlib.
 
 The default output level writes a thumbnail of every scan; importing matplotlib for it would cost a one-scan
-correction 0.35 s of start-up. The image is a colour lookup and a PNG written with ``zlib``.
+correction 0.35 s of start-up. The image is a colour lookup, written as a PNG by Pillow.
 """
 
 from __future__ import annotations
 
-import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -71,15 +69,7 @@ def thumbnail_legend(depth_limits: tuple[float, float]) -> str:
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    """An RGB image (h, w, 3) uint8 as an 8-bit RGB PNG: each row filter-free, the rows deflated by zlib."""
-    height, width, _ = image.shape
-    rows = np.zeros((height, 1 + 3 * width), dtype=np.uint8)  # each row starts with its filter type, 0: none
-    rows[:, 1:] = np.ascontiguousarray(image, dtype=np.uint8).reshape(height, 3 * width)
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8 bits, truecolour, no interlace
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", header)
-                     + _chunk(b"IDAT", zlib.compress(rows.tobytes(), 6)) + _chunk(b"IEND", b""))
+    """An RGB image (h, w, 3) uint8 as an 8-bit RGB PNG at ``path``."""
+    from PIL import Image  # imported where used: only the levels that write a thumbnail pay for it
 
-
-def _chunk(kind: bytes, data: bytes) -> bytes:
-    """One PNG chunk: its length, type, data and the CRC-32 of type and data."""
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(path, format="PNG")

@@ -10,14 +10,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.calibration.profile import SensorProfile, write_profile
+from mpi_lidar.calibration.sensor_scale import SensorScale, measure_sensor_scale
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.footprint import NOTHING_MEASURED, FootprintEstimate, estimate_footprint, pool_estimates
 from mpi_lidar.correction.options import CorrectionOptions
-from mpi_lidar.correction.profile import SensorProfile, write_profile
 from mpi_lidar.correction.scene import scene_blocks
-from mpi_lidar.correction.sensor_scale import SensorScale, measure_sensor_scale
-from mpi_lidar.correction.validity import depth_rules_only, unwrapped_rows, usable_depth_of, validity_flags
+from mpi_lidar.correction.validity import depth_rules_only, usable_depth_of, validity_flags
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import read_scan
 from mpi_lidar.workflows.correct_archive import expand_archive
@@ -52,7 +53,7 @@ def scan_footprint(scan: Scan, options: CorrectionOptions, sensor: SensorConfig,
 def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfig, use_reference: bool = True,
                      source: str = "") -> ScanEstimate:
     """What one scan measures of its sensor: the amplitude unit, noise scale and frequency offsets on its flat
-    surfaces (:func:`mpi_lidar.correction.sensor_scale.measure_sensor_scale`, from the depths alone, so any
+    surfaces (:func:`mpi_lidar.calibration.sensor_scale.measure_sensor_scale`, from the depths alone, so any
     amplitude unit passes), then, with its amplitudes in V^2, the footprint: against its reference depth where it
     has one (and ``use_reference``), else against its own surfaces. A scan without geometry measures nothing.
 
@@ -61,12 +62,13 @@ def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfi
     if scan.ray_rows() is None:
         return ScanEstimate(source, NOTHING_MEASURED)
     raw, confidence = scan.raw_pixels(), None
+    noise = NoiseModel.for_sensor(sensor, scan.frequencies_hz)  # the sensor's own noise is what is measured here
     if scan.depth_wrapped:
-        raw, confidence = unwrapped_rows(raw, scan.frequencies_hz, sensor)
+        raw, confidence = noise.unwrap(raw)
         scan = replace(scan, depth=raw[:, :len(scan.frequencies_hz)].T.reshape(scan.depth.shape),
                        depth_wrapped=False)
     depth_rules = depth_rules_only(options)
-    by_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, depth_rules, sensor, confidence))
+    by_depth = usable_depth_of(raw, validity_flags(raw, depth_rules, noise, confidence))
     scale = measure_sensor_scale(scan, by_depth, options, sensor)
     if not scale.significant and scale.pixels > 0:  # one noise regime: the unit, with the noise model's noise
         with_model_noise = measure_sensor_scale(scan, by_depth, options, sensor, fix_noise_scale=1.0)
@@ -78,7 +80,7 @@ def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfi
         scan = replace(scan, amplitude=(np.asarray(scan.amplitude) / scale.amplitude_scale).astype(np.float32))
         window_scale = measure_sensor_scale(scan, by_depth, options, sensor, window=True,
                                             fix_noise_scale=None if scale.noise_scale_sigma > 0 else scale.noise_scale)
-    usable_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, options, sensor, confidence))
+    usable_depth = usable_depth_of(raw, validity_flags(raw, options, noise, confidence))
     valid = np.isfinite(usable_depth)
     blocks = scene_blocks(scan, usable_depth, options)
     assert blocks is not None  # the scan has rays

@@ -112,6 +112,7 @@ def summary_rows(stdout: str) -> dict[float, tuple[float, float, float]]:
     return rows
 
 
+@pytest.mark.integration
 def test_simulate__writes_store_and_prints_summary(runs):
     out, result = runs.out, runs.first
     assert out.is_dir()
@@ -131,6 +132,7 @@ def test_simulate__writes_store_and_prints_summary(runs):
     assert all(rows[f][2] < rows[f][0] for f in rows)
 
 
+@pytest.mark.integration
 def test_simulate__store_opens_with_xarray_per_contract(runs):
     ds = xr.open_zarr(runs.out, consolidated=False)
     expected = {
@@ -160,6 +162,7 @@ def test_simulate__store_opens_with_xarray_per_contract(runs):
     json.dumps(ds.attrs["config"])  # plain JSON
 
 
+@pytest.mark.integration
 def test_simulate__rerun_on_same_store_writes_nothing(runs):
     again = runs.result("rerun")
     assert again.returncode == 0, again.stderr
@@ -168,6 +171,7 @@ def test_simulate__rerun_on_same_store_writes_nothing(runs):
     assert snapshot(runs.out) == runs.before
 
 
+@pytest.mark.integration
 def test_simulate__store_of_another_configuration_is_refused_unchanged(runs):
     other = runs.result("other_seed")
     assert other.returncode == 2
@@ -176,6 +180,7 @@ def test_simulate__store_of_another_configuration_is_refused_unchanged(runs):
     assert snapshot(runs.out) == runs.before
 
 
+@pytest.mark.integration
 def test_simulate__regular_file_at_out_is_refused_unchanged(runs):
     result = runs.result("regular_file")
     assert result.returncode == 2
@@ -199,6 +204,7 @@ BAD_CONFIGS = {
 }
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("case", sorted(BAD_CONFIGS))
 def test_simulate__bad_config_exits_2_with_one_line(tmp_path, monkeypatch, capsys, case):
     text, fragment = BAD_CONFIGS[case]
@@ -214,6 +220,7 @@ def test_simulate__bad_config_exits_2_with_one_line(tmp_path, monkeypatch, capsy
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml"]  # nothing at --out, no staging left
 
 
+@pytest.mark.unit
 def test_simulate__usage_error_is_one_line(tmp_path, monkeypatch, capsys):
     code, _, stderr = call_main(monkeypatch, capsys, "simulate", "--out", tmp_path / "d.zarr", "--samples", "many")
     assert code == 2
@@ -222,6 +229,7 @@ def test_simulate__usage_error_is_one_line(tmp_path, monkeypatch, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.unit
 def test_simulate__missing_config_file(tmp_path, monkeypatch, capsys):
     code, _, stderr = call_main(monkeypatch, capsys, "simulate", "--out", tmp_path / "d.zarr",
                                 "--config", tmp_path / "absent.toml", "--workers", 0)
@@ -230,6 +238,7 @@ def test_simulate__missing_config_file(tmp_path, monkeypatch, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.unit
 def test_simulate__bad_command_line_override(tmp_path, monkeypatch, capsys):
     code, _, stderr = call_main(monkeypatch, capsys, "simulate", "--out", tmp_path / "d.zarr",
                                 "--samples", 0, "--workers", 0)
@@ -238,6 +247,7 @@ def test_simulate__bad_command_line_override(tmp_path, monkeypatch, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.unit
 def test_simulate__non_empty_foreign_directory_is_refused_unchanged(tmp_path, monkeypatch, capsys):
     out = tmp_path / "photos"
     out.mkdir()
@@ -252,6 +262,7 @@ def test_simulate__non_empty_foreign_directory_is_refused_unchanged(tmp_path, mo
     assert sorted(p.name for p in tmp_path.iterdir()) == ["photos"]
 
 
+@pytest.mark.unit
 def test_simulate__foreign_zarr_store_is_refused_unchanged(tmp_path, monkeypatch, capsys):
     import zarr
 
@@ -264,6 +275,7 @@ def test_simulate__foreign_zarr_store_is_refused_unchanged(tmp_path, monkeypatch
     assert snapshot(out) == before
 
 
+@pytest.mark.unit
 def test_simulate__empty_directory_is_used(tmp_path, monkeypatch, capsys):
     out = tmp_path / "empty"
     out.mkdir()
@@ -275,6 +287,7 @@ def test_simulate__empty_directory_is_used(tmp_path, monkeypatch, capsys):
     assert dataset.is_complete(out)
 
 
+@pytest.mark.integration
 def test_simulate_cli__sensor_profile_sets_frequencies_noise_and_working_range(tmp_path, monkeypatch, capsys):
     profile = tmp_path / "sensor.toml"
     profile.write_text('schema = "mpi-lidar/sensor@1"\nfootprint_area_m2 = 0.02\nnoise_scale = 2.0\n'

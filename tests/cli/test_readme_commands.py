@@ -27,6 +27,8 @@ from mpi_lidar.simulation.scenes import DEMO_SCENES, cornered_board, multi_objec
 from tests.cli_runner import call_main
 from tests.model_factory import tiny_model
 
+pytestmark = pytest.mark.integration
+
 README = Path(__file__).resolve().parents[2] / "README.md"
 SMALL_CONFIG = "[dataset]\nsamples = 3000\nchunk_rows = 1500\nseed = 3\n"
 

@@ -12,6 +12,8 @@ import pytest
 from mpi_lidar.terminal import Display, duration, plain_text, plural, print_table, table_lines
 from tests.cli_runner import assert_one_error_line, call_main
 
+pytestmark = pytest.mark.unit
+
 
 class FakeTerminal(io.StringIO):
     def isatty(self) -> bool:

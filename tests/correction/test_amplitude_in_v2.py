@@ -14,6 +14,8 @@ from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.scans.stored_map import StoredMap
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 UNITS_PER_V2 = 4000.0
 
 
@@ -45,8 +47,8 @@ def test_amplitude_in_v2__reads_like_the_divided_maps(scan_in_units, tmp_path, s
     assert replace(scan, amplitude=maps).in_memory() is not stored
 
 
-def test_correct_scan__a_scan_in_the_scanner_s_unit_corrects_as_its_divided_copy(scan_in_units, small_model):
-    model = load_model(small_model)
+def test_correct_scan__a_scan_in_the_scanner_s_unit_corrects_as_its_divided_copy(scan_in_units, pixelwise_model):
+    model = load_model(pixelwise_model)
     in_units = correct_scan(scan_in_units, model, CorrectionOptions(amplitude_scale=UNITS_PER_V2))
     copied = correct_scan(replace(scan_in_units, amplitude=divided(scan_in_units)), model,
                           CorrectionOptions(amplitude_scale=1.0))

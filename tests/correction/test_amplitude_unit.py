@@ -14,7 +14,15 @@ from mpi_lidar.correction.amplitude_unit import (
     _chi_square_density,
     measure_amplitude_unit,
 )
+from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
+
+pytestmark = pytest.mark.unit
+
+
+def TABLE_I(scan) -> NoiseModel:  # noqa: N802 - the sensor's name
+    """The default sensor's noise model for the scan's frequencies."""
+    return NoiseModel.for_sensor(SensorConfig(), scan.frequencies_hz)
 
 
 def _in(scan, unit: float):
@@ -27,7 +35,7 @@ def test_measure_amplitude_unit__a_wall_in_any_unit_reads_that_unit_within_5_per
     wall = render(flat_wall(20.0, distance_m, 0.7, height=40, width=48), Config(), np.random.default_rng(4),
                   patch_spacing_m=1.0)
     for unit in (1.0, 4000.0, 0.01):
-        measured = measure_amplitude_unit(_in(wall, unit), SensorConfig())
+        measured = measure_amplitude_unit(_in(wall, unit), TABLE_I(wall))
         assert measured.significant and measured.pixels > 1500
         assert measured.amplitude_scale / unit == pytest.approx(1.0, rel=0.05)
         assert 0 < measured.relative_sigma < 0.03
@@ -36,7 +44,7 @@ def test_measure_amplitude_unit__a_wall_in_any_unit_reads_that_unit_within_5_per
 @pytest.mark.unit
 def test_measure_amplitude_unit__reading_scales_exactly_with_the_unit():
     scan = render(corner(90.0, 2.0, 0.7, height=32, width=40), Config(), np.random.default_rng(5))
-    one, counts = (measure_amplitude_unit(_in(scan, unit), SensorConfig()) for unit in (1.0, 4096.0))
+    one, counts = (measure_amplitude_unit(_in(scan, unit), TABLE_I(scan)) for unit in (1.0, 4096.0))
     # to the root finder's tolerance (LOG_SCALE_TOLERANCE in log lambda) on either reading
     assert counts.amplitude_scale / one.amplitude_scale == pytest.approx(4096.0, rel=2 * LOG_SCALE_TOLERANCE)
 
@@ -45,8 +53,8 @@ def test_measure_amplitude_unit__reading_scales_exactly_with_the_unit():
 def test_measure_amplitude_unit__a_noise_scale_is_taken_as_the_sensors():
     wall = render(flat_wall(20.0, 2.0, 0.7, height=40, width=48), Config(), np.random.default_rng(6),
                   patch_spacing_m=1.0)
-    plain = measure_amplitude_unit(wall, SensorConfig())
-    noisier = measure_amplitude_unit(wall, SensorConfig(), noise_scale=1.5)
+    plain = measure_amplitude_unit(wall, TABLE_I(wall))
+    noisier = measure_amplitude_unit(wall, NoiseModel.for_sensor(SensorConfig(), wall.frequencies_hz, 1.5))
     assert noisier.amplitude_scale < plain.amplitude_scale, "a noisier sensor explains the scatter at a smaller unit"
 
 
@@ -55,7 +63,7 @@ def test_measure_amplitude_unit__too_few_consistent_pixels_is_not_significant():
     scan = render(flat_wall(20.0, 2.0, 0.7, height=5, width=8), Config(), np.random.default_rng(7),
                   patch_spacing_m=1.0)
     assert scan.shape[0] * scan.shape[1] < MIN_PIXELS
-    measured = measure_amplitude_unit(scan, SensorConfig())
+    measured = measure_amplitude_unit(scan, TABLE_I(scan))
     assert not measured.significant and np.isnan(measured.amplitude_scale) and "at least" in measured.reason
 
 
@@ -65,20 +73,3 @@ def test_chi_square_density__scipy_stats_value(dof):
 
     for x in (0.1, 1.0, 2.366, 9.0):
         assert _chi_square_density(x, dof) == pytest.approx(float(chi2.pdf(x, dof)), rel=1e-12)
-
-
-@pytest.mark.parametrize(("function", "root"), [(lambda x: 1.3 - x, 1.3), (lambda x: np.exp(-3 * x) - 0.2,
-                                                                          np.log(5) / 3),
-                                                (lambda x: np.tanh(8 * (0.05 - x)), 0.05)])
-def test_root__finds_the_root_of_a_falling_function_to_the_tolerance_in_few_steps(function, root):
-    from mpi_lidar.correction.amplitude_unit import _root
-
-    calls = []
-
-    def counted(x):
-        calls.append(x)
-        return float(function(x))
-
-    low, high = -0.7, 1.9
-    found = _root(counted, low, high, counted(low), counted(high), tolerance=1e-6)
-    assert abs(found - root) <= 1e-6 and len(calls) <= 2 + 40

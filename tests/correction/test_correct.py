@@ -16,6 +16,7 @@ from mpi_lidar.correction import NO_GEOMETRY_NOTE, CorrectionOptions, Flag, Scan
 from mpi_lidar.correction.options import Estimate
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
@@ -45,8 +46,9 @@ def damaged(scan: Scan) -> Scan:
     return replace(scan, depth=depth, amplitude=amplitude)
 
 
-def test_correct_scan__flags_say_what_was_done(small_model):
-    correction = correct_scan(damaged(two_path_scan("d")), load_model(small_model), CorrectionOptions(gate="all"))
+@pytest.mark.unit
+def test_correct_scan__flags_say_what_was_done(pixelwise_model):
+    correction = correct_scan(damaged(two_path_scan("d")), load_model(pixelwise_model), CorrectionOptions(gate="all"))
     assert [correction.flags[0, j] for j in range(4)] == [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED,
                                                          Flag.INCONSISTENT]
     assert np.isnan(correction.depth[0, :4]).all()
@@ -55,71 +57,78 @@ def test_correct_scan__flags_say_what_was_done(small_model):
     assert correction.counts()["corrected"] == 24 * 32 - 4
 
 
-def test_correct_scan__corrected_pixels_are_the_model_prediction(small_model):
+@pytest.mark.unit
+def test_correct_scan__corrected_pixels_are_the_model_prediction(pixelwise_model):
     scan = two_path_scan("p")
-    model = load_model(small_model)
+    model = load_model(pixelwise_model)
     correction = correct_scan(scan, model, CorrectionOptions(gate="all", tile_pixels=100))
     np.testing.assert_allclose(correction.depth.ravel(), model.predict_depth(scan.raw_pixels()), atol=1e-6)
 
 
-def test_correct_scan__multipath_region_improves(small_model):
+@pytest.mark.unit
+def test_correct_scan__multipath_region_improves(pixelwise_model):
     scan = two_path_scan("m", height=40, width=40)
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(gate="all"))
+    correction = correct_scan(scan, load_model(pixelwise_model), CorrectionOptions(gate="all"))
     left = np.s_[:, :20]  # the multipath half
     raw_error = np.abs(scan.depth[-1][left] - scan.reference_depth[left]).mean()
     corrected_error = np.abs(correction.depth[left] - scan.reference_depth[left]).mean()
     assert corrected_error < 0.7 * raw_error
 
 
-def test_consistency_gate__skips_about_all_pixels_without_multipath(small_model):
+@pytest.mark.unit
+def test_consistency_gate__skips_about_all_pixels_without_multipath(pixelwise_model):
     scan = two_path_scan("clean", height=60, width=60, multipath=False)
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(gate="consistency", baseline="raw"))
+    correction = correct_scan(scan, load_model(pixelwise_model), CorrectionOptions(gate="consistency", baseline="raw"))
     skipped = (correction.flags == Flag.NOT_NEEDED).mean()
     assert skipped > 0.97  # chi^2 at p = 0.01: about 1 % false alarms
     untouched = correction.flags == Flag.NOT_NEEDED
     np.testing.assert_array_equal(correction.depth[untouched], scan.depth[-1][untouched])
 
 
-def test_correct_scan__other_frequencies_are_refused(small_model):
+@pytest.mark.unit
+def test_correct_scan__other_frequencies_are_refused(pixelwise_model):
     scan = two_path_scan("f")
     three = replace(scan, frequencies_hz=scan.frequencies_hz[1:], depth=scan.depth[1:], amplitude=scan.amplitude[1:])
     with pytest.raises(MpiLidarError, match=r"model expects 12\.5, 18\.75, 25, 31\.25 MHz"):
-        correct_scan(three, load_model(small_model), CorrectionOptions())
+        correct_scan(three, load_model(pixelwise_model), CorrectionOptions())
 
 
-def test_correct_archive__rerun_skips_finished_scans_and_redoes_missing(archive, small_model, tmp_path):
-    first = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions(), outputs=LIGHT)
+@pytest.mark.unit
+def test_correct_archive__rerun_skips_finished_scans_and_redoes_missing(archive, pixelwise_model, tmp_path):
+    first = correct_archive([str(archive)], pixelwise_model, tmp_path, CorrectionOptions(), outputs=LIGHT)
     assert [o.status for o in first] == ["unchanged"] * 3, "a tilted plane: the geometry gate corrects nothing"
     stamp = (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns
     import shutil
 
     shutil.rmtree(tmp_path / "b")  # as if the batch had been interrupted before scan b
-    second = correct_archive([str(archive)], small_model, tmp_path, CorrectionOptions(), outputs=LIGHT)
+    second = correct_archive([str(archive)], pixelwise_model, tmp_path, CorrectionOptions(), outputs=LIGHT)
     assert [o.status for o in second] == ["skipped", "unchanged", "skipped"]
     assert (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns == stamp
-    other_gate = correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path,
+    other_gate = correct_archive([str(archive / "a.scan.zarr")], pixelwise_model, tmp_path,
                                  CorrectionOptions(gate="consistency"), outputs=LIGHT)
     assert other_gate[0].status == "corrected", "other options are another correction"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "no staging directories left"
 
 
-def test_correct_archive__leftovers_of_a_killed_batch_are_removed_and_nothing_else(archive, small_model, tmp_path):
+@pytest.mark.unit
+def test_correct_archive__leftovers_of_a_killed_batch_are_removed_and_nothing_else(archive, pixelwise_model, tmp_path):
     leftovers = [tmp_path / ".a.writing-0123abcd", tmp_path / ".b.old-89abcdef"]
     for path in leftovers:
         (path / "corrected.zarr").mkdir(parents=True)
     kept = [tmp_path / ".user-notes", tmp_path / ".a.writing-not-hex"]
     for path in kept:
         path.mkdir()
-    correct_archive([str(archive / "a.scan.zarr")], small_model, tmp_path, CorrectionOptions(gate="all"),
+    correct_archive([str(archive / "a.scan.zarr")], pixelwise_model, tmp_path, CorrectionOptions(gate="all"),
                     outputs=LIGHT)
     assert not any(path.exists() for path in leftovers)
     assert all(path.is_dir() for path in kept)
 
 
-def test_correct_archive__dask_and_in_process_agree(archive, small_model, tmp_path, cluster_client):
-    outcomes = correct_archive([str(archive / "*.scan.zarr")], small_model, tmp_path / "dask", CorrectionOptions(),
+@pytest.mark.integration
+def test_correct_archive__dask_and_in_process_agree(archive, pixelwise_model, tmp_path, cluster_client):
+    outcomes = correct_archive([str(archive / "*.scan.zarr")], pixelwise_model, tmp_path / "dask", CorrectionOptions(),
                                client=cluster_client, outputs=LIGHT)
-    local = correct_archive([str(archive)], small_model, tmp_path / "local", CorrectionOptions(), outputs=LIGHT)
+    local = correct_archive([str(archive)], pixelwise_model, tmp_path / "local", CorrectionOptions(), outputs=LIGHT)
     assert [o.status for o in outcomes] == ["unchanged"] * 3
     for name in ("a", "b", "c"):
         on_dask = zarr.open_group(str(tmp_path / "dask" / name / "corrected.zarr"), mode="r")["corrected_depth"][:]
@@ -128,7 +137,8 @@ def test_correct_archive__dask_and_in_process_agree(archive, small_model, tmp_pa
     assert [o.metrics for o in outcomes] == [o.metrics for o in local]
 
 
-def test_process_scan__bad_scans_fail_alone_with_a_reason(tmp_path, small_model, archive):
+@pytest.mark.unit
+def test_process_scan__bad_scans_fail_alone_with_a_reason(tmp_path, pixelwise_model, archive):
     bad = tmp_path / "bad.scan.zarr"
     bad.mkdir()
     (bad / "zarr.json").write_text("{not json")
@@ -136,7 +146,7 @@ def test_process_scan__bad_scans_fail_alone_with_a_reason(tmp_path, small_model,
     group_path = tmp_path / "escape.scan.zarr"
     write_scan(replace(escaping, name="fine"), group_path)
     zarr.open_group(str(group_path), mode="r+").attrs["name"] = "../escape"
-    outcomes = correct_archive([str(bad), str(group_path), str(archive / "a.scan.zarr")], small_model,
+    outcomes = correct_archive([str(bad), str(group_path), str(archive / "a.scan.zarr")], pixelwise_model,
                                tmp_path / "out", CorrectionOptions(), outputs=LIGHT)
     by_name = {o.source: o for o in outcomes}
     assert by_name[str(bad)].status == "failed" and "not a readable Zarr store" in by_name[str(bad)].reason
@@ -150,16 +160,19 @@ def test_process_scan__bad_scans_fail_alone_with_a_reason(tmp_path, small_model,
     assert not (tmp_path / "escape").exists() and not list((tmp_path / "out").rglob("escape"))
 
 
-def test_process_scan__unwritable_output_fails_cleanly(small_model, archive):
-    outcome = process_scan(archive / "a.scan.zarr", small_model, "/proc/self/forbidden", CorrectionOptions())
+@pytest.mark.unit
+def test_process_scan__unwritable_output_fails_cleanly(pixelwise_model, archive):
+    outcome = process_scan(archive / "a.scan.zarr", pixelwise_model, "/proc/self/forbidden", CorrectionOptions())
     assert outcome.status == "failed" and outcome.reason
 
 
-def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(archive, small_model, tmp_path):
+@pytest.mark.integration
+@pytest.mark.slow
+def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(archive, pixelwise_model, tmp_path):
     bad = tmp_path / "broken.scan.zarr"
     bad.mkdir()
     command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(archive / "a.scan.zarr"), str(bad),
-               "--model", str(small_model), "--out", str(tmp_path / "out"), "--workers", "0", "--outputs", "full"]
+               "--model", str(pixelwise_model), "--out", str(tmp_path / "out"), "--workers", "0", "--outputs", "full"]
     result = subprocess.run(command, capture_output=True, text=True)
     assert result.returncode == 1
     errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
@@ -170,6 +183,7 @@ def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(arc
         assert (tmp_path / "out" / archive.name / "a" / name).exists(), name  # two folders: nested
 
 
+@pytest.mark.integration
 def test_correct_cli__missing_model_is_one_line_exit_2(archive, tmp_path):
     command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(archive), "--model", str(tmp_path / "nope"),
                "--out", str(tmp_path / "out"), "--workers", "0"]
@@ -182,9 +196,10 @@ def test_correct_cli__missing_model_is_one_line_exit_2(archive, tmp_path):
 # --- the geometry gate ------------------------------------------------------------------------------------
 
 
-def test_geometry_gate__flat_wall_is_left_exactly_as_measured(small_model):
+@pytest.mark.unit
+def test_geometry_gate__flat_wall_is_left_exactly_as_measured(pixelwise_model):
     scan = render(flat_wall(20.0, height=48, width=64), Config(), np.random.default_rng(1))
-    model = load_model(small_model)
+    model = load_model(pixelwise_model)
     correction = correct_scan(scan, model, CorrectionOptions())
     valid = ~np.isin(correction.flags, [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT])
     assert (correction.flags[valid] == Flag.NO_MULTIPATH).mean() > 0.99
@@ -204,19 +219,22 @@ def test_geometry_gate__flat_wall_is_left_exactly_as_measured(small_model):
     pixelwise = correct_scan(scan, model, CorrectionOptions(gate="all"))
     assert (pixelwise.flags[valid] == Flag.CORRECTED).all()
     assert correction.multipath_bias_m is not None and float(correction.multipath_bias_m.max()) == 0.0
-    assert correction.notes[0].startswith("amplitude unit auto: ") and "read as V^2" in correction.notes[0]
-    assert len(correction.notes) == 2 and correction.notes[1].startswith("frequency offsets: ")
-    assert raw.notes == correction.notes[:1], "nothing fused, no offsets measured"
+    notes = correction_notes(correction)
+    assert notes[0].startswith("amplitude unit auto: ") and "read as V^2" in notes[0]
+    assert len(notes) == 2 and notes[1].startswith("frequency offsets: ")
+    assert correction_notes(raw) == correction_notes(correction)[:1], "nothing fused, no offsets measured"
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("whole_cycles", [False, True])
-def test_fused_depth__removes_the_window_s_leakage_only_from_a_sensor_that_has_it(small_model, whole_cycles):
+def test_fused_depth__removes_the_window_s_leakage_only_from_a_sensor_that_has_it(pixelwise_model, whole_cycles):
     config = Config(simulator=SimulatorConfig(whole_cycles=whole_cycles, noise_scale=0.2))
     scan = render(flat_wall(20.0, 1.0, 0.7, height=48, width=64), config, np.random.default_rng(3))
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(amplitude_scale=1.0, noise_scale=0.2))
+    options = CorrectionOptions(amplitude_scale=1.0, noise_scale=0.2)
+    correction = correct_scan(scan, load_model(pixelwise_model), options)
     assert correction.window_leakage_removed is not whole_cycles
     said = "removed first" if not whole_cycles else "left in"
-    assert f"the integration window's leakage {said}" in correction.notes[-1], correction.notes
+    assert f"the integration window's leakage {said}" in correction_notes(correction)[-1], correction_notes(correction)
     fused = correction.estimate == Estimate.FUSED
     assert fused.mean() > 0.9
     # At 1 m the leakage leaves the highest frequency 0.18 mm short, which no relative offset removes; a fifth of
@@ -226,12 +244,13 @@ def test_fused_depth__removes_the_window_s_leakage_only_from_a_sensor_that_has_i
     assert np.abs(np.asarray(correction.frequency_offsets_m)).max() < 1e-4, "nothing left to remove but noise"
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("window_leakage_removed", [None, True])
-def test_fused_depth__a_profile_s_offsets_say_whether_the_leakage_goes_first(small_model, window_leakage_removed):
+def test_fused_depth__a_profile_s_offsets_say_whether_the_leakage_goes_first(pixelwise_model, window_leakage_removed):
     scan = render(flat_wall(20.0, 1.0, 0.7, height=48, width=64), Config(), np.random.default_rng(3))
     offsets = (-2e-5, 1e-5, 0.0, 0.0)
     options = CorrectionOptions(frequency_offsets_m=offsets, window_leakage_removed=window_leakage_removed)
-    correction = correct_scan(scan, load_model(small_model), options)
+    correction = correct_scan(scan, load_model(pixelwise_model), options)
     assert correction.window_leakage_removed is bool(window_leakage_removed)
     assert correction.frequency_offsets_m == offsets
     fused = correction.estimate == Estimate.FUSED
@@ -239,6 +258,7 @@ def test_fused_depth__a_profile_s_offsets_say_whether_the_leakage_goes_first(sma
     np.testing.assert_allclose(correction.depth[fused], expected[fused], rtol=0, atol=2e-6)
 
 
+@pytest.mark.unit
 def test_correct_scan__says_how_many_corrected_pixels_lie_beyond_the_model_s_prior(tmp_path):
     from tests.model_factory import tiny_model
 
@@ -247,18 +267,20 @@ def test_correct_scan__says_how_many_corrected_pixels_lie_beyond_the_model_s_pri
     assert reach is not None and reach[1] == pytest.approx(model.card.dataset.prior.model_extra["d_ab_m"][1])
     sharp = correct_scan(render(corner(60.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2)),
                          model, CorrectionOptions(gate="all", footprint_area_m2=0.041))
-    said = [note for note in sharp.notes if "beyond what the model was trained on" in note]
-    assert len(said) == 1, sharp.notes
+    said = [note for note in correction_notes(sharp) if "beyond what the model was trained on" in note]
+    assert len(said) == 1, correction_notes(sharp)
     beyond = int(said[0].split(" corrected pixels")[0].replace(",", ""))
     assert 0 < beyond <= sharp.counts()["corrected"]
     wall = correct_scan(render(flat_wall(20.0, height=40, width=64), Config(), np.random.default_rng(2)), model,
                         CorrectionOptions(gate="all", footprint_area_m2=0.041))
-    assert not any("beyond what the model" in note for note in wall.notes), "a wall has no multipath to extrapolate"
+    assert not any("beyond what the model" in note for note in correction_notes(wall)), \
+        "a wall has no multipath to extrapolate"
 
 
-def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
+@pytest.mark.unit
+def test_geometry_gate__corner_is_corrected_near_its_edge_only(pixelwise_model):
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions(baseline="raw"))
+    correction = correct_scan(scan, load_model(pixelwise_model), CorrectionOptions(baseline="raw"))
     row = correction.flags[20]
     assert (row[40:56] == Flag.CORRECTED).all(), "the edge is at the centre column"
     assert correction.counts()["corrected"] > 0.2 * row.size * 40
@@ -268,14 +290,15 @@ def test_geometry_gate__corner_is_corrected_near_its_edge_only(small_model):
     assert bias[42:55].max() > bias[64] > bias[80] > bias[92] >= 0, "largest next to the edge, falling away"
 
 
-def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model, tmp_path):
+@pytest.mark.unit
+def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(pixelwise_model, tmp_path):
     scan = replace(two_path_scan("nogeo"), azimuth_rad=None, elevation_rad=None)
-    correction = correct_scan(scan, load_model(small_model), CorrectionOptions())
-    assert correction.notes[1] == NO_GEOMETRY_NOTE and correction.frequency_offsets_m is None
-    assert "no scene geometry" in correction.notes[2]
+    correction = correct_scan(scan, load_model(pixelwise_model), CorrectionOptions())
+    assert correction_notes(correction)[1] == NO_GEOMETRY_NOTE and correction.frequency_offsets_m is None
+    assert "no scene geometry" in correction_notes(correction)[2]
     assert (correction.flags == Flag.CORRECTED).all() and correction.multipath_bias_m is None
     write_scan(scan, tmp_path / "nogeo.scan.zarr")
-    outcome = process_scan(tmp_path / "nogeo.scan.zarr", small_model, tmp_path / "out", CorrectionOptions(),
+    outcome = process_scan(tmp_path / "nogeo.scan.zarr", pixelwise_model, tmp_path / "out", CorrectionOptions(),
                            outputs=LIGHT)
     assert outcome.status == "corrected" and NO_GEOMETRY_NOTE in outcome.notes
     assert NO_GEOMETRY_NOTE in (tmp_path / "out" / "nogeo" / "report.md").read_text()
@@ -283,12 +306,14 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(small_model
     assert "multipath_bias_m" not in stored and stored.attrs["flag_codes"]["no_multipath"] == 7
 
 
+@pytest.mark.unit
 def test_flag__existing_codes_are_stable():
     assert [int(f) for f in Flag] == list(range(10))
     assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0 and Flag.UNCALIBRATED == 8
     assert Flag.AMBIGUOUS == 9
 
 
+@pytest.mark.unit
 def test_scan_status__degraded_then_unchanged_then_corrected():
     from mpi_lidar.correction.outcome import scan_status
 
@@ -300,6 +325,7 @@ def test_scan_status__degraded_then_unchanged_then_corrected():
     assert scan_status({"corrected": 4, "not_finite": 6}, 1.0) == ScanStatus.CORRECTED
 
 
+@pytest.mark.unit
 def test_correction_options__max_invalid_share_is_bounded_and_not_hashed():
     # the hash of the defaults before max_invalid_share, the self-calibrating footprint, the near range and
     # unwrapping existed: unwrapping changes the pixels of wrapped scans, so outputs written then are corrected
@@ -318,13 +344,14 @@ def test_correction_options__max_invalid_share_is_bounded_and_not_hashed():
             CorrectionOptions.from_cli(max_invalid_share=bad)
 
 
-def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, tmp_path):
+@pytest.mark.unit
+def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(pixelwise_model, tmp_path):
     scan = render(corner(90.0, 2.0, 0.8, height=24, width=48), Config(), np.random.default_rng(3))
     write_scan(scan, tmp_path / "corner.scan.zarr")
 
     def flags_with(*options: str) -> np.ndarray:
         out = tmp_path / f"out{len(list(tmp_path.iterdir()))}"
-        arguments = ["correct", str(tmp_path / "corner.scan.zarr"), "--model", str(small_model), "--out", str(out),
+        arguments = ["correct", str(tmp_path / "corner.scan.zarr"), "--model", str(pixelwise_model), "--out", str(out),
                      "--workers", "0", *options]
         assert CliRunner().invoke(cli, arguments).exit_code == 0
         return zarr.open_group(str(out / "corner" / "corrected.zarr"), mode="r")["flags"][:]  # the store name
@@ -338,6 +365,7 @@ def test_correct_cli__gate_threshold_and_footprint_reach_the_gate(small_model, t
     assert not (blind == Flag.CORRECTED).any(), "a vanishing footprint leaves no multipath potential"
 
 
+@pytest.mark.unit
 def test_correction_options__amplitude_scale_auto_or_a_positive_number():
     assert CorrectionOptions.from_cli(amplitude_scale="auto").amplitude_scale == "auto"
     assert CorrectionOptions.from_cli(amplitude_scale="4000").amplitude_scale == 4000.0

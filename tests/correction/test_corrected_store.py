@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 import zarr
 
 from mpi_lidar.correction import Correction, CorrectionOptions, Flag
@@ -12,6 +13,8 @@ from mpi_lidar.correction.corrected_store import write_corrected_store
 from mpi_lidar.workflows.verify import verify_store
 from tests.scan_factory import two_path_scan
 from tests.xarray_checks import open_strictly, plot_strictly
+
+pytestmark = pytest.mark.unit
 
 
 def _correction(scan, bias: bool = True) -> Correction:

@@ -20,6 +20,8 @@ from mpi_lidar.correction import (
 from mpi_lidar.correction.gates import ConsistencyGate, CorrectAll, GeometryGate
 from mpi_lidar.simulation.scenes import corner, render
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def corner_scan():

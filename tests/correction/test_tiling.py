@@ -11,8 +11,9 @@ import pytest
 from benchmarks.correction import finer_scan
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
-from mpi_lidar.correction.correct import PARALLEL_MIN_ROWS, row_tiles
+from mpi_lidar.correction.tiles import PARALLEL_MIN_ROWS, row_tiles
 from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.simulation.scenes import cornered_board, render
 from mpi_lidar.threads import on_cores_by_rows
 from tests.model_factory import tiny_model
@@ -28,6 +29,7 @@ def model(request, tmp_path_factory):
     return load_model(tiny_model(tmp_path_factory.mktemp("model") / "model", geometric=request.param))
 
 
+@pytest.mark.unit
 def test_row_tiles__whole_rows_cover_every_pixel_once():
     tiles = row_tiles(7, 5, 12)  # 12 pixels: two rows of 5 per tile
     assert [(t.start, t.stop) for t in tiles] == [(0, 10), (10, 20), (20, 30), (30, 35)]
@@ -35,6 +37,8 @@ def test_row_tiles__whole_rows_cover_every_pixel_once():
     assert [(t.start, t.stop) for t in row_tiles(3, 10, 10**6)] == [(0, 30)]
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.parametrize("gate", ["geometry", "all", "consistency"])
 def test_correct_scan__tiled_equals_untiled_to_the_last_bit(board, model, gate):
     whole = correct_scan(board, model, CorrectionOptions(gate=gate, tile_pixels=10**7))
@@ -49,19 +53,21 @@ def test_correct_scan__tiled_equals_untiled_to_the_last_bit(board, model, gate):
         assert (tiled.multipath_bias_m is None) == (whole.multipath_bias_m is None)
         if whole.multipath_bias_m is not None:
             assert tiled.multipath_bias_m.tobytes() == whole.multipath_bias_m.tobytes()
-        assert tiled.notes == whole.notes
+        assert correction_notes(tiled) == correction_notes(whole)
 
 
+@pytest.mark.unit
 def test_correct_scan__geometry_gate_corrects_near_the_corner_and_says_what_it_cost(board, model):
     correction = correct_scan(board, model, CorrectionOptions(tile_pixels=800, baseline="raw"))
     counts = correction.counts()
     assert counts["corrected"] > 0 and counts["no_multipath"] > 0
     gated = correction.flags == Flag.NO_MULTIPATH
     np.testing.assert_array_equal(correction.depth[gated], board.depth[-1][gated])
-    assert set(correction.cpu_s) == {"validity", "gate", "inference"}
+    assert set(correction.cpu_s) == {"unit", "validity", "gate", "inference", "baseline"}
     assert all(seconds >= 0 for seconds in correction.cpu_s.values())
 
 
+@pytest.mark.unit
 def test_on_cores_by_rows__ranges_cover_every_row_once_in_order(monkeypatch):
     monkeypatch.setattr("os.cpu_count", lambda: 3)
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
@@ -76,6 +82,7 @@ def test_on_cores_by_rows__ranges_cover_every_row_once_in_order(monkeypatch):
     assert ranges(0) == [(0, 0)]
 
 
+@pytest.mark.unit
 def test_correct_scan__threads_share_the_rows_to_the_same_bits(board, model, monkeypatch):
     finer = finer_scan(board, 4)  # 240 x 320: one tile of 76,800 pixels, split among the threads
     assert finer.shape[0] * finer.shape[1] >= 4 * PARALLEL_MIN_ROWS
@@ -102,6 +109,8 @@ def _peak_bytes(scan, model, options) -> int:
         tracemalloc.stop()
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_correct_scan__working_memory_grows_by_a_few_bytes_a_pixel_when_tiled(model):
     """The same scene on a grid three times as fine: tiled, the gate included, the extra pixels cost what the
     per-pixel results cost (flags, depth, measured depth, bias map, estimate, the fused depth and the sds of it

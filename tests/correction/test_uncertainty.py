@@ -9,9 +9,9 @@ import pytest
 
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import CorrectionOptions, correct_scan
-from mpi_lidar.correction.correct import corrected_uncertainty_m, footprint_left_open
 from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.options import Estimate
+from mpi_lidar.correction.uncertainty import corrected_uncertainty_m, footprint_left_open
 from mpi_lidar.learning.error_model import corrected_sigma_m
 from mpi_lidar.learning.model import UncertaintyCard, load_model
 from mpi_lidar.physics.noise import fused_depths
@@ -64,7 +64,7 @@ def test_corrected_uncertainty_m__old_card_keeps_the_measured_sd_and_the_footpri
                                              left_open * correction), rtol=1e-6)
 
 
-@pytest.mark.integration
+@pytest.mark.unit
 def test_correct_scan__corrected_pixels_take_the_cards_uncertainty_model(geometric_model):
     scan = render(corner(90.0, 2.0, 0.8, height=24, width=48), Config(), np.random.default_rng(3))
     options = CorrectionOptions(footprint_area_m2=0.05)  # a given footprint: no share of its own

@@ -11,16 +11,21 @@ import zarr
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, correct_scan
-from mpi_lidar.correction import correct as correct_module
-from mpi_lidar.correction.correct import COUNT_CHUNK_PIXELS, code_counts, row_tiles, scan_tiles
+from mpi_lidar.correction import result as result_module
+from mpi_lidar.correction import tiles as tiles_module
+from mpi_lidar.correction.result import COUNT_CHUNK_PIXELS, code_counts
+from mpi_lidar.correction.tiles import row_tiles, scan_tiles
 from mpi_lidar.correction.unwrapped_depth import UnwrappedDepth
 from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.scans.stored_map import StoredMap
 from mpi_lidar.simulation.scenes import cornered_board, render
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
+
+pytestmark = pytest.mark.unit
 
 KEYS = [
     (slice(None), slice(3, 9)),  # a tile of rows, as correction reads one
@@ -88,12 +93,12 @@ def test_correct_scan__moved_depths_put_in_as_read_correct_as_a_copy_of_the_unwr
         def __getitem__(self, key):
             return self.whole()[key]
 
-    monkeypatch.setattr(correct_module, "UnwrappedDepth", CopiedWhole)
+    monkeypatch.setattr(tiles_module, "UnwrappedDepth", CopiedWhole)
     copied = correct_scan(board, model, CorrectionOptions())
     assert moved and moved[0] > 0, "the scan must have depths that took a wrap count"
     for name in ("depth", "flags", "estimate", "uncertainty_m", "measured_depth", "multipath_bias_m"):
         assert getattr(copied, name).tobytes() == getattr(as_read, name).tobytes(), name
-    assert copied.notes == as_read.notes
+    assert correction_notes(copied) == correction_notes(as_read)
 
 
 def test_scan_tiles__a_stored_scan_tiles_whole_rows_within_its_bands(monkeypatch):
@@ -115,6 +120,6 @@ def test_scan_tiles__a_stored_scan_tiles_whole_rows_within_its_bands(monkeypatch
 
 def test_code_counts__chunks_count_what_bincount_counts(monkeypatch):
     codes = np.random.default_rng(2).integers(0, 7, (13, 11)).astype(np.uint8)
-    monkeypatch.setattr(correct_module, "COUNT_CHUNK_PIXELS", 10)
+    monkeypatch.setattr(result_module, "COUNT_CHUNK_PIXELS", 10)
     np.testing.assert_array_equal(code_counts(codes, 9), np.bincount(codes.ravel(), minlength=9))
     assert COUNT_CHUNK_PIXELS >= 2**16

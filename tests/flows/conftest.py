@@ -13,8 +13,15 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import mark_directory
 from tests.flows import environment  # before anything imports Prefect
 from tests.flows.helpers import write_config
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Every test in this directory is an integration test (tests/conftest.py)."""
+    mark_directory(items, Path(__file__).resolve().parent, "integration")
 
 
 @pytest.fixture(scope="session", autouse=True)

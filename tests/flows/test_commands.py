@@ -45,12 +45,12 @@ COMMAND_TIMEOUT_S = 600
 NOISE = re.compile(r"\bINFO\b|telemetry|8787|jupyter-server-proxy|Traceback", re.IGNORECASE)
 ARTIFACT_KEY = re.compile(r"^[a-z0-9-]+$")
 # The flow beside the command it stands for, and parameters whose CLI default is spelled otherwise for the same
-# behaviour: correct --workers unset runs in this process (the flow's 0); tune --geometric unset is the default.
+# behaviour: tune --geometric unset is the default.
 FLOW_COMMANDS = {"generate-dataset": "simulate", "tune": "tune", "train": "train", "evaluate": "evaluate",
                  "table-2": "table2", "correct-archive": "correct", "pipeline": "pipeline"}
 CLI_NAMES = {"preset_name": "preset", "study_name": "study", "target_mode": "target", "model_dir": "model",
              "out_dir": "out", "report_dir": "report"}
-SAME_DEFAULT = {("correct-archive", "workers"): (None, 0), ("tune", "geometric"): (None, DEFAULT_GEOMETRIC)}
+SAME_DEFAULT = {("tune", "geometric"): (None, DEFAULT_GEOMETRIC)}
 
 
 def run_command(flow: str, *options: str, home: Path, api: str | None) -> tuple[dict[str, object], str]:

@@ -115,7 +115,8 @@ def test_on_demand_deployments__correction_schema_has_every_correct_option(monke
     assert {"scans", "model", "out", "gate", "min_bias_mm", "footprint_area_m2", "workers", "scheduler"} <= set(
         properties)
     assert set(schema.required) == {"scans", "model", "out"}
-    assert properties["gate"]["enum"] == ["geometry", "all", "consistency"]
+    gate = schema.definitions[properties["gate"]["$ref"].rsplit("/", 1)[-1]]  # the enum GateName, by reference
+    assert gate["enum"] == ["geometry", "all", "consistency"]
     assert properties["gate"]["default"] == "geometry" and properties["min_bias_mm"].get("default") is None
-    cli_options = {param.name for param in cli.correct.params}
+    cli_options = {param.name for param in cli.cli.commands["correct"].params}
     assert cli_options - {"model_dir", "out_dir"} <= set(properties)

@@ -21,10 +21,18 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import mark_directory
+
 REPO = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 POSTGRES_ADMIN_URL = os.environ.get("MPI_LIDAR_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/postgres")
 START_TIMEOUT_S = 60
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Every test in this directory is an integration test (tests/conftest.py)."""
+    mark_directory(items, Path(__file__).resolve().parent, "integration")
 
 
 def free_port() -> int:

@@ -11,6 +11,8 @@ from mpi_lidar.learning.features import weighted_depth
 from mpi_lidar.reporting.table2 import table2_report
 from mpi_lidar.simulation import dataset
 
+pytestmark = pytest.mark.integration
+
 
 @pytest.fixture(scope="module")
 def result(small_dataset, small_model):

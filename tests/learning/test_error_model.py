@@ -21,6 +21,8 @@ from mpi_lidar.physics.noise import fused_depths
 from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
 from mpi_lidar.simulation.sampling import THETA_NAMES
 
+pytestmark = pytest.mark.unit
+
 CONFIG = Config()  # the working range, 0.5-12 m
 SPEC = FeatureSpec(CONFIG.frequencies_hz, "physical", "residual", geometric=True)
 # Rows the booster learns from, rows the uncertainty is fitted on, rows it is checked on: three disjoint sets.

@@ -11,6 +11,8 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import AMPLITUDE_FLOOR_V2, FeatureSpec, weighted_depth
 from mpi_lidar.physics.transport import two_path_phasors
 
+pytestmark = pytest.mark.unit
+
 FREQUENCIES = Config().frequencies_hz
 
 

@@ -22,6 +22,7 @@ from mpi_lidar.learning.features import (
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.learning.train import train_and_save, training_geometry, training_geometry_lazy
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
+from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 from mpi_lidar.simulation.scenes import corner, render
@@ -48,6 +49,7 @@ def models(tmp_path_factory, cluster_client, small_dataset):
     return out
 
 
+@pytest.mark.unit
 def test_synthetic_geometry__error_statistics_match_the_error_model():
     prior = PriorConfig()
     theta = sample_theta(prior, 100_000, np.random.default_rng(3))
@@ -65,12 +67,14 @@ def test_synthetic_geometry__error_statistics_match_the_error_model():
     assert (estimate[:, 1] >= 0).all()
 
 
+@pytest.mark.unit
 def test_synthetic_geometry__without_error_a_training_row_gets_its_own_rho_aba_and_d_ab():
     theta = sample_theta(PriorConfig(), 2_000, np.random.default_rng(8))
     exact = synthetic_geometry(theta, THETA_NAMES, seed=2, rows=np.arange(2_000), error_model=NO_ERROR)
     np.testing.assert_allclose(exact, theta[:, [4, 1]], rtol=1e-12)
 
 
+@pytest.mark.unit
 def test_row_uniforms__a_row_gets_the_same_values_in_any_subset_or_chunking():
     full = row_uniforms(7, np.arange(5_000))
     rows = np.sort(np.random.default_rng(0).choice(5_000, 300, replace=False))
@@ -83,6 +87,7 @@ def test_row_uniforms__a_row_gets_the_same_values_in_any_subset_or_chunking():
     assert np.abs(full.mean(0) - 0.5).max() < 0.01
 
 
+@pytest.mark.integration
 def test_training_geometry__train_tune_and_evaluate_rows_agree(small_dataset):
     spec = FeatureSpec(FREQS, "engineered", "residual", geometric=True)
     lazy = training_geometry_lazy(spec, dataset.read_lazy(small_dataset)).compute()
@@ -93,6 +98,7 @@ def test_training_geometry__train_tune_and_evaluate_rows_agree(small_dataset):
     assert training_geometry(FeatureSpec(FREQS, "engineered", "residual"), sub) is None
 
 
+@pytest.mark.unit
 def test_feature_spec__geometric_inputs_are_required_and_appended():
     spec = FeatureSpec(FREQS, "engineered", "residual", geometric=True)
     raw = two_path_scan("g").raw_pixels()
@@ -107,11 +113,13 @@ def test_feature_spec__geometric_inputs_are_required_and_appended():
     np.testing.assert_array_equal(lazy, x)
 
 
+@pytest.mark.unit
 def test_geometry_inputs__no_partner_gives_zeros():
     out = geometry_inputs(np.array([0.0, 0.2, np.nan]), np.array([np.nan, 0.04, np.nan]))
     np.testing.assert_array_equal(out, [[0.0, 0.0], [0.2, 0.04], [0.0, 0.0]])
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_train_and_save__card_records_the_geometric_option(models):
     card = load_model(models[True]).card
@@ -121,6 +129,7 @@ def test_train_and_save__card_records_the_geometric_option(models):
     assert pixelwise.geometric is False and pixelwise.geometry_error_model is None
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_predict_depth__geometric_model_refuses_rows_without_inputs(models):
     model = load_model(models[True])
@@ -128,6 +137,7 @@ def test_predict_depth__geometric_model_refuses_rows_without_inputs(models):
         model.predict_depth(two_path_scan("r").raw_pixels())
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_evaluate_model__geometric_inputs_beat_pixel_wise_on_varying_coupling(models, small_dataset):
     geometric = evaluate_model(load_model(models[True]), small_dataset).metrics["corrected (XGBoost)"].mae_m
@@ -135,6 +145,7 @@ def test_evaluate_model__geometric_inputs_beat_pixel_wise_on_varying_coupling(mo
     assert geometric < 0.85 * pixel_wise
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_correct_scan__geometric_model_gets_the_gate_estimates(models):
     scan = render(corner(90.0, 2.0, 0.8, height=40, width=96), Config(), np.random.default_rng(2))
@@ -166,6 +177,7 @@ def _corrected_errors(models, scan) -> tuple[dict[bool, float], float]:
     return errors, np.abs(scan.depth[-1] - scan.reference_depth)[corrected].mean()
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_correct_scan__geometric_model_beats_pixel_wise_where_multipath_is_far_from_the_prior_average(models):
     """A 60-degree corner holds about twice the multipath the prior averages: a pixel-wise model takes off the
@@ -176,6 +188,7 @@ def test_correct_scan__geometric_model_beats_pixel_wise_where_multipath_is_far_f
     assert errors[False] < 0.8 * raw
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_correct_scan__geometric_model_matches_pixel_wise_where_multipath_is_near_the_prior_average(models):
     """On a right-angled corner 2 m away the multipath lies near the prior's average, so the pixel-wise model's
@@ -186,11 +199,12 @@ def test_correct_scan__geometric_model_matches_pixel_wise_where_multipath_is_nea
     assert max(errors.values()) < 0.5 * raw
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_correct_scan__geometric_model_keeps_raw_depth_without_scan_geometry(models):
     scan = replace(two_path_scan("n"), azimuth_rad=None, elevation_rad=None, ray_directions=None)
     correction = correct_scan(scan, load_model(models[True]), CorrectionOptions(baseline="raw"))
-    assert NO_GEOMETRY_INPUTS_NOTE in correction.notes
+    assert NO_GEOMETRY_INPUTS_NOTE in correction_notes(correction)
     assert correction.counts()["corrected"] == 0
     assert correction.unserved is not None and correction.unserved.reason == "no_geometry"
     assert "mpi-lidar import-scan" in correction.unserved.message

@@ -24,6 +24,8 @@ from mpi_lidar.learning.model import (
 )
 from mpi_lidar.learning.train import model_card, train_arrays
 
+pytestmark = pytest.mark.unit
+
 CONFIG = Config()
 SPEC = FeatureSpec(CONFIG.frequencies_hz, "engineered", "residual")
 

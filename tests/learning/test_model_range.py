@@ -20,12 +20,14 @@ def model_dir(tmp_path_factory) -> Path:
     return tiny_model(tmp_path_factory.mktemp("range") / "model")
 
 
+@pytest.mark.unit
 def test_bins__span_both_ends_of_the_prior():
     spans = bins_m((1.4, 2.4))
     assert spans[0][0] == pytest.approx(0.98) and spans[-1][1] == pytest.approx(2.64)
     assert all(low < high for low, high in spans)
 
 
+@pytest.mark.unit
 def test_run__the_range_rule_corrects_inside_and_keeps_raw_outside(model_dir):
     found = list(run(load_model(model_dir), rows=1_500))
     below, above = found[:len(BELOW)], found[len(BELOW):]
@@ -38,6 +40,8 @@ def test_run__the_range_rule_corrects_inside_and_keeps_raw_outside(model_dir):
     assert all(0 < row.weak_rows < row.rows and row.weak_raw_mm < row.raw_mm for row in found)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_command__prints_the_table(model_dir):
     result = subprocess.run([sys.executable, "-m", "benchmarks.model_range", "--model", str(model_dir),
                              "--rows", "500"], capture_output=True, text=True, timeout=300, cwd=ROOT)

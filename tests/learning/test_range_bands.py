@@ -12,6 +12,7 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.range_bands import RANGE_BANDS_M, range_band_errors
 
 
+@pytest.mark.unit
 def test_range_band_errors__hand_computed_band_values():
     truth = np.array([0.6, 0.9, 1.5, 1.7, 1.9])
     raw = truth + np.array([0.010, 0.020, 0.030, 0.040, 0.050])
@@ -31,6 +32,7 @@ def test_range_band_errors__hand_computed_band_values():
     assert all(band.rows == 0 and np.isnan(band.limit_mae_m) and np.isnan(band.ratio) for band in rest)
 
 
+@pytest.mark.unit
 def test_range_band_errors__a_model_twice_the_limit_has_ratio_two_known_exactly():
     rng = np.random.default_rng(3)
     truth = rng.uniform(0.5, 12.0, 1_000)
@@ -42,6 +44,7 @@ def test_range_band_errors__a_model_twice_the_limit_has_ratio_two_known_exactly(
     assert sum(band.rows for band in found) == 1_000
 
 
+@pytest.mark.unit
 def test_range_band_errors__last_band_includes_its_end_and_rows_outside_every_band_are_left_out():
     truth = np.array([0.4, 0.5, 1.0, 12.0, 12.5])
     found = range_band_errors(truth, truth, truth, None)
@@ -50,6 +53,7 @@ def test_range_band_errors__last_band_includes_its_end_and_rows_outside_every_ba
     assert [band.rows for band in range_band_errors(truth, truth, truth, None, ((0.5, 1.0),))] == [2]
 
 
+@pytest.mark.unit
 def test_range_band_errors__refuses_columns_of_another_length():
     with pytest.raises(MpiLidarError, match=r"posterior_median_m must have one value per row, shape \(3,\)"):
         range_band_errors(np.ones(3), np.ones(3), np.ones(2), np.ones(3))

@@ -33,6 +33,7 @@ def trained(tmp_path_factory, cluster_client, small_dataset):
     return models
 
 
+@pytest.mark.integration
 def test_train_and_save__card_describes_model_and_data(trained, small_dataset):
     model = load_model(trained["residual"])
     card = model.card
@@ -59,6 +60,7 @@ def test_train_and_save__card_describes_model_and_data(trained, small_dataset):
     assert uncertainty.validation_coverage == pytest.approx(0.6827, abs=0.02)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("target", ["absolute", "residual"])
 def test_evaluate_model__correction_beats_raw_depth_on_test_split(trained, small_dataset, target):
     evaluation = evaluate_model(load_model(trained[target]), small_dataset)
@@ -70,6 +72,7 @@ def test_evaluate_model__correction_beats_raw_depth_on_test_split(trained, small
     assert abs(corrected.bias_m) < 0.5 * abs(raw.bias_m)
 
 
+@pytest.mark.integration
 def test_predict_depth__inplace_and_dask_agree(trained, small_dataset, cluster_client):
     model = load_model(trained["residual"])
     lazy = dataset.read_lazy(small_dataset)
@@ -78,6 +81,7 @@ def test_predict_depth__inplace_and_dask_agree(trained, small_dataset, cluster_c
     np.testing.assert_allclose(on_cluster, in_process, rtol=0, atol=1e-6)
 
 
+@pytest.mark.integration
 def test_predict_depth__residual_is_added_to_the_reference_depth(trained, small_dataset):
     model = load_model(trained["residual"])
     sub = dataset.read_subsample(small_dataset, split="test", max_rows=50)
@@ -85,6 +89,7 @@ def test_predict_depth__residual_is_added_to_the_reference_depth(trained, small_
     np.testing.assert_allclose(model.predict_depth(sub.features), sub.features[:, 3] + residual, atol=1e-6)
 
 
+@pytest.mark.integration
 def test_feature_spec__engineered_transform_is_the_same_on_numpy_and_dask(small_dataset):
     spec = FeatureSpec(FREQS, "engineered", "residual")
     lazy = dataset.read_lazy(small_dataset)
@@ -94,6 +99,7 @@ def test_feature_spec__engineered_transform_is_the_same_on_numpy_and_dask(small_
     np.testing.assert_allclose(eager[:, 8], eager[:, 0] - eager[:, 3], atol=1e-6)
 
 
+@pytest.mark.integration
 def test_save_model__existing_directory_is_not_overwritten(trained):
     model = load_model(trained["absolute"])
     before = (trained["absolute"] / "card.json").read_text()
@@ -102,6 +108,7 @@ def test_save_model__existing_directory_is_not_overwritten(trained):
     assert (trained["absolute"] / "card.json").read_text() == before
 
 
+@pytest.mark.integration
 def test_load_model__tampered_model_file_is_refused(trained, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(trained["absolute"], copy)
@@ -110,6 +117,7 @@ def test_load_model__tampered_model_file_is_refused(trained, tmp_path):
         load_model(copy)
 
 
+@pytest.mark.integration
 def test_load_model__card_features_that_do_not_match_the_model_are_refused(trained, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(trained["absolute"], copy)
@@ -120,12 +128,14 @@ def test_load_model__card_features_that_do_not_match_the_model_are_refused(train
         load_model(copy)
 
 
+@pytest.mark.unit
 def test_load_model__directory_without_card_is_refused(tmp_path):
     (tmp_path / "model.ubj").write_bytes(b"{}")
     with pytest.raises(MpiLidarError, match="not a model directory"):
         load_model(tmp_path)
 
 
+@pytest.mark.integration
 def test_check_compatible__other_frequencies_are_refused_in_one_line(trained):
     model = load_model(trained["absolute"])
     three = (12.5e6, 25e6, 31.25e6)
@@ -134,6 +144,7 @@ def test_check_compatible__other_frequencies_are_refused_in_one_line(trained):
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.integration
 def test_train_and_save__dataset_without_train_rows_is_refused(tmp_path, cluster_client):
     path = tmp_path / "all_test.zarr"
     generate(path, Config().replace(dataset={"samples": 1, "chunk_rows": 1, "test_fraction": 0.6}))
@@ -142,6 +153,7 @@ def test_train_and_save__dataset_without_train_rows_is_refused(tmp_path, cluster
     assert not (tmp_path / "m").exists()
 
 
+@pytest.mark.integration
 def test_write_report__files_written_and_foreign_directory_refused(trained, small_dataset, tmp_path):
     model = load_model(trained["absolute"])
     report, figures = evaluation_report(evaluate_model(model, small_dataset), model.card)
@@ -159,6 +171,7 @@ def test_write_report__files_written_and_foreign_directory_refused(trained, smal
     assert (foreign / "notes.txt").read_text() == "keep"
 
 
+@pytest.mark.unit
 def test_train_arrays__early_stopping_trims_to_the_best_iteration():
     x = np.random.default_rng(0).uniform(size=(2_000, 2))
     y = x[:, 0] * 2.0
@@ -169,6 +182,7 @@ def test_train_arrays__early_stopping_trims_to_the_best_iteration():
     assert np.abs(result.booster.inplace_predict(x) - y).mean() < 0.02
 
 
+@pytest.mark.unit
 def test_train_arrays__without_early_stopping_fits_every_row_for_every_round():
     x = np.random.default_rng(1).uniform(size=(500, 3))
     result = train_arrays(x, x.sum(axis=1), {"max_depth": 2}, 7, early_stopping_rounds=None)
@@ -176,6 +190,7 @@ def test_train_arrays__without_early_stopping_fits_every_row_for_every_round():
     assert result.fit_rows == 500 and result.validation_rows == 0 and np.isnan(result.validation_mae_m)
 
 
+@pytest.mark.unit
 def test_xgb_params__base_then_params_or_defaults_then_overrides():
     assert xgb_params() == {**BASE_PARAMS, **DEFAULT_PARAMS}
     assert xgb_params({"max_depth": 3}, nthread=1) == {**BASE_PARAMS, "max_depth": 3, "nthread": 1}

@@ -34,6 +34,7 @@ def storage_url(request, tmp_path):
     return request.getfixturevalue("postgres_url")
 
 
+@pytest.mark.integration
 def test_tune__parallel_trials_on_shared_storage_are_all_accounted_for(storage_url, small_dataset, cluster_client):
     # Residual target: 40 rounds reach a sane error at any learning rate TPE draws (with the absolute target,
     # six draws all below ~0.07 leave the depth centimetres off, about one run in thirty).
@@ -45,6 +46,7 @@ def test_tune__parallel_trials_on_shared_storage_are_all_accounted_for(storage_u
     assert_trials_accounted(storage_url, "parallel", 6)
 
 
+@pytest.mark.integration
 def test_tune__rerun_resumes_and_extends_without_repeating(tmp_path, small_dataset, cluster_client):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
     settings = settings_for(small_dataset)
@@ -55,6 +57,7 @@ def test_tune__rerun_resumes_and_extends_without_repeating(tmp_path, small_datas
     assert_trials_accounted(url, "grow", 5)
 
 
+@pytest.mark.integration
 def test_run_one_trial__failing_trial_is_recorded_and_study_goes_on(tmp_path, small_dataset, cluster_client):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
     settings = settings_for(small_dataset)
@@ -67,6 +70,7 @@ def test_run_one_trial__failing_trial_is_recorded_and_study_goes_on(tmp_path, sm
     assert report.failed == 1 and report.complete + report.pruned == 2
 
 
+@pytest.mark.integration
 def test_open_study__same_name_with_another_search_setting_is_refused(tmp_path, small_dataset):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
     tune.open_study(url, "taken", settings_for(small_dataset))
@@ -74,6 +78,7 @@ def test_open_study__same_name_with_another_search_setting_is_refused(tmp_path, 
         tune.open_study(url, "taken", settings_for(small_dataset, tune_rows=3_000))
 
 
+@pytest.mark.integration
 def test_open_study__unreachable_postgres_names_host_but_never_password(small_dataset):
     url = "postgresql://analyst:s3cret-pw@127.0.0.1:1/studies"
     with pytest.raises(MpiLidarError) as error:
@@ -83,6 +88,7 @@ def test_open_study__unreachable_postgres_names_host_but_never_password(small_da
     assert "s3cret-pw" not in message and "\n" not in message
 
 
+@pytest.mark.integration
 def test_best_params__study_without_complete_trial_is_refused(tmp_path, small_dataset):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
     study = tune.open_study(url, "empty", settings_for(small_dataset))
@@ -92,6 +98,7 @@ def test_best_params__study_without_complete_trial_is_refused(tmp_path, small_da
         tune.load_existing_study(url, "absent")
 
 
+@pytest.mark.unit
 def test_normalise_storage_url__postgres_urls_use_psycopg3():
     assert tune.normalise_storage_url("postgresql://u@h/db") == "postgresql+psycopg://u@h/db"
     assert tune.normalise_storage_url("postgres://u@h/db") == "postgresql+psycopg://u@h/db"

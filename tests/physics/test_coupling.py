@@ -14,6 +14,8 @@ from mpi_lidar.physics.coupling import (
     pair_geometry,
 )
 
+pytestmark = pytest.mark.unit
+
 
 def test_default_footprint__is_90_pi_12_mm_squared():
     assert DEFAULT_FOOTPRINT_RADIUS_M == 0.012 and DEFAULT_COUPLING_GAIN == 90.0

@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 
 from mpi_lidar.physics import demod
 
+pytestmark = pytest.mark.unit
+
 C = 3.0e8
 BIN_S = 6e-9
 FREQS = (12.5e6, 18.75e6, 25e6, 31.25e6)

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import grimp
+import pytest
+
+pytestmark = pytest.mark.unit
 
 FOUNDATION = {"mpi_lidar.constants", "mpi_lidar.errors", "mpi_lidar.timing", "mpi_lidar.config"}
 

@@ -53,6 +53,7 @@ def single_path_bias_bound(theta: np.ndarray) -> np.ndarray:
     return (np.abs(two_path_phase_bias(ratio[:, None], w * theta[:, 1:2])) / w).max(axis=1)
 
 
+@pytest.mark.unit
 def test_prony_two_path__exact_on_noiseless_phasors():
     theta = random_two_path(400, seed=1)
     fit = prony_two_path(closed_form_raw(theta), FREQS)
@@ -67,6 +68,7 @@ def test_prony_two_path__exact_on_noiseless_phasors():
     assert fit.cost.max() < 1e-16
 
 
+@pytest.mark.unit
 def test_least_squares_two_path__exact_on_noiseless_phasors():
     theta = random_two_path(80, seed=2)
     fit = least_squares_two_path(closed_form_raw(theta), FREQS)
@@ -76,6 +78,7 @@ def test_least_squares_two_path__exact_on_noiseless_phasors():
     assert fit.cost.max() < 1e-16
 
 
+@pytest.mark.unit
 def test_least_squares_two_path__flat_valley_from_single_path_start():
     # Without Prony's start the fit matches the phasors to 1e-6 while d_AS is still millimetres off: the
     # two-path problem is that ill-conditioned, which is why the solvers lose to raw depth under noise.
@@ -89,6 +92,7 @@ def test_least_squares_two_path__flat_valley_from_single_path_start():
     assert np.abs(fit.direct_depth_m - theta[:, 0]).max() > 1e-4
 
 
+@pytest.mark.unit
 def test_measured_phasors__follow_the_transport_sign_convention():
     """z_k = A_k exp(+i 4 pi f_k d_k / c): the phasor of the forward model (transport.path_phasor), whose angle
     is the demodulated phase."""
@@ -102,6 +106,7 @@ def test_measured_phasors__follow_the_transport_sign_convention():
     assert np.all(np.abs(np.angle(z[:, 0]) - phi_d[:, 0]) < 0.2)
 
 
+@pytest.mark.unit
 def test_model_phasors__reproduce_measured_phasors():
     theta = random_two_path(50, seed=3)
     raw = closed_form_raw(theta)
@@ -111,6 +116,7 @@ def test_model_phasors__reproduce_measured_phasors():
     np.testing.assert_allclose(model, inverse.measured_phasors(raw, FREQS), rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("solver", [prony_two_path, least_squares_two_path])
 def test_two_path_solvers__no_multipath_is_single_path_with_exact_depth(solver):
     theta = reciprocal(np.linspace(1.4, 2.4, 11), 0.1, 0.6, 0.0)  # Gamma_M = 0: one pole
@@ -120,6 +126,7 @@ def test_two_path_solvers__no_multipath_is_single_path_with_exact_depth(solver):
     assert np.all(fit.path_offset_m == 0) and np.all(fit.multipath_amplitude == 0)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("solver", [prony_two_path, least_squares_two_path])
 def test_two_path_solvers__zero_offset_merges_poles_into_single_path(solver):
     theta = reciprocal(np.linspace(1.4, 2.4, 11), 0.0, 0.8, 0.7)  # d_AB = 0: the two poles coincide
@@ -131,6 +138,7 @@ def test_two_path_solvers__zero_offset_merges_poles_into_single_path(solver):
                                rtol=1e-9)
 
 
+@pytest.mark.unit
 def test_prony_two_path__near_merged_poles_error_within_single_path_bias():
     d_ab = np.geomspace(1e-9, 2e-2, 60)
     theta = reciprocal(1.9, d_ab, 0.9, 0.9)
@@ -141,6 +149,7 @@ def test_prony_two_path__near_merged_poles_error_within_single_path_bias():
     assert np.all(error <= single_path_bias_bound(theta) + 1e-7)
 
 
+@pytest.mark.unit
 def test_prony_two_path__depth_beyond_highest_frequency_range_is_unwrapped():
     # 31.25 MHz wraps at 4.8 m, 12.5 MHz at 12 m; the 6.25 MHz step is unambiguous to 24 m
     theta = reciprocal([2.4, 4.79, 4.81, 7.3, 11.9], 0.08, 0.9, 0.8)
@@ -151,6 +160,7 @@ def test_prony_two_path__depth_beyond_highest_frequency_range_is_unwrapped():
     np.testing.assert_allclose(fit.direct_depth_m, theta[:, 0], rtol=0, atol=1e-6)
 
 
+@pytest.mark.unit
 def test_two_path_solvers__non_finite_rows_flagged_and_finite():
     raw = closed_form_raw(random_two_path(4, seed=4))
     raw[0, 2] = np.nan
@@ -164,6 +174,7 @@ def test_two_path_solvers__non_finite_rows_flagged_and_finite():
             assert np.all(np.isfinite(getattr(fit, field))), field
 
 
+@pytest.mark.unit
 def test_prony_two_path__rejects_unequally_spaced_frequencies():
     with pytest.raises(MpiLidarError, match="equally spaced"):
         prony_two_path(np.ones((1, 8)), [10e6, 12.5e6, 25e6, 31.25e6])
@@ -178,6 +189,7 @@ def _noisy_raw(n: int, noise_scale: float, seed: int) -> tuple[np.ndarray, np.nd
     return theta, np.hstack([depth, amplitude])
 
 
+@pytest.mark.unit
 def test_least_squares_two_path__respects_bounds_and_stays_finite_under_noise():
     theta, raw = _noisy_raw(150, 1.0, seed=5)
     fit = least_squares_two_path(raw, FREQS, max_offset_m=0.15, max_ratio=1.0)
@@ -189,6 +201,7 @@ def test_least_squares_two_path__respects_bounds_and_stays_finite_under_noise():
     assert np.abs(fit.direct_depth_m - theta[:, 0]).max() < 0.1
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_least_squares_two_path__cost_no_worse_than_scipy_trust_region():
     _, raw = _noisy_raw(6, 0.1, seed=6)

@@ -30,6 +30,7 @@ def _waveform_taps(config: Config, theta: np.ndarray) -> np.ndarray:
     return make_sensor(config.replace(simulator={"fidelity": "waveform"})).taps(theta, np.random.default_rng(0))
 
 
+@pytest.mark.unit
 @settings(max_examples=30, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**32 - 1), whole_cycles=st.booleans())
 def test_tap_moments__covariance_is_symmetric_psd_rank_two(seed, whole_cycles):
@@ -50,6 +51,7 @@ def test_tap_moments__covariance_is_symmetric_psd_rank_two(seed, whole_cycles):
     np.testing.assert_allclose(cov[..., 3, :], -cov[..., 1, :], rtol=0, atol=1e-14 * scale.max())
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("whole_cycles", [False, True])
 def test_tap_moments__mean_equals_noiseless_waveform_taps(noiseless, whole_cycles):
     config = noiseless("moment", whole_cycles=whole_cycles)
@@ -59,6 +61,7 @@ def test_tap_moments__mean_equals_noiseless_waveform_taps(noiseless, whole_cycle
     _assert_taps_close(mean, expected, rel=1e-9)
 
 
+@pytest.mark.unit
 def test_tap_moments__mean_does_not_depend_on_noise_scale(reciprocal_scene):
     theta = reciprocal_scene(np.array([1.4, 2.4]), rho=np.array([1.0, 0.01]), d_ab=0.1, rho_aba=0.8)
     noisy, _ = MomentSensor(Config()).tap_moments(theta)
@@ -67,6 +70,7 @@ def test_tap_moments__mean_does_not_depend_on_noise_scale(reciprocal_scene):
     np.testing.assert_array_equal(quiet_cov, 0.0)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("rho", [0.002, 0.005, 0.02, 0.11])
 def test_tap_moments__binwise_mean_equals_rounded_noiseless_waveform(reciprocal_scene, rho):
     # a low peak photon count, where the rounding of eq 16 matters
@@ -83,6 +87,7 @@ def test_tap_moments__binwise_mean_equals_rounded_noiseless_waveform(reciprocal_
     assert np.abs(unrounded - rounded).max() > 1e-6 * scale
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("whole_cycles", [False, True])
 @pytest.mark.parametrize("peak_photons", [1001.0, 2000.0, 16765.0, 33000.0])
 def test_tap_moments__rounded_mean_equals_rounded_noiseless_waveform_at_any_signal(scene, peak_photons,
@@ -97,6 +102,7 @@ def test_tap_moments__rounded_mean_equals_rounded_noiseless_waveform_at_any_sign
     _assert_taps_close(mean, rounded, rel=1e-9)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(("rho", "round_photons"), [(1.0, False), (0.14, False), (1.0, True), (0.005, True)])
 def test_quadrature_moments__covariance_equals_direct_bin_sum(reciprocal_scene, rho, round_photons):
     """Independent method: Cov(C_n, C_k) = (m/K)^2 sum_i Var(V_i) cos(w t_i + n pi/2) cos(w t_i + k pi/2)."""
@@ -114,6 +120,7 @@ def test_quadrature_moments__covariance_equals_direct_bin_sum(reciprocal_scene, 
         np.testing.assert_allclose(cov[0, j], expected, rtol=0, atol=1e-9 * np.abs(expected).max())
 
 
+@pytest.mark.unit
 def test_taps__gaussian_samples_have_the_tap_moments(reciprocal_scene):
     sensor = MomentSensor(Config())
     n = 20_000
@@ -151,6 +158,7 @@ def _variance_se(x: np.ndarray) -> float:
     return float(np.sqrt((np.mean(centred**4) - centred.var() ** 2) / x.size))
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 @pytest.mark.parametrize("point", sorted(OPERATING_POINTS))
 def test_measure__moment_and_waveform_agree_in_distribution(reciprocal_scene, point):

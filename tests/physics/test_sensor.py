@@ -23,6 +23,8 @@ from mpi_lidar.physics.sensor import (
 from mpi_lidar.physics.transport import two_path_phasors
 from mpi_lidar.simulation.sampling import sample_theta
 
+pytestmark = pytest.mark.unit
+
 C = 3.0e8
 FREQS = np.array([12.5e6, 18.75e6, 25e6, 31.25e6])
 RANGES = C / (2 * FREQS)

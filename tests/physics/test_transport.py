@@ -21,6 +21,8 @@ from mpi_lidar.physics.transport import (
 )
 from mpi_lidar.simulation.sampling import sample_theta
 
+pytestmark = pytest.mark.unit
+
 C = 3.0e8
 GAMMA_R = 0.1794
 FREQS = np.array([12.5e6, 18.75e6, 25e6, 31.25e6])

@@ -10,10 +10,10 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, SensorConfig
-from mpi_lidar.correction.validity import depth_noise_m
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.physics import unwrap
 from mpi_lidar.physics.moments import MomentSensor
+from mpi_lidar.physics.noise import depth_noise_m
 from mpi_lidar.physics.unwrap import (
     MIN_UNWRAP_CONFIDENCE,
     Unwrapped,
@@ -21,6 +21,8 @@ from mpi_lidar.physics.unwrap import (
     combined_ambiguity_m,
     unwrap_depths,
 )
+
+pytestmark = pytest.mark.unit
 
 C = 3.0e8
 FREQS = np.array(PAPER_FREQUENCIES_HZ)

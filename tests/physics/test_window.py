@@ -10,6 +10,8 @@ from mpi_lidar.physics.demod import depth_and_amplitude
 from mpi_lidar.physics.moments import TAPS_FROM_PQ, MomentSensor
 from mpi_lidar.physics.window import window_corrections_m
 
+pytestmark = pytest.mark.unit
+
 RANGES_M = np.linspace(0.3, 11.9, 300)
 
 

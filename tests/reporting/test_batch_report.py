@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
 from mpi_lidar.correction import ScanOutcome, ScanStatus
 from mpi_lidar.reporting.batch_report import GATED_OUT, batch_report
+
+pytestmark = pytest.mark.unit
 
 
 def test_batch_report__gated_out_counts_both_skip_flags():

@@ -32,7 +32,8 @@ from mpi_lidar.workflows.correct_archive import correct_archive
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
 
-pytestmark = pytest.mark.slow  # one small input per report kind: a batch, a study, a model, about a minute
+# One small input per report kind: a batch, a study, a model, about a minute.
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 WINDOW_PX = 1280
 

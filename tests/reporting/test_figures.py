@@ -19,6 +19,8 @@ from mpi_lidar.reporting.figures import (
 from mpi_lidar.reporting.metrics import applied_correction_mm
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 
 def test_mean_raster__mean_per_cell_and_nan_where_empty():
     u = np.array([0.1, 0.1, 0.9, 0.5])

@@ -10,6 +10,8 @@ from mpi_lidar.reporting import metrics
 from mpi_lidar.reporting.metrics import metrics_table, scan_metrics
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 
 def _correction(scan) -> Correction:
     flags = np.full(scan.shape, int(Flag.NO_MULTIPATH), np.uint8)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from benchmarks import point_clouds as bench
+
+pytestmark = pytest.mark.integration
 
 
 def test_benchmark_point_clouds__quick_prints_the_table(tmp_path):

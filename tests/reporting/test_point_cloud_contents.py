@@ -30,6 +30,8 @@ from mpi_lidar.scans.pointcloud import (
 )
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 H, W = 10, 12
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import laspy
 import pytest
 
-from mpi_lidar.cli import correct as correct_command
+from mpi_lidar.cli.correct import correct as correct_command
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.figures import PLOTLY_JS
@@ -20,6 +20,8 @@ from mpi_lidar.reporting.point_cloud_files import (
 )
 from mpi_lidar.scans.pointcloud import POINT_CLOUD_FORMATS, PointCloudFormat
 from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
+
+pytestmark = pytest.mark.unit
 
 FIELDS = {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2", "row", "column"}
 

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from mpi_lidar.reporting.report import Table, error_histogram_figure
+
+pytestmark = pytest.mark.unit
 
 
 def test_table_html__in_a_box_numbers_on_one_line_long_words_breakable():

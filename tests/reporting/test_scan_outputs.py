@@ -64,6 +64,7 @@ def level_outputs(model_dir, board_store, tmp_path_factory):
     return written
 
 
+@pytest.mark.integration
 def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full_outputs, archived):
     scan = archived[0]
     names = {p.name for p in full_outputs.iterdir()}
@@ -109,10 +110,12 @@ def _listing(path: Path) -> set[str]:
     return {p.name for p in path.iterdir() if not p.name.startswith(".")}
 
 
+@pytest.mark.unit
 def test_output_level__one_closed_set_from_most_to_least():
     assert OUTPUT_LEVELS == ("full", "light", "data") == tuple(OutputLevel)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("level", OUTPUT_LEVELS)
 def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, level_outputs):
     outcome = level_outputs(level)
@@ -128,6 +131,7 @@ def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, l
         assert all(f"]({name})" in report for name in FILES[level] if name.endswith(".png"))
 
 
+@pytest.mark.unit
 def test_thumbnail__written_at_level_light_with_its_legend(level_outputs):
     outcome = level_outputs("light")
     image = matplotlib.image.imread(Path(outcome.output) / "thumbnail.png")
@@ -136,6 +140,8 @@ def test_thumbnail__written_at_level_light_with_its_legend(level_outputs):
     assert "Thumbnail: corrected depth (left" in report and FLAG_COLOURS[0] in report
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_output_level__is_no_part_of_the_hash_a_higher_level_is_kept_a_lower_one_completed(
         model_dir, board_store, tmp_path):
     options = CorrectionOptions()
@@ -150,6 +156,8 @@ def test_output_level__is_no_part_of_the_hash_a_higher_level_is_kept_a_lower_one
     assert covers(None, "full") and covers("full", "data") and not covers("data", "light")
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_output_level__scan_without_geometry_says_point_clouds_were_skipped(model_dir, tmp_path):
     scan = render(cornered_board(height=24, width=32), Config(), np.random.default_rng(1))
     store = write_scan(replace(scan, azimuth_rad=None, elevation_rad=None), tmp_path / "flat.scan.zarr")
@@ -162,6 +170,7 @@ def test_output_level__scan_without_geometry_says_point_clouds_were_skipped(mode
     assert _listing(Path(light.output)) == FILES["light"] - GEOMETRY_FILES
 
 
+@pytest.mark.unit
 def test_output_level__unknown_level_is_one_clear_error(model_dir, board_store, tmp_path):
     from mpi_lidar.errors import MpiLidarError
     from mpi_lidar.workflows.correct_archive import correct_archive
@@ -174,12 +183,15 @@ def test_output_level__unknown_level_is_one_clear_error(model_dir, board_store, 
 # --- no global state -----------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_write_scan_outputs__a_users_open_pyplot_figure_survives(full_run):
     outcome, mine, survived, open_after = full_run  # full outputs written while the user's figure was open
     assert outcome.status == "corrected", outcome.reason
     assert survived and open_after == [mine], "no figure closed or left"
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_import__reporting_leaves_the_matplotlib_backend_alone():
     code = ("import matplotlib; matplotlib.use('svg'); before = matplotlib.get_backend(); "
             "import mpi_lidar.reporting.report, mpi_lidar.reporting.scan_outputs, mpi_lidar.reporting.table2, "

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mpi_lidar.correction import Correction, Flag
 from mpi_lidar.reporting.thumbnail import FLAG_COLOURS, THUMBNAIL_PX, thumbnail_image, viridis, write_png
+
+pytestmark = pytest.mark.unit
 
 
 def test_thumbnail_image__at_most_512_pixels_depth_left_flags_right():
@@ -13,7 +16,7 @@ def test_thumbnail_image__at_most_512_pixels_depth_left_flags_right():
     flags[:, :1500] = Flag.CORRECTED
     depth = np.tile(np.linspace(1.0, 3.0, 3000, dtype=np.float32), (1500, 1))
     depth[0, 0] = np.nan
-    big, (low, high) = thumbnail_image(Correction(depth, flags, 0.0, 0.0))
+    big, (low, high) = thumbnail_image(Correction(depth=depth, flags=flags))
     assert max(big.shape[:2]) <= THUMBNAIL_PX and big.dtype == np.uint8 and big.shape[2] == 3
     assert 1.0 <= low < high <= 3.0
     half = big.shape[1] // 2 + 2

@@ -8,20 +8,14 @@ import pytest
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, analyse_geometry, validity_flags
 from mpi_lidar.correction.footprint import PlaneModelInputs
-from mpi_lidar.scans.geometry import (
-    DEFAULT_FOOTPRINT_AREA_M2,
-    _pair_coupling,
-    facing_blocks,
-    fit_block_planes,
-    multipath_potential,
-    point_cloud,
-    surface_normals,
-)
+from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
+from mpi_lidar.physics.noise import NoiseModel
+from mpi_lidar.scans.geometry import facing_blocks, fit_block_planes, multipath_potential, point_cloud, surface_normals
+from mpi_lidar.scans.geometry._pairs import pair_coupling
 from mpi_lidar.scans.scan import Scan, grid_rays
 from mpi_lidar.simulation.scenes import (
     Rectangle,
     Scene,
-    _patch_coupling,
     corner,
     cylinder_scene,
     first_hits,
@@ -29,11 +23,13 @@ from mpi_lidar.simulation.scenes import (
     render,
     sphere_scene,
 )
+from mpi_lidar.simulation.scenes._transport import patch_coupling
 
 
 def valid_depth(scan) -> np.ndarray:
     """The raw 31.25 MHz depth where correction's validity mask keeps the pixel (sky: no return), else NaN."""
-    flags = validity_flags(scan.raw_pixels(), scan.frequencies_hz, CorrectionOptions(), SensorConfig())
+    noise = NoiseModel.for_sensor(SensorConfig(), scan.frequencies_hz)
+    flags = validity_flags(scan.raw_pixels(), CorrectionOptions(), noise)
     valid = ~np.isin(flags, [int(f) for f in INVALID_FLAGS]).reshape(scan.shape)
     return np.where(valid, scan.depth[-1], np.nan)
 
@@ -47,6 +43,7 @@ def rays_of(scene: Scene) -> np.ndarray:
     return grid_rays(scene.azimuth_rad, scene.elevation_rad)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("tilt", [0.0, 30.0, 60.0])
 def test_multipath_potential__plane_has_none_exact_and_noisy(tilt):
     scene = flat_wall(tilt, height=48, width=64)
@@ -57,6 +54,7 @@ def test_multipath_potential__plane_has_none_exact_and_noisy(tilt):
         assert multipath_potential(valid_depth(noisy), noisy.rays()).bias_m.max() == 0.0
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("make", [sphere_scene, cylinder_scene])
 def test_multipath_potential__convex_objects_and_open_sky_have_none(make):
     scene = make(height=48, width=64)
@@ -67,6 +65,7 @@ def test_multipath_potential__convex_objects_and_open_sky_have_none(make):
     assert multipath_potential(valid_depth(noisy), noisy.rays()).coupling.max() == 0.0
 
 
+@pytest.mark.unit
 def test_multipath_potential__sky_only_scan_is_zero_without_warnings():
     rays = grid_rays(np.linspace(-0.1, 0.1, 16), np.linspace(0.1, -0.1, 12))
     with np.errstate(all="raise"):
@@ -86,6 +85,7 @@ def big_corner(height: int = 96, width: int = 160) -> tuple[Scene, np.ndarray]:
     return scene, np.hypot(points[..., 0] - edge[0], points[..., 2] - edge[2])
 
 
+@pytest.mark.unit
 def test_multipath_potential__corner_matches_the_half_plane_closed_form():
     """Coupling of a point at a from the edge of a perpendicular half-plane: A_fp / (24 pi a^2 cos_i)
     (the integral of (cos_A cos_B)^2 / (pi^2 r^4) over the half-plane is 1 / (24 pi a^2)); the
@@ -105,6 +105,7 @@ def test_multipath_potential__corner_matches_the_half_plane_closed_form():
     assert 0.7 < np.median(d_ab_ratio) < 1.2
 
 
+@pytest.mark.integration
 def test_multipath_potential__corner_grows_towards_the_edge_and_agrees_with_the_renderer():
     scene = corner(90.0, 2.0, 0.8, height=32, width=128)
     truth: dict[str, np.ndarray] = {}  # the render's own light transport
@@ -148,6 +149,7 @@ def board_medians(left: float, right: float) -> list[float]:
     return medians
 
 
+@pytest.mark.integration
 def test_equivalent_rho_aba__follows_the_renderer_and_the_partner_albedo():
     """The renderer's ratio over the albedo a cos_i the amplitude shows, estimated from the noisy scan."""
     same = board_medians(0.8, 0.8)
@@ -168,6 +170,7 @@ def rendered_corner(angle_deg: float) -> tuple[Scan, dict[str, np.ndarray]]:
     return scan, truth
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("angle_deg", [90.0, 120.0])
 def test_plane_model_inputs__follow_the_renderer_from_the_edge_outwards(angle_deg):
     """Per pixel from the partner planes, the equivalent rho_ABA stays within 0.85-1.45x of the renderer's in
@@ -188,6 +191,7 @@ def test_plane_model_inputs__follow_the_renderer_from_the_edge_outwards(angle_de
         assert abs(np.nanmedian(d_ab[inside] - truth["d_ab_m"][inside])) < 0.015, index
 
 
+@pytest.mark.unit
 def test_plane_model_inputs__without_a_plane_give_the_blocks_estimate():
     """A pixel on no flat surface (here: every pixel, with no plane given) keeps the blocks' estimate."""
     scan, _ = rendered_corner(90.0)
@@ -201,11 +205,13 @@ def test_plane_model_inputs__without_a_plane_give_the_blocks_estimate():
     assert np.abs(inputs.pixels(pixels, depth)[0] - blocks_only.pixels(pixels, depth)[0]).max() > 0.01
 
 
+@pytest.mark.unit
 def test_equivalent_rho_aba__planes_have_none():
     scan = render(flat_wall(30.0, height=48, width=64), Config(), np.random.default_rng(1))
     assert equivalent_rho_aba_of(scan).max() == 0.0
 
 
+@pytest.mark.unit
 def test_coupling_to_pixels__follows_the_inverse_square_of_the_distance_from_an_edge():
     """Coupling falling as 1 / a^2 from an edge is interpolated exactly between block centres, where a linear
     interpolation overstates it; pixels among blocks without coupling get exactly 0."""
@@ -222,6 +228,7 @@ def test_coupling_to_pixels__follows_the_inverse_square_of_the_distance_from_an_
     assert blocks.coupling_to_pixels(np.zeros(hb * wb), blocks.pixel_coordinates(pixels)).max() == 0.0
 
 
+@pytest.mark.unit
 def test_coupling__renderer_and_gate_evaluate_the_same_kernel():
     """The renderer's per-patch coupling and the gate's per-block coupling are one kernel
     (mpi_lidar.physics.coupling): for the same pairs of points, normals, areas and incidence they agree, and
@@ -237,9 +244,9 @@ def test_coupling__renderer_and_gate_evaluate_the_same_kernel():
     footprint = DEFAULT_FOOTPRINT_AREA_M2
     patch = Rectangle(tuple(b_point), (0.005, 0.0, 0.0), (0.0, 0.0, 0.01), albedo=1.0)
     np.testing.assert_allclose(patch.patches(0.01)[1][0], b_normal)  # its one patch faces down
-    rendered, r = _patch_coupling(a_points, a_normals, cos_i, 1.0, patch, b_point[None], b_normal[None],
+    rendered, r = patch_coupling(a_points, a_normals, cos_i, 1.0, patch, b_point[None], b_normal[None],
                                   np.array([b_area]), footprint, 1e-3)
-    gated, dist = _pair_coupling(a_points, a_normals, cos_i, np.full(n, 1e-6), np.tile(b_point, (n, 1)),
+    gated, dist = pair_coupling(a_points, a_normals, cos_i, np.full(n, 1e-6), np.tile(b_point, (n, 1)),
                                  np.tile(b_normal, (n, 1)), np.full(n, b_area), np.zeros(n), footprint, 0.0)
     np.testing.assert_allclose(rendered[:, 0], gated, rtol=1e-14)
     np.testing.assert_array_equal(r[:, 0], dist)
@@ -252,6 +259,7 @@ def test_coupling__renderer_and_gate_evaluate_the_same_kernel():
     np.testing.assert_allclose(gated, expected, rtol=1e-12)
 
 
+@pytest.mark.unit
 def test_fit_block_planes__ignores_a_depth_edge_inside_the_block():
     rays = grid_rays(np.linspace(-0.05, 0.05, 8), np.linspace(0.05, -0.05, 8))
     depth = np.full((8, 8), 2.0) / rays[..., 2]  # the plane z = 2
@@ -262,6 +270,7 @@ def test_fit_block_planes__ignores_a_depth_edge_inside_the_block():
     assert centres[0, 0, 2] == pytest.approx(2.0, abs=1e-12)
 
 
+@pytest.mark.unit
 def test_surface_normals__plane_gives_its_normal_towards_the_scanner():
     az, el = np.linspace(-0.3, 0.3, 20), np.linspace(-0.2, 0.2, 15)
     rays = grid_rays(az, el)

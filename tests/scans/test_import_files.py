@@ -15,6 +15,7 @@ from tests.cli_runner import assert_one_error_line, call_main
 from tests.scans.importers.files import save_npz
 
 
+@pytest.mark.unit
 def test_find_scan_files__a_fifo_is_refused_before_it_is_opened(tmp_path):
     os.mkfifo(tmp_path / "pipe.npz")  # opening it for reading would block until a writer comes
     save_npz(tmp_path / "a.npz")
@@ -25,6 +26,7 @@ def test_find_scan_files__a_fifo_is_refused_before_it_is_opened(tmp_path):
         load_scan_file(tmp_path / "pipe.npz")
 
 
+@pytest.mark.unit
 @pytest.mark.skipif(not Path("/dev/zero").exists(), reason="needs /dev/zero")
 def test_find_scan_files__a_link_to_a_device_is_refused(tmp_path):
     (tmp_path / "zero.nc").symlink_to("/dev/zero")
@@ -37,6 +39,7 @@ def test_find_scan_files__a_link_to_a_device_is_refused(tmp_path):
         find_scan_files([str(tmp_path / "folder.*")])
 
 
+@pytest.mark.unit
 def test_find_scan_files__a_file_over_the_limit_is_refused_unread(tmp_path):
     big = tmp_path / "big.npz"
     with big.open("wb") as stream:
@@ -47,6 +50,7 @@ def test_find_scan_files__a_file_over_the_limit_is_refused_unread(tmp_path):
         load_scan_file(big)
 
 
+@pytest.mark.unit
 def test_import_files__a_failing_second_store_leaves_the_first_unwritten(tmp_path):
     a, b = save_npz(tmp_path / "a.npz", "a"), save_npz(tmp_path / "b.npz", "b")
     (tmp_path / "blocker").write_text("a file where the second store's directory should be")
@@ -57,6 +61,7 @@ def test_import_files__a_failing_second_store_leaves_the_first_unwritten(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "b.npz", "blocker"]  # out/ removed too
 
 
+@pytest.mark.unit
 def test_import_files__a_target_that_appears_undoes_the_renamed_stores(tmp_path):
     a, b = save_npz(tmp_path / "a.npz", "a"), save_npz(tmp_path / "b.npz", "b")
     out = tmp_path / "out"
@@ -67,6 +72,7 @@ def test_import_files__a_target_that_appears_undoes_the_renamed_stores(tmp_path)
     assert list(out.iterdir()) == []  # neither the store nor a staging directory
 
 
+@pytest.mark.unit
 def test_import_files__all_stores_appear_together(tmp_path):
     day = tmp_path / "day"
     day.mkdir()
@@ -81,6 +87,7 @@ def test_import_files__all_stores_appear_together(tmp_path):
     assert read_scan(written[1]).name == "b"
 
 
+@pytest.mark.integration
 def test_import_scan_cli__a_fifo_is_one_error_line(tmp_path, monkeypatch, capsys):
     os.mkfifo(tmp_path / "live.nc")
     code, out, err = call_main(monkeypatch, capsys, "import-scan", tmp_path / "live.nc", "--out", tmp_path / "o")

@@ -32,6 +32,7 @@ def scanner_file(path, **extra):
 MAPS = {"depth": "range_m", "amplitude": "intensity"}
 
 
+@pytest.mark.unit
 def test_load_netcdf__geometry_under_plain_names_is_kept(tmp_path):
     scan = load_scan_file(scanner_file(tmp_path / "scan.nc"), variables=MAPS)
     assert scan.has_geometry
@@ -40,6 +41,7 @@ def test_load_netcdf__geometry_under_plain_names_is_kept(tmp_path):
     np.testing.assert_allclose(scan.rays(), SCAN.rays(), rtol=0, atol=1e-12)
 
 
+@pytest.mark.unit
 def test_load_netcdf__angles_in_degrees_by_name_or_units(tmp_path):
     degrees = {"az_deg": (("col",), np.degrees(SCAN.azimuth_rad)), "el": (("row",), np.degrees(SCAN.elevation_rad),
                                                                           {"units": "degrees"})}
@@ -50,6 +52,7 @@ def test_load_netcdf__angles_in_degrees_by_name_or_units(tmp_path):
     np.testing.assert_allclose(scan.elevation_rad, SCAN.elevation_rad, rtol=1e-12)
 
 
+@pytest.mark.unit
 def test_load_netcdf__degrees_read_as_radians_are_refused(tmp_path):
     path = scanner_file(tmp_path / "deg.nc", az_deg=(("col",), np.linspace(-30, 30, 5)))
     with pytest.raises(ScanError, match=r"azimuth_rad reaches 30, .* in degrees; import it with --var "
@@ -58,6 +61,7 @@ def test_load_netcdf__degrees_read_as_radians_are_refused(tmp_path):
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.unit
 def test_load_netcdf__an_unknown_variable_is_refused_naming_the_var_that_maps_it(tmp_path):
     path = scanner_file(tmp_path / "extra.nc", temperature=(("row", "col"), np.zeros((6, 5))))
     with pytest.raises(ScanError, match=r"variable 'temperature' is not a scan array and would be dropped; map it "
@@ -66,11 +70,13 @@ def test_load_netcdf__an_unknown_variable_is_refused_naming_the_var_that_maps_it
     assert load_scan_file(path, variables={**MAPS, "ignore": "temperature"}).has_geometry
 
 
+@pytest.mark.unit
 def test_load_netcdf__dimension_coordinates_and_scalars_are_metadata(tmp_path):
     path = scanner_file(tmp_path / "meta.nc", timestamp=((), 1.7e9), col=(("col",), np.arange(5)))
     assert load_scan_file(path, variables=MAPS).shape == (6, 5)
 
 
+@pytest.mark.unit
 def test_load_netcdf__frequencies_in_mhz_are_refused_unless_declared(tmp_path):
     path = scanner_file(tmp_path / "mhz.nc", frequencies_hz=(("frequency",), np.asarray(FREQS) / 1e6))
     with pytest.raises(ScanError, match=r"below 10000 Hz; frequencies are in Hz \(12.5 MHz is 1.25e\+07\)"):
@@ -85,6 +91,7 @@ def test_load_netcdf__frequencies_in_mhz_are_refused_unless_declared(tmp_path):
     assert load_scan_file(declared, variables=MAPS).frequencies_hz == pytest.approx(FREQS, rel=1e-12)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(("extra", "variables", "message"), [
     ({"azimuth_rad": (("col",), SCAN.azimuth_rad)}, MAPS, "holds both 'azimuth' and 'azimuth_rad' for azimuth_rad"),
     ({"depth": (DIMS, SCAN.depth)}, MAPS, r"holds \['depth'\] itself and --var maps other arrays to them"),
@@ -101,6 +108,7 @@ def test_load_netcdf__conflicting_names_are_one_clear_error(tmp_path, extra, var
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.unit
 def test_load_npz__same_names_and_refusals_as_netcdf(tmp_path):
     np.savez(tmp_path / "plain.npz", range_m=SCAN.depth, intensity=SCAN.amplitude, frequencies_hz=FREQS,
              azimuth_deg=np.degrees(SCAN.azimuth_rad), elevation=SCAN.elevation_rad, colour=SCAN.reference_depth)
@@ -112,6 +120,7 @@ def test_load_npz__same_names_and_refusals_as_netcdf(tmp_path):
     np.testing.assert_array_equal(scan.reference_depth, SCAN.reference_depth)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(("arrays", "message"), [
     ({"elevation_rad": np.linspace(-10, 10, 6)}, "elevation_rad reaches 10, .* --var elevation_deg=VARIABLE"),
     ({"azimuth_rad": np.array([0, 0.1, np.nan, 0.3, 0.4])}, "azimuth_rad has values that are not finite"),
@@ -123,6 +132,7 @@ def test_load_npz__implausible_geometry_is_refused(tmp_path, arrays, message):
         load_scan_file(tmp_path / "geo.npz")
 
 
+@pytest.mark.unit
 def test_select_variables__every_variable_accounted_for():
     held = ["range_m", "intensity", "azimuth", "elevation_deg", "x", "notes"]
     chosen = select_variables("f", held, {**MAPS, "ignore": "notes"}, metadata=["x"])
@@ -131,6 +141,7 @@ def test_select_variables__every_variable_accounted_for():
         "elevation_rad": ("elevation_deg", True)}
 
 
+@pytest.mark.integration
 def test_import_scan_cli__netcdf_geometry_is_kept_or_refused(tmp_path, monkeypatch, capsys):
     path = scanner_file(tmp_path / "scan.nc")
     code, out, err = call_main(monkeypatch, capsys, "import-scan", path, "--out", tmp_path / "scan.scan.zarr",

@@ -29,6 +29,8 @@ from mpi_lidar.scans.pointcloud import (
 )
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 FIELDS = ("raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2")
 
 

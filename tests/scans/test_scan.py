@@ -13,6 +13,8 @@ from mpi_lidar.physics.demod import taps_from_quadratures
 from mpi_lidar.scans.scan import ScanError, from_taps, grid_rays, scan_extras, validate
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 FREQS = Config().frequencies_hz
 
 

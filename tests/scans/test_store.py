@@ -19,6 +19,8 @@ from mpi_lidar.workflows.verify import verify_store
 from tests.scan_factory import two_path_scan
 from tests.xarray_checks import open_strictly, plot_strictly
 
+pytestmark = pytest.mark.unit
+
 FREQS = Config().frequencies_hz
 
 def test_write_scan__round_trip_keeps_every_array(tmp_path):

@@ -14,6 +14,7 @@ from benchmarks.correction import finer_scan
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, correct_scan
 from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.reporting.metrics import scan_metrics
 from mpi_lidar.scans.scan import ScanError
 from mpi_lidar.scans.store import SCAN_SCHEMA, read_scan, store_fingerprints, write_scan
@@ -43,6 +44,7 @@ def model(model_dir):
     return load_model(model_dir)
 
 
+@pytest.mark.unit
 def test_stored_map__slices_pixels_and_bytes_are_those_of_the_array(tall_store):
     memory, stored = read_scan(tall_store), read_scan(tall_store, stored_above_bytes=0)
     assert isinstance(stored.depth, StoredMap) and isinstance(stored.amplitude, StoredMap)
@@ -56,6 +58,7 @@ def test_stored_map__slices_pixels_and_bytes_are_those_of_the_array(tall_store):
     assert stored.content_sha256() == memory.content_sha256()
 
 
+@pytest.mark.unit
 def test_stored_map__ray_directions_stay_in_the_store_and_give_the_same_rays(tmp_path):
     scan = two_path_scan("rays", 30, 20)
     scan = replace(scan, ray_directions=scan.rays().astype(np.float32), azimuth_rad=None, elevation_rad=None)
@@ -86,6 +89,8 @@ def in_memory(tall_store, model):
     return corrected
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.parametrize("footprint", ["auto", 0.041])
 def test_correct_scan__stored_maps_correct_to_the_last_bit_as_in_memory(tall_store, model, in_memory, footprint):
     stored = read_scan(tall_store, stored_above_bytes=0)
@@ -95,10 +100,11 @@ def test_correct_scan__stored_maps_correct_to_the_last_bit_as_in_memory(tall_sto
     assert counts["corrected"] + counts["uncalibrated"] > 0, "the gate's decisions must be part of the comparison"
     assert found.depth.tobytes() == expected.depth.tobytes() and found.flags.tobytes() == expected.flags.tobytes()
     assert found.multipath_bias_m.tobytes() == expected.multipath_bias_m.tobytes()
-    assert found.notes == expected.notes
+    assert correction_notes(found) == correction_notes(expected)
     assert scan_metrics(stored, found) == scan_metrics(memory, expected)
 
 
+@pytest.mark.integration
 def test_scan_metrics__banded_sums_match_the_whole_map_within_rounding(in_memory):
     scan, correction = in_memory(0.041)  # tiled: the same bits as at once (tests/correction/test_tiling.py)
     metrics = scan_metrics(scan, correction)["whole map"]
@@ -110,6 +116,7 @@ def test_scan_metrics__banded_sums_match_the_whole_map_within_rounding(in_memory
     assert metrics["corrected_max_abs_m"] == np.abs(error).max()
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("how", DAMAGES)
 def test_read_scan__damaged_chunk_of_a_stored_map_is_refused_when_opened(tmp_path, how):
     path = write_scan(two_path_scan("d", 24, 32), tmp_path / "d.scan.zarr")
@@ -123,6 +130,7 @@ def test_read_scan__damaged_chunk_of_a_stored_map_is_refused_when_opened(tmp_pat
         read_scan(path, stored_above_bytes=0)
 
 
+@pytest.mark.unit
 def test_read_scan__stored_maps_are_validated_like_arrays_in_memory(tmp_path):
     scan = two_path_scan("bad", 12, 16)
     group = zarr.open_group(str(tmp_path / "bad.scan.zarr"), mode="w")
@@ -137,6 +145,8 @@ def test_read_scan__stored_maps_are_validated_like_arrays_in_memory(tmp_path):
             read_scan(tmp_path / "bad.scan.zarr", stored_above_bytes=threshold)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_process_scan__a_scan_above_the_threshold_is_read_from_its_store_with_the_same_outputs(
         tall_store, model_dir, tmp_path, monkeypatch):
     options = CorrectionOptions(footprint_area_m2=0.041)

@@ -65,6 +65,7 @@ def reference_store(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.integration
 def test_generate__one_and_two_workers_write_identical_bytes(tmp_path, reference_store, two_worker_client):
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         with Client(cluster) as one_worker:
@@ -74,6 +75,7 @@ def test_generate__one_and_two_workers_write_identical_bytes(tmp_path, reference
     assert_same_bytes(tmp_path / "two.zarr", reference_store)
 
 
+@pytest.mark.unit
 def test_generate__rerun_skips_complete_chunks(tmp_path):
     path = tmp_path / "d.zarr"
     first = generate(path, small_config())
@@ -82,6 +84,7 @@ def test_generate__rerun_skips_complete_chunks(tmp_path):
     assert (second.chunks_written, second.chunks_skipped) == (0, 8)
 
 
+@pytest.mark.unit
 def test_generate__partial_store_resumes_to_identical_bytes(tmp_path, reference_store):
     path = tmp_path / "partial.zarr"
     config = small_config()
@@ -93,6 +96,7 @@ def test_generate__partial_store_resumes_to_identical_bytes(tmp_path, reference_
     assert_same_bytes(path, reference_store)
 
 
+@pytest.mark.unit
 def test_generate__unmarked_chunk_with_garbage_is_rewritten(tmp_path, reference_store):
     """A chunk whose data landed but whose completion mark did not (a kill in between) is redone."""
     path = tmp_path / "garbage.zarr"
@@ -104,6 +108,7 @@ def test_generate__unmarked_chunk_with_garbage_is_rewritten(tmp_path, reference_
     assert_same_bytes(path, reference_store)
 
 
+@pytest.mark.integration
 def test_generate__worker_killed_mid_run_completes_identically(tmp_path, waveform_reference):
     config = small_config(**KILLED_RUN)
     path = tmp_path / "killed.zarr"
@@ -124,6 +129,7 @@ def test_generate__worker_killed_mid_run_completes_identically(tmp_path, wavefor
     assert_same_bytes(path, waveform_reference)
 
 
+@pytest.mark.integration
 def test_simulate_cli__killed_process_rerun_matches_uninterrupted(tmp_path, waveform_reference):
     args = ["--samples", str(KILLED_RUN["samples"]), "--chunk-rows", str(KILLED_RUN["chunk_rows"]),
             "--fidelity", str(KILLED_RUN["fidelity"]), "--workers", "0", "--seed", "7"]
@@ -149,6 +155,7 @@ def _some_chunks_done(path: Path) -> bool:
         return False
 
 
+@pytest.mark.unit
 def test_create_store__other_configuration_is_refused_and_untouched(tmp_path, reference_store):
     other = small_config().replace(dataset={"seed": 8})
     before = read_arrays(reference_store)
@@ -158,6 +165,7 @@ def test_create_store__other_configuration_is_refused_and_untouched(tmp_path, re
     assert all(before[name].tobytes() == after[name].tobytes() for name in ARRAY_NAMES)
 
 
+@pytest.mark.unit
 def test_create_store__foreign_zarr_store_is_refused(tmp_path):
     foreign = tmp_path / "foreign.zarr"
     zarr.open_group(str(foreign), mode="w").create_array("x", shape=(3,), dtype="f4")
@@ -165,6 +173,7 @@ def test_create_store__foreign_zarr_store_is_refused(tmp_path):
         dataset.create_store(foreign, small_config())
 
 
+@pytest.mark.unit
 def test_create_store__regular_file_is_refused(tmp_path):
     target = tmp_path / "notes.txt"
     target.write_text("mine")
@@ -173,6 +182,7 @@ def test_create_store__regular_file_is_refused(tmp_path):
     assert target.read_text() == "mine"
 
 
+@pytest.mark.unit
 def test_create_store__read_only_parent_gives_clear_error_and_no_debris(tmp_path):
     if os.geteuid() == 0:
         # root ignores directory permissions; a read-only bind is not available here, so use /proc.
@@ -186,6 +196,7 @@ def test_create_store__read_only_parent_gives_clear_error_and_no_debris(tmp_path
     assert not (parent / "d.zarr").exists()
 
 
+@pytest.mark.unit
 def test_open_store__truncated_store_is_refused(tmp_path, reference_store):
     import shutil
 
@@ -196,11 +207,13 @@ def test_open_store__truncated_store_is_refused(tmp_path, reference_store):
         dataset.open_store(broken)
 
 
+@pytest.mark.unit
 def test_open_store__missing_path_says_how_to_create_it(tmp_path):
     with pytest.raises(StoreError, match="mpi-lidar simulate"):
         dataset.open_store(tmp_path / "absent.zarr")
 
 
+@pytest.mark.unit
 def test_read_lazy__matches_stored_arrays(reference_store):
     lazy = dataset.read_lazy(reference_store)
     stored = read_arrays(reference_store)
@@ -211,6 +224,7 @@ def test_read_lazy__matches_stored_arrays(reference_store):
     assert lazy.info.config == small_config()
 
 
+@pytest.mark.unit
 def test_read_subsample__rows_belong_to_the_split_and_are_seeded(reference_store):
     stored = read_arrays(reference_store)
     sub = dataset.read_subsample(reference_store, split="test", max_rows=300, seed=1)
@@ -222,6 +236,7 @@ def test_read_subsample__rows_belong_to_the_split_and_are_seeded(reference_store
     np.testing.assert_array_equal(sub.target, stored["target"][sub.rows])
 
 
+@pytest.mark.unit
 def test_read_lazy__incomplete_store_is_refused(tmp_path):
     path = tmp_path / "incomplete.zarr"
     config = small_config()
@@ -231,12 +246,14 @@ def test_read_lazy__incomplete_store_is_refused(tmp_path):
         dataset.read_lazy(path)
 
 
+@pytest.mark.unit
 def test_simulate_chunk__split_share_is_exact_per_chunk():
     chunk = dataset.simulate_chunk(small_config(), 2)
     assert (chunk.split == dataset.SPLIT_CODES["test"]).sum() == 100
     assert chunk.features.dtype == np.float32 and chunk.target.dtype == np.float64
 
 
+@pytest.mark.unit
 def test_store__opens_with_xarray(reference_store):
     ds = xr.open_zarr(reference_store, consolidated=False)
     assert ds["features"].dims == ("sample", "feature")
@@ -247,6 +264,7 @@ def test_store__opens_with_xarray(reference_store):
     assert ds.attrs["frequencies_hz"] == list(Config().frequencies_hz)
 
 
+@pytest.mark.unit
 def test_create_store__xarray_opens_it_without_warnings(tmp_path):
     config = small_config()
     path = tmp_path / "d.zarr"

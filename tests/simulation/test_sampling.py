@@ -17,6 +17,8 @@ from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.sampling import SCHEMES, THETA_NAMES, sample_theta
 from mpi_lidar.workflows.generate import generate
 
+pytestmark = pytest.mark.unit
+
 N = 20_000
 KS_ALPHA = 1e-3
 

@@ -33,6 +33,7 @@ FREQS = np.asarray(Config().frequencies_hz)
 C = 3e8
 
 
+@pytest.mark.unit
 def test_rectangle_intersect__distance_to_a_tilted_plane_matches_closed_form():
     wall = Rectangle((0.0, 0.0, 2.0), (1.0, 0.0, 0.5), (0.0, 1.0, 0.0))
     rays = grid_rays(np.linspace(-0.2, 0.2, 5), np.linspace(-0.1, 0.1, 3)).reshape(-1, 3)
@@ -41,6 +42,7 @@ def test_rectangle_intersect__distance_to_a_tilted_plane_matches_closed_form():
     np.testing.assert_allclose(t, (normal @ [0, 0, 2.0]) / (rays @ normal), rtol=1e-12)
 
 
+@pytest.mark.unit
 def test_sphere_intersect__front_surface_and_outward_normal():
     ball = Sphere((0.0, 0.0, 3.0), 0.5)
     t = ball.intersect(np.zeros((2, 3)), np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]))
@@ -48,6 +50,7 @@ def test_sphere_intersect__front_surface_and_outward_normal():
     np.testing.assert_allclose(ball.normal_at(np.array([[0.0, 0.0, 2.5]])), [[0.0, 0.0, -1.0]])
 
 
+@pytest.mark.unit
 def test_cylinder_intersect__side_hit_within_height_only():
     pole = Cylinder((0.0, -1.0, 2.0), 0.25, 2.0)
     t = pole.intersect(np.zeros((2, 3)), np.array([[0.0, 0.0, 1.0], [0.0, 0.8, 0.6]]))
@@ -55,6 +58,7 @@ def test_cylinder_intersect__side_hit_within_height_only():
     assert np.isinf(t[1])  # passes above the top
 
 
+@pytest.mark.unit
 def test_render__flat_wall_noiseless_is_exact_and_amplitude_is_lambertian():
     scene = flat_wall(tilt_deg=20, height=12, width=16)
     scan = render(scene, NOISELESS, np.random.default_rng(0))
@@ -67,6 +71,7 @@ def test_render__flat_wall_noiseless_is_exact_and_amplitude_is_lambertian():
     assert scan.reference_mask[1:-1, 1:-1].all()
 
 
+@pytest.mark.unit
 def test_render__corner_bias_is_positive_and_falls_away_from_the_edge():
     scene = corner(90.0, 2.0, 0.8, height=8, width=64)
     scan = render(scene, NOISELESS, np.random.default_rng(0))
@@ -86,6 +91,7 @@ def _hit_points(scene):
     return points[np.isfinite(points).all(1)].astype(np.float64)
 
 
+@pytest.mark.unit
 def test_corner__a_rolled_corner_has_a_horizontal_edge():
     # Each board of a 90-degree corner with its edge at z = 2 m, turned to run up and down from a horizontal
     # edge, holds the points with |y| = 2 - z.
@@ -94,6 +100,7 @@ def test_corner__a_rolled_corner_has_a_horizontal_edge():
     assert (y > 0.01).any() and (y < -0.01).any() and np.ptp(x) > 0.3
 
 
+@pytest.mark.unit
 def test_corner__yaw_turns_the_boards_about_the_edge_and_ends_them_at_their_length():
     half, yaw = np.deg2rad(50.0), np.deg2rad(15.0)
     scene = corner(100.0, 2.2, 0.7, height=24, width=48, board_m=0.25, yaw_deg=15.0, albedo_right=0.3)
@@ -106,12 +113,14 @@ def test_corner__yaw_turns_the_boards_about_the_edge_and_ends_them_at_their_leng
     assert [surface.albedo for surface in scene.surfaces] == [0.7, 0.3]
 
 
+@pytest.mark.unit
 def test_room_corner_and_alcove__every_surface_is_seen():
     for scene in (room_corner(height=24, width=32), alcove(height=24, width=32)):
         _, which = first_hits(scene)
         assert set(which[which >= 0]) == set(range(len(scene.surfaces))), scene.name
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("pitch_deg", [20.0, 27.0])
 def test_pitched_scenes__the_floor_lies_one_metre_below_the_sensor(pitch_deg):
     # Back in the world's frame (the rotation undone) every point the sensor sees on the floor has y = -1 m.
@@ -124,6 +133,7 @@ def test_pitched_scenes__the_floor_lies_one_metre_below_the_sensor(pitch_deg):
         assert (which == 0).sum() > 50 and (which == 1).sum() > 50, scene.name
 
 
+@pytest.mark.unit
 def test_box_on_floor__its_sides_and_back_are_hidden_but_light_the_floor():
     scene = box_on_floor(height=24, width=32)
     _, which = first_hits(scene)
@@ -141,6 +151,7 @@ def test_box_on_floor__its_sides_and_back_are_hidden_but_light_the_floor():
     assert added.max() > 0.01
 
 
+@pytest.mark.unit
 def test_box_on_floor__its_top_sends_the_floor_no_light():
     # The top faces up like the floor: no light leaves the box's inside through it.
     scene = box_on_floor(height=24, width=32)
@@ -152,6 +163,7 @@ def test_box_on_floor__its_top_sends_the_floor_no_light():
     assert not truth["coupling"][which == 0].any()
 
 
+@pytest.mark.unit
 def test_light_transport__a_solid_face_lights_only_what_lies_in_front_of_it():
     """A one-sided patch facing away from a board sends it nothing; turned round, or two-sided, the same patch
     lights it."""
@@ -170,6 +182,7 @@ def test_light_transport__a_solid_face_lights_only_what_lies_in_front_of_it():
     assert coupling["board"] == pytest.approx(coupling["towards"], rel=1e-12)
 
 
+@pytest.mark.unit
 def test_light_transport__one_patch_matches_the_two_path_closed_form():
     """A single small patch in front of a board: the depth bias is the closed form of eq 11 with its ratio."""
     board = Rectangle((0.0, 0.0, 2.0), (0.5, 0.0, 0.0), (0.0, 0.5, 0.0), albedo=0.8)
@@ -195,12 +208,14 @@ def test_light_transport__one_patch_matches_the_two_path_closed_form():
     np.testing.assert_allclose(truth["d_ab_m"], r, rtol=1e-12)
 
 
+@pytest.mark.unit
 def test_first_hits__sky_pixels_have_no_surface():
     scene = Scene("sky", (Sphere((0.0, 0.0, 2.0), 0.1),), np.linspace(-0.5, 0.5, 5), np.array([0.0]))
     t, which = first_hits(scene)
     assert list(which) == [-1, -1, 0, -1, -1] and np.isinf(t[0])
 
 
+@pytest.mark.unit
 def test_scan_from_phasors__single_path_returns_its_depth_and_transient_agrees():
     depth_true = np.array([[1.5, 2.0], [2.2, 2.35]])
     gamma = 0.02
@@ -217,6 +232,7 @@ def test_scan_from_phasors__single_path_returns_its_depth_and_transient_agrees()
     np.testing.assert_allclose(transient.depth, scan.depth, atol=2e-4)
 
 
+@pytest.mark.unit
 def test_render__reproducible_and_round_trips_through_a_store(tmp_path):
     scene = cornered_board(height=16, width=20)
     first = render(scene, Config(), np.random.default_rng(3))
@@ -228,6 +244,8 @@ def test_render__reproducible_and_round_trips_through_a_store(tmp_path):
     assert back.scene["coupling_gain"] == 90.0
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_render__cornered_board_matches_the_papers_fig7_magnitude():
     scan = render(cornered_board(), Config(), np.random.default_rng(0))
     error = np.abs(scan.depth[-1] - scan.reference_depth)[scan.reference_mask]

@@ -12,6 +12,8 @@ import pytest
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.storage.atomic import STAGING_NAME, atomic_path, remove_interrupted_staging, write_text
 
+pytestmark = pytest.mark.unit
+
 
 def test_atomic_path__publishes_a_file_and_leaves_no_staging(tmp_path):
     target = tmp_path / "a.txt"

@@ -16,6 +16,8 @@ from mpi_lidar.storage.integrity import IntegrityError, array_fingerprints, fing
 from mpi_lidar.workflows.verify import verify_store
 from tests.scan_factory import two_path_scan
 
+pytestmark = pytest.mark.unit
+
 DAMAGES = ("deleted", "truncated", "swapped")
 
 

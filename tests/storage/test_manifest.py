@@ -12,6 +12,8 @@ from mpi_lidar.reporting.report import REPORT_MARKER
 from mpi_lidar.storage.integrity import IntegrityError
 from mpi_lidar.storage.manifest import MANIFEST_FILE, is_output_directory, verify_manifest, write_manifest
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture
 def outputs(tmp_path) -> Path:

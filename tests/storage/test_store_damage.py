@@ -83,6 +83,7 @@ def edit_array(store: Path, name: str, **fields) -> None:
     (store / name / "zarr.json").write_text(json.dumps(meta))
 
 
+@pytest.mark.unit
 def test_fingerprints_required__every_version_of_every_store():
     for schema in ("mpi-lidar/scan@1", "mpi-lidar/dataset@1", "mpi-lidar/corrected@1", "mpi-lidar/scan@7"):
         assert fingerprints_required(schema)
@@ -92,6 +93,7 @@ def test_fingerprints_required__every_version_of_every_store():
 # --- fingerprints gone or partial ---------------------------------------------------------------------------
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("reader", sorted(SCAN_READERS))
 def test_scan_without_fingerprints_and_a_chunk_gone__damaged(scan_store, tmp_path, reader):
     copy = copied(scan_store, tmp_path)
@@ -101,6 +103,7 @@ def test_scan_without_fingerprints_and_a_chunk_gone__damaged(scan_store, tmp_pat
         SCAN_READERS[reader](copy)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("reader", sorted(SCAN_READERS))
 def test_scan_with_one_arrays_fingerprints_removed__damaged(scan_store, tmp_path, reader):
     copy = copied(scan_store, tmp_path)
@@ -110,6 +113,7 @@ def test_scan_with_one_arrays_fingerprints_removed__damaged(scan_store, tmp_path
         SCAN_READERS[reader](copy)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("array", ["depth", "reference_depth", "azimuth_rad"])
 @pytest.mark.parametrize("reader", sorted(SCAN_READERS))
 def test_scan_with_an_array_removed__refused_by_every_reader(scan_store, tmp_path, reader, array):
@@ -119,6 +123,7 @@ def test_scan_with_an_array_removed__refused_by_every_reader(scan_store, tmp_pat
         SCAN_READERS[reader](copy)
 
 
+@pytest.mark.unit
 def test_scan_fingerprints_of_the_wrong_count_or_form__damaged(scan_store, tmp_path):
     copy = copied(scan_store, tmp_path)
     edit_attrs(copy, lambda attrs: attrs["chunk_sha256"]["depth"].pop())
@@ -129,6 +134,7 @@ def test_scan_fingerprints_of_the_wrong_count_or_form__damaged(scan_store, tmp_p
         read_scan(copy)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("reader", sorted(DATASET_READERS))
 def test_dataset_without_fingerprint_array__damaged_for_every_reader(dataset_store, tmp_path, reader):
     copy = copied(dataset_store, tmp_path)
@@ -138,6 +144,7 @@ def test_dataset_without_fingerprint_array__damaged_for_every_reader(dataset_sto
         DATASET_READERS[reader](copy)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("reader", sorted(DATASET_READERS))
 def test_dataset_fingerprint_chunk_deleted__its_rows_are_not_read(dataset_store, tmp_path, reader):
     copy = copied(dataset_store, tmp_path)
@@ -146,6 +153,7 @@ def test_dataset_fingerprint_chunk_deleted__its_rows_are_not_read(dataset_store,
         DATASET_READERS[reader](copy)
 
 
+@pytest.mark.unit
 def test_dataset_incomplete_chunk__never_read_as_fill_values(dataset_store, tmp_path):
     copy = copied(dataset_store, tmp_path)
     (copy / "chunk_done" / "c" / "2").unlink()
@@ -154,6 +162,7 @@ def test_dataset_incomplete_chunk__never_read_as_fill_values(dataset_store, tmp_
             read(copy)
 
 
+@pytest.mark.integration
 def test_verify_cli__store_without_fingerprints_exits_1_with_one_line(scan_store, tmp_path, monkeypatch, capsys):
     copy = copied(scan_store, tmp_path)
     edit_attrs(copy, lambda attrs: attrs.pop("chunk_sha256"))
@@ -165,6 +174,7 @@ def test_verify_cli__store_without_fingerprints_exits_1_with_one_line(scan_store
 # --- declared sizes -----------------------------------------------------------------------------------------
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("fields", [{"shape": [2, 100_000, 100_000]},
                                     {"shape": [2, 100_000, 100_000], "chunk_shape": [1, 100_000, 100_000]},
                                     {"chunk_shape": [1, 100_000, 100_000]}])
@@ -182,6 +192,7 @@ def test_scan_declaring_huge_arrays_or_chunks__refused_before_allocating(scan_st
     assert peak < 64 * 2**20, f"{peak / 2**20:.0f} MiB allocated before refusing"
 
 
+@pytest.mark.unit
 def test_dataset_declaring_huge_chunks__refused_before_allocating(dataset_store, tmp_path):
     copy = copied(dataset_store, tmp_path)
     edit_array(copy, "features", chunk_shape=[MAX_CHUNK_VALUES, 8])
@@ -196,6 +207,7 @@ def test_dataset_declaring_huge_chunks__refused_before_allocating(dataset_store,
 # --- chunk files that are not what a chunk can be -------------------------------------------------------------
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("reader", sorted(SCAN_READERS))
 def test_scan_chunk_linked_to_dev_zero__refused_before_reading(scan_store, tmp_path, reader):
     copy = copied(scan_store, tmp_path)
@@ -208,6 +220,7 @@ def test_scan_chunk_linked_to_dev_zero__refused_before_reading(scan_store, tmp_p
     assert time.perf_counter() - started < 10
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("reader", sorted(SCAN_READERS))
 def test_scan_chunk_that_is_a_fifo__refused_without_hanging(scan_store, tmp_path, reader):
     copy = copied(scan_store, tmp_path)
@@ -218,6 +231,7 @@ def test_scan_chunk_that_is_a_fifo__refused_without_hanging(scan_store, tmp_path
         SCAN_READERS[reader](copy)
 
 
+@pytest.mark.unit
 def test_scan_metadata_linked__refused(scan_store, tmp_path):
     copy = copied(scan_store, tmp_path)
     (copy / "depth" / "zarr.json").unlink()
@@ -226,6 +240,7 @@ def test_scan_metadata_linked__refused(scan_store, tmp_path):
         read_scan(copy)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("reader", sorted(SCAN_READERS))
 def test_scan_chunk_file_larger_than_a_chunk__refused_before_reading(scan_store, tmp_path, reader):
     copy = copied(scan_store, tmp_path)
@@ -235,6 +250,7 @@ def test_scan_chunk_file_larger_than_a_chunk__refused_before_reading(scan_store,
         SCAN_READERS[reader](copy)
 
 
+@pytest.mark.unit
 def test_dataset_chunk_linked_or_oversized__refused_by_every_reader(dataset_store, tmp_path):
     copy = copied(dataset_store, tmp_path)
     chunk = copy / "target" / "c" / "2"
@@ -251,6 +267,7 @@ def test_dataset_chunk_linked_or_oversized__refused_by_every_reader(dataset_stor
             read(copy)
 
 
+@pytest.mark.unit
 def test_every_refusal__is_one_line(scan_store, tmp_path):
     copy = copied(scan_store, tmp_path)
     (copy / "depth" / "c" / "1" / "0" / "0").unlink()
@@ -264,6 +281,7 @@ def test_every_refusal__is_one_line(scan_store, tmp_path):
 # --- a large scan kept in its store: every band read is checked again -----------------------------------------
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("read", ["whole", "band of rows", "one frequency", "ellipsis", "pixels", "c-order parts"])
 def test_stored_map__chunk_deleted_after_opening__never_read_as_fill_values(scan_store, tmp_path, read):
     from mpi_lidar.scans.stored_map import StoredMap
@@ -281,6 +299,7 @@ def test_stored_map__chunk_deleted_after_opening__never_read_as_fill_values(scan
         reads[read]()
 
 
+@pytest.mark.unit
 def test_stored_map__intact_reads_are_the_arrays_values(scan_store):
     memory, stored = read_scan(scan_store), read_scan(scan_store, stored_above_bytes=0)
     np.testing.assert_array_equal(stored.depth[-1], memory.depth[-1])
@@ -289,6 +308,7 @@ def test_stored_map__intact_reads_are_the_arrays_values(scan_store):
                                   memory.depth.reshape(-1))
 
 
+@pytest.mark.integration
 def test_evaluate_cli__dataset_without_fingerprints_exits_2_with_one_line(dataset_store, tmp_path, monkeypatch,
                                                                           capsys):
     from tests.model_factory import tiny_model
@@ -337,6 +357,7 @@ def _harm(store: Path, harms: list[tuple[str, int]]) -> None:
             shutil.rmtree(store / arrays[pick % len(arrays)])
 
 
+@pytest.mark.unit
 @settings(max_examples=40, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(harms=HARMS)
@@ -356,6 +377,7 @@ def test_read_scan__damage_of_any_mix_is_refused_or_read_as_written(scan_store, 
             assert result.content_sha256() == intact.content_sha256()
 
 
+@pytest.mark.unit
 def test_chunk_linked_after_opening__refused_where_it_is_read(scan_store, dataset_store, tmp_path):
     scan_copy = copied(scan_store, tmp_path)
     depth = read_scan(scan_copy, stored_above_bytes=0).depth

@@ -5,11 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from mpi_lidar.scans.scan import OPTIONAL_ARRAYS, Scan
 from mpi_lidar.scans.store import ARRAY_METADATA, COORDINATE_ARRAYS
 from mpi_lidar.storage import variables
 from mpi_lidar.storage.variables import CORRECTED, DATASET, SCAN, VARIABLES, Store
+
+pytestmark = pytest.mark.unit
 
 ROOT = Path(__file__).resolve().parents[2]
 

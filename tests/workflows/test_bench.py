@@ -11,6 +11,7 @@ from mpi_lidar.cli import cli
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.correction import ConsistencyGate, CorrectionOptions
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec
+from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.workflows.bench import (
     TEST_STREAM,
     TRAIN_STREAM,
@@ -24,6 +25,8 @@ from mpi_lidar.workflows.bench import (
     top_depth,
     with_pareto,
 )
+
+pytestmark = pytest.mark.integration
 
 CONFIG = Config(prior=PriorConfig())  # the paper's prior: the raw error anchor and the small model's range
 
@@ -130,7 +133,8 @@ def test_gated__skipped_rows_keep_the_raw_depth():
     test = simulate(CONFIG, 3_000, TEST_STREAM)
     predict = gated(lambda raw: np.full(raw.shape[0], -1.0), CONFIG)
     depth = predict(test.raw)
-    needs = ConsistencyGate(0.01).needs_correction(test.raw, CONFIG.frequencies_hz, CONFIG.sensor)
+    noise = NoiseModel.for_sensor(CONFIG.sensor, CONFIG.frequencies_hz)
+    needs = ConsistencyGate(0.01).needs_correction(test.raw, noise)
     assert 0 < needs.sum() < needs.size
     assert (depth[needs] == -1.0).all()
     assert np.array_equal(depth[~needs], test.raw[~needs, 3].astype(np.float64))

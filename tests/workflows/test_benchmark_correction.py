@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from benchmarks import correction as bench
+
+pytestmark = pytest.mark.integration
 
 
 def test_benchmark_correction__quick_prints_every_table(tmp_path):

@@ -52,6 +52,7 @@ def corrected_depth(output: Path) -> np.ndarray:
 # --- where the outputs go --------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_correct_archive__same_named_scans_in_day_folders_both_survive(small_model, tmp_path):
     archive = tmp_path / "archive"
     for seed, day in enumerate(("day1", "day2")):
@@ -72,6 +73,7 @@ def test_correct_archive__same_named_scans_in_day_folders_both_survive(small_mod
     assert summary.count("| frame | corrected |") == 2, "the scan's own name is kept"
 
 
+@pytest.mark.integration
 def test_correct_archive__two_inputs_for_one_output_are_refused_with_nothing_written(small_model, tmp_path):
     archive = tmp_path / "archive"
     write_scan(two_path_scan("one"), archive / "frame.scan.zarr")
@@ -87,6 +89,7 @@ def test_correct_archive__two_inputs_for_one_output_are_refused_with_nothing_wri
         scan_output_paths([str(archive / "frame.scan.zarr"), str(archive / "frame" / "inner.scan.zarr")])
 
 
+@pytest.mark.integration
 def test_correct_cli__collision_is_one_error_line_exit_2(small_model, tmp_path, monkeypatch, capsys):
     for day in ("day1", "day2"):
         write_scan(two_path_scan("frame"), tmp_path / day / "frame.scan.zarr")
@@ -98,6 +101,7 @@ def test_correct_cli__collision_is_one_error_line_exit_2(small_model, tmp_path, 
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.integration
 def test_correct_archive__scan_named_summary_and_the_summary_both_survive(small_model, tmp_path):
     archive = tmp_path / "archive"
     write_scan(two_path_scan("summary"), archive / "summary.scan.zarr")
@@ -115,6 +119,7 @@ def test_correct_archive__scan_named_summary_and_the_summary_both_survive(small_
     assert (out / "summary.scan" / "corrected.zarr").is_dir()
 
 
+@pytest.mark.unit
 def test_safe_scan_name__a_final_newline_is_refused():
     assert safe_scan_name("frame-1.b") == "frame-1.b"
     for name in ("frame\n", "frame\r\n", "\nframe", "../x", ".hidden", "a/b", "", "x" * 129):
@@ -122,6 +127,7 @@ def test_safe_scan_name__a_final_newline_is_refused():
             safe_scan_name(name)
 
 
+@pytest.mark.integration
 def test_process_scan__name_with_trailing_newline_fails_that_scan_alone(small_model, tmp_path):
     archive = tmp_path / "archive"
     bad = write_scan(two_path_scan("frame"), archive / "frame.scan.zarr")
@@ -138,6 +144,7 @@ def test_process_scan__name_with_trailing_newline_fails_that_scan_alone(small_mo
 # --- re-runs ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_correct_archive__rerun_keeps_the_numbers_in_the_summary(small_model, tmp_path):
     archive = tmp_path / "archive"
     for seed, name in enumerate(("a", "b")):
@@ -164,6 +171,7 @@ def test_correct_archive__rerun_keeps_the_numbers_in_the_summary(small_model, tm
     assert "already corrected with this model and options (corrected)" in summary
 
 
+@pytest.mark.integration
 def test_correct_archive__damaged_metrics_json_is_corrected_again(small_model, tmp_path):
     write_scan(two_path_scan("a"), tmp_path / "a.scan.zarr")
     out = tmp_path / "out"
@@ -176,6 +184,7 @@ def test_correct_archive__damaged_metrics_json_is_corrected_again(small_model, t
 # --- statuses --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_process_scan__flat_scan_is_unchanged(small_model, tmp_path):
     write_scan(render(flat_wall(20.0, height=24, width=32), Config(), np.random.default_rng(1)),
                tmp_path / "wall.scan.zarr")
@@ -187,6 +196,7 @@ def test_process_scan__flat_scan_is_unchanged(small_model, tmp_path):
     assert "0 corrected, 1 unchanged" in batch_report([outcome], 1.0).markdown()
 
 
+@pytest.mark.integration
 def test_process_scan__mostly_saturated_scan_is_degraded(small_model, tmp_path):
     write_scan(saturated(two_path_scan("hot"), 0.62, ALL), tmp_path / "hot.scan.zarr")
     outcome = process_scan(tmp_path / "hot.scan.zarr", small_model, tmp_path / "out", ALL, outputs=LIGHT)
@@ -207,6 +217,7 @@ def near_end_scan(model_dir: Path, name: str) -> Scan:
     return two_path_scan(name, near_m=0.7 * low, albedo=0.3)
 
 
+@pytest.mark.integration
 def test_process_scan__scan_out_of_the_models_range_is_unserved_with_its_reason(small_model, tmp_path):
     write_scan(near_end_scan(small_model, "near"), tmp_path / "near.scan.zarr")
     outcome = process_scan(tmp_path / "near.scan.zarr", small_model, tmp_path / "out", ALL, outputs=LIGHT)
@@ -220,6 +231,7 @@ def test_process_scan__scan_out_of_the_models_range_is_unserved_with_its_reason(
     assert again.status == "skipped" and again.kept_status == "unserved" and again.unserved == "out_of_range"
 
 
+@pytest.mark.integration
 def test_process_scan__flat_wall_out_of_range_that_needs_nothing_stays_unchanged(small_model, tmp_path):
     wall = two_path_scan("wall", multipath=False, near_m=0.7 * load_model(small_model).card.dataset.prior.d_as_m[0],
                          albedo=0.3)
@@ -230,6 +242,7 @@ def test_process_scan__flat_wall_out_of_range_that_needs_nothing_stays_unchanged
     assert outcome.counts["out_of_range"] == 0 and outcome.counts["no_multipath"] > 0
 
 
+@pytest.mark.integration
 def test_process_scan__amplitudes_in_another_unit_are_unserved_not_degraded(small_model, tmp_path):
     scan = two_path_scan("counts")
     write_scan(replace(scan, amplitude=(scan.amplitude * 4000).astype(np.float32)), tmp_path / "counts.scan.zarr")
@@ -241,6 +254,7 @@ def test_process_scan__amplitudes_in_another_unit_are_unserved_not_degraded(smal
     assert auto.status == ScanStatus.CORRECTED and auto.counts["saturated"] == 0, "the unit read from the scan"
 
 
+@pytest.mark.integration
 def test_correct_cli__unserved_scan_exits_1_unless_allowed(small_model, tmp_path, monkeypatch, capsys):
     archive = tmp_path / "archive"
     write_scan(near_end_scan(small_model, "near"), archive / "near.scan.zarr")
@@ -254,6 +268,7 @@ def test_correct_cli__unserved_scan_exits_1_unless_allowed(small_model, tmp_path
     assert code == 0 and err == "" and ": 1 corrected, 1 unserved" in out
 
 
+@pytest.mark.integration
 def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_model, tmp_path, monkeypatch,
                                                                           capsys):
     archive = tmp_path / "archive"
@@ -284,6 +299,7 @@ def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_m
     assert code == 0, "a lenient threshold re-classifies the kept outputs"
 
 
+@pytest.mark.unit
 def test_failing_outcomes__failed_always_fails_and_unknown_statuses_are_refused():
     outcomes = [ScanOutcome("a", "a", ScanStatus.FAILED, "broken"), ScanOutcome("b", "b", ScanStatus.UNCHANGED),
                 ScanOutcome("c", "c", ScanStatus.SKIPPED, kept_status=ScanStatus.DEGRADED)]
@@ -296,6 +312,7 @@ def test_failing_outcomes__failed_always_fails_and_unknown_statuses_are_refused(
 # --- one bad scan ----------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 @pytest.mark.filterwarnings("ignore:Pydantic serializer warnings:UserWarning")
 def test_process_scan__unexpected_exception_type_fails_that_scan_alone(small_model, tmp_path):
     archive = tmp_path / "archive"
@@ -317,6 +334,7 @@ def test_process_scan__unexpected_exception_type_fails_that_scan_alone(small_mod
 # --- work beside the correction ----------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("kept_in_store", [False, True], ids=["in-memory", "in-store"])
 @pytest.mark.parametrize("outputs", ["light", "data"])
 def test_process_scan__identity_and_metrics_made_beside_are_those_made_alone(small_model, tmp_path, monkeypatch,
@@ -344,6 +362,7 @@ def with_npz(root: Path) -> Path:
     return root
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("make, fragment", [
     (lambda root: root / "missing.scan.zarr", "does not exist"),
     (lambda root: root, "holds no *.scan.zarr store"),

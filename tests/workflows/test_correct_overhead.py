@@ -42,20 +42,24 @@ def _imported_after(statement: str) -> set[str]:
     return set(done.stdout.split())
 
 
+@pytest.mark.integration
 def test_cli__help_imports_no_numerics_library():
     assert not _imported_after("import mpi_lidar.cli") & set(HEAVY)
 
 
+@pytest.mark.unit
 def test_executor__a_loop_in_this_process_needs_no_dask():
     assert "distributed" not in _imported_after("from mpi_lidar.workflows.executor import InProcess, as_executor; "
                                                 "as_executor(None)")
 
 
+@pytest.mark.integration
 def test_correct_cli__outputs_choices_are_the_levels_and_light_is_the_default():
     option = next(p for p in cli.commands["correct"].params if p.name == "outputs")
     assert tuple(option.type.choices) == OUTPUT_LEVELS and option.default == DEFAULT_OUTPUTS == "light"
 
 
+@pytest.mark.integration
 def test_correct_cli__every_batch_runs_here_unless_workers_are_asked_for(archive, model_dir, tmp_path, monkeypatch):
     from mpi_lidar.workflows import executor
 
@@ -75,6 +79,7 @@ def test_correct_cli__every_batch_runs_here_unless_workers_are_asked_for(archive
     assert started == [3] and isinstance(result.exception, RuntimeError)
 
 
+@pytest.mark.unit
 def test_cached_model__loaded_once_per_process_and_again_when_replaced(archive, model_dir, tmp_path, monkeypatch):
     loads: list[str] = []
     real = archive_module.load_model
@@ -133,6 +138,8 @@ def _heaps_a_thread_adds(*modes: str) -> list[int]:
     return found
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
 def test_archive_scans__every_thread_allocates_from_one_heap():
     default, shared = _heaps_a_thread_adds("default", "shared")

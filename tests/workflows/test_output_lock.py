@@ -16,10 +16,13 @@ import pytest
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans.store import write_scan
-from mpi_lidar.workflows.correct_archive import LOCK_FILE, correct_archive, output_lock
+from mpi_lidar.storage.publication import LOCK_FILE, output_lock
+from mpi_lidar.workflows.correct_archive import correct_archive
 from mpi_lidar.workflows.verify import verify_store
 from tests.model_factory import tiny_model
 from tests.scan_factory import two_path_scan
+
+pytestmark = pytest.mark.unit
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -92,7 +95,7 @@ def test_two_batches_into_one_out__the_second_is_refused_naming_the_first(model,
 def test_output_lock__held_by_another_process_is_refused_with_its_holder(tmp_path):
     holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent("""
         import sys, time
-        from mpi_lidar.workflows.correct_archive import output_lock
+        from mpi_lidar.storage.publication import output_lock
         with output_lock(sys.argv[1]):
             print("held", flush=True)
             sys.stdin.readline()

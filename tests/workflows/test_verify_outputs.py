@@ -100,6 +100,7 @@ DAMAGES = {"corrected_depth chunk deleted": (delete_chunk, "corrected_depth/c/0/
            "manifest emptied": (empty_manifest, "have no manifest")}
 
 
+@pytest.mark.unit
 def test_rerun__intact_outputs_are_verified_then_skipped(model, corrected, tmp_path):
     scans, out = copied(corrected, tmp_path)
     listed = verify_manifest(out / "a")
@@ -110,6 +111,7 @@ def test_rerun__intact_outputs_are_verified_then_skipped(model, corrected, tmp_p
     assert verify_store(out / "a").files == len(listed)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("damage", sorted(DAMAGES))
 def test_rerun__damaged_outputs_are_corrected_again_not_skipped(model, corrected, tmp_path, damage):
     scans, out = copied(corrected, tmp_path)
@@ -127,6 +129,7 @@ def test_rerun__damaged_outputs_are_corrected_again_not_skipped(model, corrected
     assert third.status == "skipped"
 
 
+@pytest.mark.integration
 def test_correct_cli__rerun_over_a_deleted_chunk_corrects_it(model, corrected, tmp_path, monkeypatch, capsys):
     scans, out = copied(corrected, tmp_path)
     delete_chunk(out / "a")
@@ -150,6 +153,7 @@ def edit_store_attrs(store: Path, edit) -> None:
     (store / "zarr.json").write_text(json.dumps(meta))
 
 
+@pytest.mark.unit
 def test_verify__corrected_store_without_fingerprints_is_damaged(corrected, tmp_path, monkeypatch, capsys):
     store = bare_store(corrected, tmp_path)
     edit_store_attrs(store, lambda attrs: attrs.pop("chunk_sha256"))
@@ -160,6 +164,7 @@ def test_verify__corrected_store_without_fingerprints_is_damaged(corrected, tmp_
     assert_one_error_line(stderr, "chunk_sha256")
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("keep_fingerprints", [True, False])
 def test_verify__corrected_store_with_flags_removed_is_damaged(corrected, tmp_path, keep_fingerprints):
     store = bare_store(corrected, tmp_path)
@@ -170,6 +175,7 @@ def test_verify__corrected_store_with_flags_removed_is_damaged(corrected, tmp_pa
         verify_store(store)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("chunked", [False, True])
 def test_verify__declared_100000_by_100000_is_refused_before_allocating(corrected, tmp_path, chunked):
     store = bare_store(corrected, tmp_path)
@@ -189,6 +195,7 @@ def test_verify__declared_100000_by_100000_is_refused_before_allocating(correcte
     assert peak < 64 * 2**20, f"{peak / 2**20:.0f} MiB allocated before refusing"
 
 
+@pytest.mark.unit
 def test_verify__the_manifest_catches_what_the_store_would_too(corrected, tmp_path):
     _, out = copied(corrected, tmp_path)
     edit_store_attrs(out / "a" / "corrected.zarr", lambda attrs: attrs.pop("chunk_sha256"))
@@ -196,6 +203,7 @@ def test_verify__the_manifest_catches_what_the_store_would_too(corrected, tmp_pa
         verify_store(out / "a" / "corrected.zarr")
 
 
+@pytest.mark.unit
 def test_verify__output_directory_with_its_store_deleted_is_damaged(corrected, tmp_path):
     _, out = copied(corrected, tmp_path)
     shutil.rmtree(out / "a" / "corrected.zarr")
@@ -204,6 +212,7 @@ def test_verify__output_directory_with_its_store_deleted_is_damaged(corrected, t
     assert not os.path.exists(out / "a" / "corrected.zarr"), "verify writes nothing"
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("damage", ["fingerprints removed", "depth's fingerprints removed"])
 def test_correct_cli__scan_without_its_fingerprints_fails_and_writes_nothing(model, tmp_path, monkeypatch, capsys,
                                                                              damage):
@@ -222,6 +231,7 @@ def test_correct_cli__scan_without_its_fingerprints_fails_and_writes_nothing(mod
     assert not (tmp_path / "out" / "a").exists()
 
 
+@pytest.mark.unit
 @settings(max_examples=15, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(harms=st.lists(st.tuples(st.sampled_from(["delete", "append", "flip", "empty"]), st.integers(0, 10**6)),

@@ -9,8 +9,8 @@ docs/explanation/footprint.md carries the equations (F1)-(F15) the modules cite.
 
 The parts, each private: ``_surfaces`` (the scan's flat surfaces), ``_albedo`` (albedo from amplitude),
 ``_partners`` (flat surfaces as planes continued beyond the view), ``_coupling`` (the two-path model's phasors),
-``_fit`` (the weighted fit of planes and footprint), ``_result`` (:class:`FootprintEstimate`), ``_estimate``
-(the rounds of the fit), ``_inputs`` (the model's inputs).
+``_problem`` (the fit's rows, bias model and planes), ``_fit`` (the weighted fit of the footprint), ``_result``
+(:class:`FootprintEstimate`), ``_estimate`` (the rounds of the fit), ``_inputs`` (the model's inputs).
 """
 
 from __future__ import annotations

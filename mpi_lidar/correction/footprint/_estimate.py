@@ -20,7 +20,7 @@ from mpi_lidar.correction.footprint._coupling import PixelCoupling, PlaneCouplin
 from mpi_lidar.correction.footprint._fit import FootprintFit
 from mpi_lidar.correction.footprint._result import NOTHING_MEASURED, EstimateMethod, FootprintEstimate
 from mpi_lidar.correction.footprint._surfaces import SurfaceLabels, pair_coupling, surface_labels
-from mpi_lidar.correction.validity import depth_noise_m
+from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans.geometry import FacingBlocks
 from mpi_lidar.scans.scan import Scan
 
@@ -41,8 +41,8 @@ MIN_DEPTH_NOISE_M = 1e-5
 
 def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor: SensorConfig, *,
                        reference: bool = False, max_pixels: int = MAX_FIT_PIXELS,
-                       measured_albedo: NDArray | None = None, surfaces: SurfaceLabels | None = None
-                       ) -> FootprintEstimate:
+                       measured_albedo: NDArray | None = None, surfaces: SurfaceLabels | None = None,
+                       noise: NoiseModel | None = None) -> FootprintEstimate:
     """The receiver footprint A_fp [m^2] that best explains the scan's depth near facing surfaces.
 
     Parameters
@@ -64,6 +64,8 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         The scan's :func:`block_albedo` (Hb*Wb,), where the caller has it already. [1]
     surfaces : SurfaceLabels | None
         The blocks' :func:`surface_labels`, where the caller has them already.
+    noise : NoiseModel | None
+        The scan's noise model, which weighs each pixel's depths (None: the sensor's).
 
     Returns
     -------
@@ -82,8 +84,9 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
     ys, xs = np.divmod(pixels, blocks.shape[1])
     depth = scan.depth[:, ys, xs].astype(np.float64).T
     amplitude = scan.amplitude[:, ys, xs].astype(np.float64).T
-    metres_per_rad = sensor.speed_of_light_m_per_s / (4 * np.pi * np.asarray(scan.frequencies_hz, dtype=np.float64))
-    sigma = np.maximum(depth_noise_m(sensor, scan.frequencies_hz, amplitude), MIN_DEPTH_NOISE_M)
+    noise = noise or NoiseModel.for_sensor(sensor, scan.frequencies_hz)
+    metres_per_rad = noise.metres_per_radian
+    sigma = np.maximum(noise.depth_sigma_m(amplitude), MIN_DEPTH_NOISE_M)
     usable = np.isfinite(depth).all(1) & np.isfinite(sigma).all(1)
     reference_depth = None
     if reference:

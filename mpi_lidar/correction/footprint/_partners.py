@@ -29,13 +29,16 @@ lies nearest its measured range. Partners that are not flat surfaces (curved one
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.scans.geometry import DEFAULT_MIN_COS, FacingBlocks
-from mpi_lidar.scans.neighbours import NearestPoints
 from mpi_lidar.scans.scan import Scan
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 # A continued surface reaches this many times as far from its visible centre as its farthest visible block.
 REACH = 2.0
@@ -286,9 +289,12 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
     Within the view a patch counts where the scan measured something at its range or behind it; beyond the
     view where the block nearest to its direction, on the view's border, belongs to the surface.
     """
+    from scipy.spatial import cKDTree  # imported where used: the start-up does not pay for it
+
     block_range = np.where(blocks.usable.ravel(), np.linalg.norm(blocks.centres.reshape(-1, 3), axis=1), np.nan)
-    directions = NearestPoints(block_rays)
-    spacing = float(np.median(directions.nearest_other()[0])) if block_rays.shape[0] > 1 else 0.0
+    directions = cKDTree(block_rays)
+    # The second neighbour of each ray is the nearest other one (the first is the ray itself).
+    spacing = float(np.median(directions.query(block_rays, k=2)[0][:, 1])) if block_rays.shape[0] > 1 else 0.0
     block_centres = blocks.centres.reshape(-1, 3)
     found = {}
     for surface, plane in planes.items():
@@ -300,10 +306,10 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
         e1 = np.cross(normal, [0.0, 1.0, 0.0] if abs(normal[1]) < 0.9 else [1.0, 0.0, 0.0])
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(normal, e1)
-        u, v, sides = _graded_patches(centre, e1, e2, reach_m, NearestPoints(block_centres[receivers]))
+        u, v, sides = _graded_patches(centre, e1, e2, reach_m, cKDTree(block_centres[receivers]))
         centres = centre + u[:, None] * e1 + v[:, None] * e2
         patch_range = np.linalg.norm(centres, axis=1)
-        distance, nearest = directions.nearest(centres / np.maximum(patch_range, 1e-12)[:, None])
+        distance, nearest = directions.query(centres / np.maximum(patch_range, 1e-12)[:, None])
         outside = distance > 0.75 * spacing
         with np.errstate(invalid="ignore"):
             seen = ~outside & (patch_range >= block_range[nearest] - FRONT_TOLERANCE_M)
@@ -314,7 +320,7 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
     return found
 
 
-def _graded_patches(centre: NDArray, e1: NDArray, e2: NDArray, reach_m: float, receivers: NearestPoints
+def _graded_patches(centre: NDArray, e1: NDArray, e2: NDArray, reach_m: float, receivers: cKDTree
                     ) -> tuple[NDArray, NDArray, NDArray]:
     """Square patches (u, v, side [m]) tiling the square of half-side ``reach_m`` around ``centre`` in the
     plane spanned by e1, e2: halved until each is at most PATCH_M (1 + d / GRADING_M) wide, d the distance
@@ -323,7 +329,7 @@ def _graded_patches(centre: NDArray, e1: NDArray, e2: NDArray, reach_m: float, r
     done: list[tuple[NDArray, NDArray, NDArray]] = []
     while u.size:
         points = centre + u[:, None] * e1 + v[:, None] * e2
-        clearance = np.maximum(receivers.nearest(points)[0] - side / np.sqrt(2), 0.0)
+        clearance = np.maximum(receivers.query(points)[0] - side / np.sqrt(2), 0.0)
         split = side > PATCH_M * (1 + clearance / GRADING_M)
         done.append((u[~split], v[~split], side[~split]))
         quarter = side[split] / 4

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import zarr
 
+from mpi_lidar.calibration.profile import read_profile
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
 from mpi_lidar.correction.footprint import (
@@ -25,9 +26,9 @@ from mpi_lidar.correction.footprint._albedo import light_free_albedo, surface_al
 from mpi_lidar.correction.footprint._coupling import PlaneCoupling
 from mpi_lidar.correction.footprint._estimate import evenly_chosen
 from mpi_lidar.correction.footprint._fit import FootprintFit
-from mpi_lidar.correction.profile import SensorProfile, read_profile, write_profile
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
+from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.scans.geometry import facing_blocks
 from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render, room_corner
 from mpi_lidar.workflows.calibrate import calibrate_scans, scan_footprint
@@ -76,6 +77,8 @@ def estimate(scan, reference: bool = False) -> FootprintEstimate:
     return estimate_footprint(scan, blocks, valid, Config().sensor, reference=reference)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.parametrize("true_m2", [0.004, 0.041])
 def test_estimate__against_a_reference_depth_finds_the_renders_footprint(true_m2):
     # The renderer's own footprint is the independent truth; against the exact reference depth only the
@@ -85,12 +88,16 @@ def test_estimate__against_a_reference_depth_finds_the_renders_footprint(true_m2
     assert found.area_m2 == pytest.approx(true_m2, rel=0.25)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_estimate__from_the_scans_own_surfaces_at_a_small_footprint():
     found = estimate(rendered(corner(90.0, 2.0, 0.8), 0.002))
     assert found.significant and found.surfaces >= 2 and found.pixels > 5000
     assert 1 / 1.5 <= found.area_m2 / 0.002 <= 1.5
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_estimate__three_surfaces_of_a_room_corner_measure_the_footprint():
     # Two walls and the floor face each other along three edges: every one is a partner of the other two.
     # The walls' patches 4 cm apart, as the renderer takes them for the scenes of a room's size (multi_object):
@@ -100,6 +107,7 @@ def test_estimate__three_surfaces_of_a_room_corner_measure_the_footprint():
     assert 1 / 1.5 <= found.area_m2 / 0.041 <= 1.5
 
 
+@pytest.mark.unit
 def test_estimate__a_flat_wall_measures_nothing_usable():
     found = estimate(rendered(flat_wall(0.0), 0.041))
     assert not found.significant
@@ -125,6 +133,7 @@ def strip_corner_problem(depth: np.ndarray | None, true_m2: float, noise_m: floa
     return FootprintFit(depth, *arguments)
 
 
+@pytest.mark.unit
 def test_estimate__statistical_sigma_matches_the_scatter_over_noise_draws(monkeypatch):
     # Each strip's plane rests on its far pixels (the anchors) and reaches the edge by extrapolation, so the
     # anchors' noise moves the estimate more than the fit rows' own noise: sigma must hold both (Monte Carlo).
@@ -138,6 +147,7 @@ def test_estimate__statistical_sigma_matches_the_scatter_over_noise_draws(monkey
     assert estimates.mean() == pytest.approx(0.02, rel=0.1)
 
 
+@pytest.mark.unit
 def test_estimate__a_surface_whose_anchors_lie_along_a_line_is_left_out():
     # One row of pixels fixes no plane: it could turn about the row and put any bias on the surface's other
     # pixels (on a rendered 60-degree corner such a strip made sigma 2 m^2). The row's 60 anchors are 40 % of
@@ -176,6 +186,7 @@ def lit_strip_corner(true_m2: float, light_m2: float, noise_m: float, seed: int)
                                 np.where(clean.surface == 0, -1.0, 1.0), None)
 
 
+@pytest.mark.unit
 def test_estimate__the_amplitude_joins_the_depth_by_their_relative_uncertainties():
     # Depth and light both hold 0.02 m^2 and Gaussian noise: the joined estimate lies between the two and is
     # surer than the depth's alone.
@@ -190,6 +201,7 @@ def test_estimate__the_amplitude_joins_the_depth_by_their_relative_uncertainties
     assert joined.significant
 
 
+@pytest.mark.unit
 def test_estimate__an_amplitude_that_shows_no_multipath_makes_the_depths_estimate_not_significant():
     # The depth says 0.02 m^2, the light says a tenth of it: the model does not describe this scan.
     problem = lit_strip_corner(0.02, 0.002, 0.001, seed=3)
@@ -199,6 +211,8 @@ def test_estimate__an_amplitude_that_shows_no_multipath_makes_the_depths_estimat
     assert found.area_m2 == depth.area_m2 and found.sigma_m2 >= found.area_m2
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_estimate__strong_multipath_on_a_near_corner_is_read_within_1_5x():
     # At 0.1 m^2 the multipath bends the boards far from the edge, and the planes the depth is measured
     # against take up part of the bias: the depth alone reads about half the truth here. The amplitude's
@@ -227,6 +241,7 @@ def board_albedos(scene, true_m2: float) -> tuple[list[float], list[float], list
     return tuple([float(albedo[b]) for b in boards] for albedo in found)
 
 
+@pytest.mark.integration
 def test_light_free_albedo__strong_multipath_is_taken_off_the_boards_amplitude():
     # At 0.1 m^2 the partners add a tenth to the light of a near corner's boards even far from the edge; an
     # albedo that keeps it overstates the partners' product and reads the footprint low.
@@ -237,6 +252,8 @@ def test_light_free_albedo__strong_multipath_is_taken_off_the_boards_amplitude()
         assert abs(free - 0.9) < 0.6 * (raw - 0.9)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_light_free_albedo__far_blocks_are_those_the_model_couples_least():
     # Along a horizontal edge the row of blocks next to it has no facing block pairs (too close), yet the most
     # coupling and bent normals: taken as far blocks they read one board 5 % dark and, less the gain the
@@ -248,6 +265,7 @@ def test_light_free_albedo__far_blocks_are_those_the_model_couples_least():
     assert all(abs(albedo / 0.65 - 1) < 0.03 for albedo in light_free + measured)
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(("shape", "share", "count"), [((50, 70), 0.3, 100), ((3, 5), 0.5, 2), ((400, 300), 0.01, 1000),
                                                   ((40, 30), 0.9, 10_000), ((10, 10), 0.0, 5), ((100, 100), 1.0, 37)])
 def test_fit_pixels__row_by_row_stride_picks_what_the_flat_stride_picks(shape, share, count):
@@ -257,6 +275,7 @@ def test_fit_pixels__row_by_row_stride_picks_what_the_flat_stride_picks(shape, s
     np.testing.assert_array_equal(evenly_chosen(mask, count), expected)
 
 
+@pytest.mark.unit
 def test_pool__is_the_inverse_variance_mean():
     a, b = FootprintEstimate(0.01, 0.001, 100, 2), FootprintEstimate(0.02, 0.002, 300, 2)
     pooled = pool_estimates([a, b, FootprintEstimate(float("nan"), float("inf"), 0, 0)])
@@ -266,6 +285,7 @@ def test_pool__is_the_inverse_variance_mean():
     assert pooled.scans == 3 and pooled.pixels == 400
 
 
+@pytest.mark.unit
 def test_correct__auto_on_a_flat_wall_keeps_every_raw_depth(tiny_geometric_model):
     scan = rendered(flat_wall(20.0), 0.041)
     correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto",
@@ -275,6 +295,8 @@ def test_correct__auto_on_a_flat_wall_keeps_every_raw_depth(tiny_geometric_model
     assert correction.counts()["corrected"] == 0
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_correct__an_estimate_that_is_not_significant_leaves_its_pixels_as_measured(tiny_geometric_model):
     # A dark corner (albedo 0.1) at high noise: the multipath is too weak to measure the footprint on.
     scan = rendered(corner(90.0, 2.0, 0.1), 0.041, noise=3.0)
@@ -285,9 +307,10 @@ def test_correct__an_estimate_that_is_not_significant_leaves_its_pixels_as_measu
     assert correction.counts()["corrected"] == 0 and correction.counts()["uncalibrated"] > 0
     left = np.isin(correction.flags, [Flag.UNCALIBRATED, Flag.NO_MULTIPATH])
     assert np.array_equal(correction.depth[left], scan.depth[-1][left])
-    assert any("not significant" in note and "uncalibrated" in note for note in correction.notes)
+    assert any("not significant" in note and "uncalibrated" in note for note in correction_notes(correction))
 
 
+@pytest.mark.integration
 def test_correct__a_significant_estimate_is_used_and_reported(tiny_geometric_model):
     scan = rendered(corner(90.0, 2.0, 0.8), 0.02)
     correction = correct_scan(scan, tiny_geometric_model, CorrectionOptions(footprint_area_m2="auto"))
@@ -297,6 +320,7 @@ def test_correct__a_significant_estimate_is_used_and_reported(tiny_geometric_mod
     assert np.array_equal(given.depth, correction.depth, equal_nan=True)  # auto is the number it found
 
 
+@pytest.mark.unit
 def test_options__footprint_accepts_auto_or_a_positive_number():
     assert CorrectionOptions.from_cli(footprint_area_m2="AUTO").self_calibrating
     assert CorrectionOptions.from_cli(footprint_area_m2="0.02").footprint_area_m2 == 0.02
@@ -306,17 +330,7 @@ def test_options__footprint_accepts_auto_or_a_positive_number():
             CorrectionOptions.from_cli(footprint_area_m2=bad)
 
 
-def test_profile__round_trip_and_no_overwrite(tmp_path):
-    pooled = FootprintEstimate(0.02, 0.001, 900, 2, (EstimateMethod.REFERENCE,), 3)
-    profile = SensorProfile.from_estimate(pooled, ["a", "b"], saturation_amplitude_v2=0.5, min_amplitude_sigmas=4.0,
-                                          frequency_offsets_m=(-1e-4, 0.0), window_leakage_removed=True)
-    path = write_profile(profile, tmp_path / "sensor.toml")
-    assert read_profile(path) == profile and read_profile(path).window_leakage_removed is True
-    with pytest.raises(MpiLidarError, match="already exists"):
-        write_profile(profile, path)
-    assert read_profile(path) == profile
-
-
+@pytest.mark.unit
 @pytest.mark.parametrize("text, fragment", [("footprint_area_m2 = \n", "not valid TOML"),
                                             ("footprint_area_m2 = -1.0\n", "invalid"),
                                             ("footprint = 0.02\n", "invalid")])
@@ -331,6 +345,8 @@ def test_profile__bad_files_are_one_line_errors(tmp_path, monkeypatch, capsys, t
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_calibrate__pools_scans_writes_a_profile_that_correct_records(tmp_path, tiny_geometric_model_dir,
                                                                       monkeypatch, capsys):
     from mpi_lidar.scans.store import write_scan
@@ -350,6 +366,7 @@ def test_calibrate__pools_scans_writes_a_profile_that_correct_records(tmp_path, 
     assert attrs["options"]["sensor_profile_sha256"] == profile.record()["sha256"]
 
 
+@pytest.mark.unit
 def test_calibrate__refuses_scans_without_facing_surfaces(tmp_path, monkeypatch, capsys):
     from mpi_lidar.scans.store import write_scan
 
@@ -361,6 +378,7 @@ def test_calibrate__refuses_scans_without_facing_surfaces(tmp_path, monkeypatch,
     assert not (tmp_path / "sensor.toml").exists()
 
 
+@pytest.mark.integration
 def test_scan_footprint__a_scan_without_geometry_measures_nothing():
     from dataclasses import replace
 
@@ -368,6 +386,7 @@ def test_scan_footprint__a_scan_without_geometry_measures_nothing():
     assert not np.isfinite(scan_footprint(scan, CorrectionOptions(), Config().sensor).area_m2)
 
 
+@pytest.mark.integration
 def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(tiny_geometric_model_dir):
     from benchmarks.calibration import run
 
@@ -387,6 +406,7 @@ def test_calibration_benchmark__quick_rows_compare_auto_with_the_true_footprint(
     assert strong["edge_removed_mm"] == pytest.approx(weak["edge_raw_mm"], rel=0.25)
 
 
+@pytest.mark.integration
 def test_calibration_benchmark__a_chosen_scene_keeps_its_seed_and_an_unknown_one_is_refused(tmp_path):
     from benchmarks.calibration import chosen_cases, scene_cases
 
@@ -402,6 +422,7 @@ def test_calibration_benchmark__a_chosen_scene_keeps_its_seed_and_an_unknown_one
     assert result.stderr.strip().splitlines()[-1].startswith("benchmarks.calibration: no scene of the set")
 
 
+@pytest.mark.integration
 def test_calibration_benchmark__the_edge_region_follows_a_rolled_edge():
     from benchmarks.scenes import edge_line, edge_line_region
 
@@ -417,6 +438,7 @@ def test_calibration_benchmark__the_edge_region_follows_a_rolled_edge():
     assert near.any() and not near.all()
 
 
+@pytest.mark.integration
 def test_calibration_benchmark__several_surfaces_edges_lie_where_two_surfaces_meet():
     from benchmarks.calibration import SEVERAL_SURFACES
 
@@ -430,6 +452,8 @@ def test_calibration_benchmark__several_surfaces_edges_lie_where_two_surfaces_me
                 assert sum(on) >= 2, f"{label}: an edge point on {sum(on)} surface planes"
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_calibration_diagnosis__the_surfaces_beyond_the_view_carry_the_strong_multipath():
     from benchmarks.calibration_diagnosis import diagnose
 
@@ -443,6 +467,7 @@ def test_calibration_diagnosis__the_surfaces_beyond_the_view_carry_the_strong_mu
     assert strong["shipped"].area_m2 > 0.1 / 1.5, "the partners continued beyond the view give it back"
 
 
+@pytest.mark.unit
 def test_correction_diagnosis__bins_the_edge_by_true_bias_on_the_true_surface(tiny_geometric_model):
     from benchmarks.correction_diagnosis import HEADER, diagnose, diagnosis_cases, format_row
 
@@ -458,6 +483,7 @@ def test_correction_diagnosis__bins_the_edge_by_true_bias_on_the_true_surface(ti
         assert format_row(row).count("|") == HEADER.splitlines()[0].count("|")
 
 
+@pytest.mark.unit
 def test_correction_diagnosis__a_scene_left_as_measured_gives_no_bins(tiny_geometric_model):
     from benchmarks.correction_diagnosis import diagnose
     from benchmarks.scenes import edge_line
@@ -468,6 +494,7 @@ def test_correction_diagnosis__a_scene_left_as_measured_gives_no_bins(tiny_geome
     assert rows == []
 
 
+@pytest.mark.unit
 def test_calibrate__scans_in_counts_give_their_unit_and_correct_as_in_v2(tmp_path, tiny_geometric_model_dir,
                                                                          monkeypatch, capsys):
     from dataclasses import replace
@@ -499,6 +526,7 @@ def test_calibrate__scans_in_counts_give_their_unit_and_correct_as_in_v2(tmp_pat
     assert np.nanmean(difference) < 0.05e-3 and np.nanmean(difference > 1e-4) < 0.05
 
 
+@pytest.mark.unit
 def test_correct_scan__amplitude_unit_auto_measures_each_scans_own(tiny_geometric_model_dir):
     from dataclasses import replace
 
@@ -512,8 +540,8 @@ def test_correct_scan__amplitude_unit_auto_measures_each_scans_own(tiny_geometri
     counts = replace(scan, amplitude=(scan.amplitude * 4000).astype(np.float32))
     auto = correct_scan(counts, model, CorrectionOptions(footprint_area_m2=0.02, amplitude_scale="auto",
                                                          baseline="raw"))
-    assert auto.unserved is None and auto.notes[0].startswith("amplitude unit auto: ")
-    assert 3600 < float(auto.notes[0].split()[3]) < 4400  # the unit, within 10 %
+    assert auto.unserved is None and correction_notes(auto)[0].startswith("amplitude unit auto: ")
+    assert 3600 < float(correction_notes(auto)[0].split()[3]) < 4400  # the unit, within 10 %
     difference = np.abs(auto.depth - in_v2.depth)
     assert np.nanmean(difference) < 0.05e-3 and auto.counts()["corrected"] > 0
     # a corner alone has no flat surface away from its edge, but its frequencies' scatter reads its unit all the
@@ -522,7 +550,7 @@ def test_correct_scan__amplitude_unit_auto_measures_each_scans_own(tiny_geometri
     runs = [correct_scan(replace(corner_scan, amplitude=(corner_scan.amplitude * unit).astype(np.float32)), model)
             for unit in (1.0, 4000.0, 0.01)]
     assert all(run.unserved is None and run.counts()["corrected"] > 0 for run in runs)
-    assert "read as V^2" in runs[0].notes[0] and "divided by it" in runs[1].notes[0]
+    assert "read as V^2" in correction_notes(runs[0])[0] and "divided by it" in correction_notes(runs[1])[0]
     error = [np.nanmean(np.abs(run.depth - corner_scan.reference_depth)) for run in runs]
     # the reading scales with the unit: up to float32 rounding of the amplitudes, the same depths
     np.testing.assert_allclose(runs[2].depth, runs[1].depth, rtol=0, atol=1e-5)

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction.footprint import PlaneModelInputs, plane_model_inputs
 from mpi_lidar.scans.geometry import facing_blocks
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
+
+pytestmark = pytest.mark.unit
 
 
 def inputs_of(scene, area_m2: float) -> tuple[PlaneModelInputs, np.ndarray]:

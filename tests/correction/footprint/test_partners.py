@@ -41,6 +41,7 @@ def corner_partners(corner_scan):
     return partners_of(corner_scan)
 
 
+@pytest.mark.unit
 def test_coupling_at__matches_the_renderers_pairwise_coupling():
     rng = np.random.default_rng(0)
     normal_a, normal_b = np.array([0.6, 0.0, -0.8]), np.array([-0.6, 0.0, -0.8])
@@ -62,6 +63,7 @@ def test_coupling_at__matches_the_renderers_pairwise_coupling():
         np.testing.assert_allclose(found[:, 1 + k], expected, rtol=1e-4, atol=1e-6 * np.abs(expected).max())
 
 
+@pytest.mark.unit
 def test_phasor_sums__powers_of_a_common_wave_equal_the_direct_sums():
     rng = np.random.default_rng(1)
     kappa, r = rng.uniform(0, 1, (5, 200)), rng.uniform(0.01, 3.0, (5, 200))
@@ -92,6 +94,7 @@ def assigned_walls(scan, blocks, labels, partners):
     return found, (rays * reference[ys, xs][:, None])[:, 0] > 0, grid[ys // b, xs // b]
 
 
+@pytest.mark.integration
 def test_nearest_surface__a_block_across_the_edge_gives_each_pixel_its_own_wall(corner_scan, corner_partners):
     found, true_right, block_label = assigned_walls(corner_scan, *corner_partners)
     right_label, left_label = (np.bincount(block_label[side]).argmax() for side in (true_right, ~true_right))
@@ -102,6 +105,7 @@ def test_nearest_surface__a_block_across_the_edge_gives_each_pixel_its_own_wall(
     assert np.isin(found, [left_label, right_label]).all()
 
 
+@pytest.mark.integration
 def test_nearest_surface__on_a_shallow_corner_no_pixel_is_read_on_the_plane_behind_its_wall():
     # At 150 degrees the two planes lie within the noise of each other for centimetres from the edge; read
     # by range alone, 0.5 % of the pixels went to the other wall's plane, past the edge.
@@ -112,6 +116,8 @@ def test_nearest_surface__on_a_shallow_corner_no_pixel_is_read_on_the_plane_behi
     assert np.count_nonzero((found == right_label) != true_right) == 0
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_nearest_surface__past_a_bent_edge_the_pixels_go_to_the_wall_they_lie_on():
     # Strong multipath (0.1 m^2) bends the boards next to the edge; seen 25 degrees off the bisector, the
     # left board's blocks there are left out, and the block across the edge belongs to the right wall alone.
@@ -126,6 +132,7 @@ def test_nearest_surface__past_a_bent_edge_the_pixels_go_to_the_wall_they_lie_on
     assert np.count_nonzero((found == right_label) != true_right) == 0
 
 
+@pytest.mark.unit
 def test_surface_planes__a_noisy_corner_keeps_its_angle_and_edge(corner_partners):
     # Each 3 cm block's own plane tilts away from the rays with the range noise; summed, those normals made
     # this corner (90 degrees, 2.4 m, albedo 0.5) 86.5 degrees. The true boards are the independent truth.
@@ -147,6 +154,7 @@ def component_grid(*cells: tuple[int, int], shape: tuple[int, int] = (12, 12)) -
     return SimpleNamespace(usable=np.zeros(shape, dtype=bool)), components
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize(("cells", "narrow"), [
     ([(k, k) for k in range(10)] + [(k + 1, k) for k in range(9)], True),  # a diagonal staircase 2 blocks thick
     ([(k, c) for k in range(10) for c in (4, 5)], True),  # a vertical strip 2 blocks wide
@@ -161,6 +169,7 @@ def test_narrow_components__the_width_is_measured_across_the_strip_not_along_row
     assert (_narrow_components(blocks, components) == {0}) is narrow
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("roll_deg", [30.0, -45.0, 60.0])
 def test_surface_planes__the_bend_along_a_rolled_edge_is_no_partner(roll_deg):
     # At 0.1 m^2 the multipath bends a strip of blocks along the edge away from both boards; found as planes of
@@ -170,6 +179,7 @@ def test_surface_planes__the_bend_along_a_rolled_edge_is_no_partner(roll_deg):
     assert len(partners.planes) == 2 and len(partners.partners) == 2
 
 
+@pytest.mark.unit
 def test_patches__a_board_continues_beyond_the_view_and_nothing_lies_in_front(corner_scan, corner_partners):
     _, _, partners = corner_partners
     rays = corner_scan.rays().reshape(-1, 3)
@@ -190,12 +200,14 @@ def test_patches__a_board_continues_beyond_the_view_and_nothing_lies_in_front(co
         np.testing.assert_allclose((patches.centres - plane.centre) @ plane.normal, 0.0, atol=1e-9)
 
 
+@pytest.mark.unit
 def test_on_plane__points_lie_on_the_plane_along_their_rays():
     plane = SurfacePlane(np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 2.0]), 1.0)
     rays = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
     np.testing.assert_allclose(_on_plane(rays, plane), [[0.0, 0.0, 2.0], [1.5, 0.0, 2.0]])
 
 
+@pytest.mark.integration
 def test_estimate__a_corner_without_multipath_measures_no_footprint():
     # Pixels read on the other wall's plane would look like a bias growing towards the edge.
     found = [estimate(rendered(corner(90.0, 2.4, 0.5), 0.0, seed=seed)) for seed in (0, 1)]
@@ -203,6 +215,8 @@ def test_estimate__a_corner_without_multipath_measures_no_footprint():
     assert not any(f.significant and f.area_m2 > 0.003 for f in found)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_estimate__strong_multipath_finds_the_least_residuals_not_the_first_fixed_point(seed):
     # The residuals are not convex in A here: from A = 0 the fit settled on a negative footprint.
@@ -211,6 +225,8 @@ def test_estimate__strong_multipath_finds_the_least_residuals_not_the_first_fixe
     assert 1 / 1.5 <= found.area_m2 / 0.1 <= 1.5
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_estimate__strong_multipath_bends_the_boards_but_not_the_partner_planes():
     # At 0.1 m^2 the planes through the blocks of this corner meet at about 81 degrees, and read 0.56x; the
     # partner planes of the second round rest on the anchors less the predicted bias.

@@ -15,6 +15,8 @@ from mpi_lidar.scans.store import write_scan
 from tests.scan_factory import two_path_scan
 from tests.scans.importers.files import FREQS, MAPPING, save_npz, tool_dataset
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.mark.parametrize("engine", ["h5netcdf", "scipy"])  # NetCDF-4 (HDF5) and NetCDF-3 classic
 def test_load_netcdf__mapped_variables_in_their_units(tmp_path, engine):

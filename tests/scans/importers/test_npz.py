@@ -10,6 +10,8 @@ from mpi_lidar.scans.scan import ScanError
 from tests.scan_factory import two_path_scan
 from tests.scans.importers.files import FREQS
 
+pytestmark = pytest.mark.unit
+
 
 def test_load_npz__imports_arrays_from_other_tools(tmp_path):
     scan = two_path_scan("npz")

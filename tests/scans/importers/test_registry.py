@@ -14,6 +14,7 @@ from tests.scan_factory import two_path_scan
 from tests.scans.importers.files import FREQS, MAPPING, save_npz, tool_dataset
 
 
+@pytest.mark.unit
 def test_importers__one_per_format_each_suffix_once(tmp_path):
     assert IMPORT_SUFFIXES == (".npz", ".nc", ".h5", ".hdf5")
     assert all(isinstance(importer, ScanImporter) for importer in IMPORTERS)
@@ -24,6 +25,7 @@ def test_importers__one_per_format_each_suffix_once(tmp_path):
 
         load_scan_file(tmp_path / "a.txt", FREQS)
 
+@pytest.mark.unit
 def test_find_and_plan__directories_globs_and_clashes(tmp_path):
     day = tmp_path / "day"
     day.mkdir()
@@ -46,6 +48,7 @@ def test_find_and_plan__directories_globs_and_clashes(tmp_path):
         plan_import(files, tmp_path / "x.scan.zarr")
 
 
+@pytest.mark.integration
 def test_import_scan_cli__a_day_of_frames_in_one_call(tmp_path, monkeypatch, capsys):
     day = tmp_path / "day"
     day.mkdir()
@@ -67,6 +70,7 @@ def test_import_scan_cli__a_day_of_frames_in_one_call(tmp_path, monkeypatch, cap
         assert scan.shape == (6, 5) and scan.has_geometry and scan.name == store.removesuffix(".scan.zarr")
 
 
+@pytest.mark.integration
 def test_import_scan_cli__one_bad_file_writes_nothing(tmp_path, monkeypatch, capsys):
     day = tmp_path / "day"
     day.mkdir()
@@ -79,6 +83,7 @@ def test_import_scan_cli__one_bad_file_writes_nothing(tmp_path, monkeypatch, cap
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.integration
 def test_import_scan_cli__single_store_and_user_errors(tmp_path, monkeypatch, capsys):
     save_npz(tmp_path / "one.npz", "one")
     code, out, _ = call_main(monkeypatch, capsys, "import-scan", tmp_path / "one.npz", "--out",
@@ -100,6 +105,7 @@ def test_import_scan_cli__single_store_and_user_errors(tmp_path, monkeypatch, ca
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.npz", "two.npz", "x.scan.zarr"]
 
 
+@pytest.mark.integration
 def test_import_scan_cli__frequencies_in_mhz_are_refused_before_anything_is_read(tmp_path, monkeypatch, capsys):
     save_npz(tmp_path / "a.npz", "a")
     code, out, err = call_main(monkeypatch, capsys, "import-scan", tmp_path / "a.npz",
@@ -114,6 +120,7 @@ def test_import_scan_cli__frequencies_in_mhz_are_refused_before_anything_is_read
     assert code == 2 and "b.npz" in err and "frequencies are in Hz" in err
 
 
+@pytest.mark.integration
 def test_import_scan_cli__depths_wrapped_or_unwrapped_are_recorded(tmp_path, monkeypatch, capsys):
     save_npz(tmp_path / "a.npz", "a")
     for depths in ("wrapped", "unwrapped"):

@@ -127,8 +127,22 @@ class SensorProfile(BaseModel):
 
     @classmethod
     def from_estimate(cls, estimate: FootprintEstimate, sources: list[str], **measured: object) -> SensorProfile:
-        """The profile of a pooled footprint estimate over ``sources`` (the scans' paths), with the other fields
-        ``measured`` gives (None leaves a field out)."""
+        """The profile of a pooled footprint estimate.
+
+        Parameters
+        ----------
+        estimate : FootprintEstimate
+            The footprint pooled over the scans (its area [m^2] and how it was measured).
+        sources : list[str]
+            The scans' paths, recorded in ``calibration.sources``.
+        **measured : object
+            The other fields, in their units ([V^2], [1], [Hz], [m]); None leaves a field out.
+
+        Returns
+        -------
+        SensorProfile
+            The validated profile.
+        """
         given = {key: value for key, value in measured.items() if value is not None}
         return cls.model_validate({"footprint_area_m2": estimate.area_m2, **given,
                                    "calibration": {**{k: v for k, v in estimate.to_dict().items() if k != "area_m2"},
@@ -136,7 +150,23 @@ class SensorProfile(BaseModel):
 
 
 def read_profile(path: str | Path) -> SensorProfile:
-    """Read and check a sensor profile; every problem is one line naming the file."""
+    """Read and check a sensor profile; every problem is one line naming the file.
+
+    Parameters
+    ----------
+    path : str | Path
+        The profile (``sensor.toml``): a regular UTF-8 file of at most 1 MiB.
+
+    Returns
+    -------
+    SensorProfile
+        The profile, each number within its physical bounds.
+
+    Raises
+    ------
+    MpiLidarError
+        Where the file is missing, not TOML, or not a valid profile.
+    """
     path = Path(path)
     if not path.exists() and not path.is_symlink():
         raise MpiLidarError(f"sensor profile {path} does not exist; write one with mpi-lidar calibrate")
@@ -159,7 +189,19 @@ class ProfileOptions(TypedDict, total=False):
 
 
 def profile_options(path: str | Path | None) -> ProfileOptions:
-    """The :meth:`CorrectionOptions.from_cli` arguments of the profile at ``path`` (none for None)."""
+    """The :meth:`CorrectionOptions.from_cli` arguments of a sensor profile.
+
+    Parameters
+    ----------
+    path : str | Path | None
+        The profile (:func:`read_profile`); None: no profile.
+
+    Returns
+    -------
+    ProfileOptions
+        ``sensor_profile``: the options it sets (footprint [m^2], thresholds [V^2, 1], amplitude scale
+        [units/V^2], measured noise [1] and offsets [m]) and its hash; empty for None.
+    """
     if path is None:
         return {}
     profile = read_profile(path)
@@ -168,7 +210,20 @@ def profile_options(path: str | Path | None) -> ProfileOptions:
 
 
 def write_profile(profile: SensorProfile, path: str | Path) -> Path:
-    """Write a profile as TOML, atomically; an existing file is refused, never replaced."""
+    """Write a profile as TOML, atomically; an existing file is refused, never replaced.
+
+    Parameters
+    ----------
+    profile : SensorProfile
+        The profile.
+    path : str | Path
+        Where to write it (``sensor.toml``); it must not exist.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     lines = ["# mpi-lidar sensor profile: written by `mpi-lidar calibrate`, read by `mpi-lidar correct --sensor`.",
              f"schema = {_toml(PROFILE_SCHEMA)}"]
     lines += [f"{key} = {_toml(value)}" for key, value in profile.options().items()]

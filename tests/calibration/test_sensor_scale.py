@@ -1,6 +1,5 @@
-"""A scan's amplitude units, noise scale and depth offsets from its flat surfaces (mpi_lidar.correction.sensor_scale):
-the estimator against residuals drawn from the noise model, the flat-surface residuals against noiseless renders
-and the renderer's own multipath, and the two together on rendered boards in other amplitude units."""
+"""The sensor-scale estimator (mpi_lidar.calibration.sensor_scale): against residuals drawn from the noise model,
+then through a scan's flat surfaces on rendered boards in other amplitude units."""
 
 from __future__ import annotations
 
@@ -10,25 +9,20 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, SensorConfig
-from mpi_lidar.correction import CorrectionOptions, analyse_geometry, depth_noise_m, validity_flags
-from mpi_lidar.correction.scene import scene_blocks
-from mpi_lidar.correction.sensor_scale import (
+from mpi_lidar.calibration.sensor_scale import (
     SensorScale,
     estimate_sensor_scale,
-    flat_surface_residuals,
     gaussian_t_scale,
     measure_sensor_scale,
 )
-from mpi_lidar.correction.validity import usable_depth_of
-from mpi_lidar.scans.scan import Scan
-from mpi_lidar.simulation.scenes import Rectangle, Scene, corner, flat_wall, render
+from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config
+from mpi_lidar.correction import CorrectionOptions, analyse_geometry, depth_noise_m, validity_flags
+from mpi_lidar.correction.validity import depth_rules_only, usable_depth_of
+from mpi_lidar.physics.noise import NoiseModel
+from mpi_lidar.simulation.scenes import corner, flat_wall, render
+from tests.calibration.rendered_scenes import DEPTH_RULES, SENSOR, boards_scene, depth_usable, in_units, rendered
 
-SENSOR = SensorConfig()
 FREQS = PAPER_FREQUENCIES_HZ
-# Depth rules alone (finite, frequencies consistent): amplitude thresholds in V^2 would call a scan in other units
-# saturated (x 4000) or dark (x 0.01).
-DEPTH_RULES = CorrectionOptions(min_amplitude_sigmas=0.0, saturation_amplitude_v2=1e30)
 
 
 # --- synthetic residuals from the noise model ----------------------------------------------------------------
@@ -44,6 +38,7 @@ def model_residuals(rng: np.random.Generator, pixels: int, low_v2: float, high_v
     return amplitude, offsets_m + noise_scale * sd * rng.standard_normal(amplitude.shape)
 
 
+@pytest.mark.unit
 def test_gaussian_t_scale__is_the_t_fit_of_a_large_gaussian_sample():
     sample = np.random.default_rng(0).standard_normal(100_000)
     _, _, scale = stats.t.fit(sample, f0=6.0, floc=0.0)
@@ -52,6 +47,7 @@ def test_gaussian_t_scale__is_the_t_fit_of_a_large_gaussian_sample():
     assert gaussian_t_scale(1e6) == pytest.approx(1.0, abs=1e-5)  # the t of infinite degrees is the Gaussian
 
 
+@pytest.mark.unit
 @pytest.mark.parametrize("units_per_v2", [1.0, 4000.0, 0.01])
 def test_estimate_sensor_scale__recovers_scales_and_offsets_of_the_noise_model(units_per_v2):
     offsets_m = np.array([3e-3, 1e-3, 0.0, -0.5e-3])
@@ -68,6 +64,7 @@ def test_estimate_sensor_scale__recovers_scales_and_offsets_of_the_noise_model(u
     assert found.amplitude_decades == pytest.approx(0.9 * np.log10(0.5 / 0.003), abs=0.05)
 
 
+@pytest.mark.unit
 def test_estimate_sensor_scale__the_amplitude_unit_changes_the_scale_alone():
     amplitude, residual = model_residuals(np.random.default_rng(2), 3000, 0.003, 0.5, 1.0, np.zeros(4))
     volts = estimate_sensor_scale(amplitude, residual, FREQS, SENSOR)
@@ -79,6 +76,7 @@ def test_estimate_sensor_scale__the_amplitude_unit_changes_the_scale_alone():
         volts.amplitude_scale_sigma / volts.amplitude_scale, rel=1e-2)
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_estimate_sensor_scale__sigmas_match_the_scatter_over_draws():
     pulls = []
@@ -95,6 +93,7 @@ def test_estimate_sensor_scale__sigmas_match_the_scatter_over_draws():
     np.testing.assert_array_less(np.abs(np.mean(pulls, axis=0)), 0.8)
 
 
+@pytest.mark.unit
 def test_estimate_sensor_scale__one_amplitude_determines_only_a_product():
     amplitude, residual = model_residuals(np.random.default_rng(3), 4000, 0.03, 0.035, 1.0, np.zeros(4))
     free = estimate_sensor_scale(amplitude * 4000, residual, FREQS, SENSOR)
@@ -107,6 +106,7 @@ def test_estimate_sensor_scale__one_amplitude_determines_only_a_product():
     assert abs(fixed.amplitude_scale - 4000) < 3 * fixed.amplitude_scale_sigma
 
 
+@pytest.mark.unit
 def test_estimate_sensor_scale__too_few_pixels_measure_nothing():
     amplitude, residual = model_residuals(np.random.default_rng(4), 150, 0.003, 0.5, 1.0, np.zeros(4))
     residual[:20, 1] = np.nan  # rows without a residual do not count
@@ -116,6 +116,7 @@ def test_estimate_sensor_scale__too_few_pixels_measure_nothing():
     assert np.isnan(found.offsets_m).all() and found.offsets_m.shape == (4,)
 
 
+@pytest.mark.unit
 def test_estimate_sensor_scale__gross_outliers_at_low_amplitude_are_left_out():
     rng = np.random.default_rng(5)
     amplitude, residual = model_residuals(rng, 6000, 0.005, 0.5, 1.0, np.zeros(4))
@@ -146,6 +147,7 @@ def plane_fit_residuals(rng: np.random.Generator, blocks: int, side: int, low_v2
     return amplitude, depth - plane[:, None], np.tile(np.diag(hat), blocks)
 
 
+@pytest.mark.unit
 def test_estimate_sensor_scale__leverage_corrects_the_degrees_of_freedom_of_the_planes():
     # 3 x 3 blocks, a leverage of 1/3 per pixel, in the thermal regime: with the noise scale fixed, the amplitude
     # scale reads the residuals' overall variance one to one (sd ~ lambda eta / A), to a few per mille.
@@ -160,6 +162,7 @@ def test_estimate_sensor_scale__leverage_corrects_the_degrees_of_freedom_of_the_
     assert abs(plain.amplitude_scale - 1.0) > 3 * plain.amplitude_scale_sigma
 
 
+@pytest.mark.unit
 def test_estimate_sensor_scale__refuses_mismatched_shapes():
     with pytest.raises(ValueError, match="same shape"):
         estimate_sensor_scale(np.ones((10, 4)), np.ones((12, 4)), FREQS, SENSOR)
@@ -169,6 +172,7 @@ def test_estimate_sensor_scale__refuses_mismatched_shapes():
         estimate_sensor_scale(np.ones((10, 4)), np.ones((10, 4)), FREQS, SENSOR, fix_noise_scale=0.0)
 
 
+@pytest.mark.unit
 def test_sensor_scale__is_frozen():
     found = estimate_sensor_scale(np.ones((5, 4)), np.zeros((5, 4)), FREQS, SENSOR)
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -179,112 +183,7 @@ def test_sensor_scale__is_frozen():
 # --- rendered scenes --------------------------------------------------------------------------------------------
 
 
-def board(centre: tuple[float, float, float], half_width_m: float, half_height_m: float, albedo: float,
-          yaw_deg: float = 0.0) -> Rectangle:
-    """A one-sided board facing the sensor, turned by ``yaw_deg`` about the vertical: its normal
-    (sin yaw, 0, -cos yaw) never faces another such board behind or before it, so no board sends light to another."""
-    yaw = np.deg2rad(yaw_deg)
-    return Rectangle(centre, (half_width_m * np.cos(yaw), 0.0, half_width_m * np.sin(yaw)), (0.0, -half_height_m, 0.0),
-                     albedo, two_sided=False)
-
-
-def boards_scene() -> Scene:
-    """Five boards from 0.6 m to 2.6 m, two of them turned, albedos 0.3-0.9: amplitudes from 0.01 to 0.45 V^2, from
-    where thermal noise rules to where shot noise does."""
-    boards = (board((-0.17, 0.0, 0.6), 0.08, 0.1, 0.9), board((0.2, 0.0, 0.9), 0.12, 0.18, 0.5, yaw_deg=30),
-              board((-0.55, 0.0, 1.5), 0.2, 0.3, 0.3), board((0.75, 0.0, 2.0), 0.25, 0.4, 0.9, yaw_deg=-40),
-              board((0.0, 0.0, 2.6), 1.2, 0.6, 0.45))
-    return Scene("boards", boards, np.linspace(-0.4, 0.4, 240), np.linspace(0.2, -0.2, 120))
-
-
-_RENDERS: dict[tuple, tuple[Scan, dict[str, np.ndarray]]] = {}
-
-
-def rendered(scene: Scene, seed: int = 1, truth_out: dict | None = None, patch_spacing_m: float | None = None,
-             **simulator: object) -> Scan:
-    """A render of ``scene`` with the simulator options given, once per module (the boards with coarse partner
-    patches: they face no other board); ``truth_out`` receives the render's true multipath."""
-    if scene.name == "boards":
-        patch_spacing_m = 0.25
-    key = (scene.name, scene.azimuth_rad.tobytes(), seed, patch_spacing_m, tuple(sorted(simulator.items())))
-    if key not in _RENDERS:
-        truth: dict[str, np.ndarray] = {}
-        config = Config().replace(simulator=simulator)
-        scan = render(scene, config, np.random.default_rng(seed), patch_spacing_m=patch_spacing_m, truth_out=truth)
-        _RENDERS[key] = (scan, truth)
-    scan, truth = _RENDERS[key]
-    if truth_out is not None:
-        truth_out.update(truth)
-    return scan
-
-
-def depth_usable(scan: Scan) -> np.ndarray:
-    raw = scan.raw_pixels()
-    return usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, DEPTH_RULES, SENSOR))
-
-
-def in_units(scan: Scan, units_per_v2: float) -> Scan:
-    return dataclasses.replace(scan, amplitude=(scan.amplitude * units_per_v2).astype(np.float32))
-
-
-def test_flat_surface_residuals__noiseless_planes_leave_nothing_on_the_boards():
-    scan = rendered(boards_scene(), noise_scale=0.0, whole_cycles=True, round_photons=False)
-    flat = flat_surface_residuals(scan, depth_usable(scan), CorrectionOptions())
-    assert flat.residual_m.shape == (flat.pixels.size, 4) and flat.amplitude.shape == flat.residual_m.shape
-    assert flat.pixels.size > 15_000 and flat.blocks > 600
-    # The planes are exact, the window whole: what is left (float32 depths, the boards' faint light on each other) is
-    # a few micrometres, against millimetres of noise.
-    assert np.abs(flat.residual_m).max() < 5e-6
-    # No pixel near an edge: each lies on a board with its 3 x 3 neighbourhood (the render's reference mask).
-    assert scan.reference_mask.ravel()[flat.pixels].all()
-    np.testing.assert_array_equal(flat.amplitude, scan.amplitude.reshape(4, -1).T[flat.pixels])
-
-
-def test_flat_surface_residuals__the_leverages_of_a_block_sum_to_the_planes_three_parameters():
-    scan = rendered(boards_scene())
-    flat = flat_surface_residuals(scan, depth_usable(scan), CorrectionOptions())
-    blocks = scene_blocks(scan, depth_usable(scan), CorrectionOptions())
-    assert blocks is not None
-    b, (_, width) = blocks.block_pixels, scan.shape
-    row, column = np.divmod(flat.pixels, width)
-    block = (row // b) * blocks.usable.shape[1] + column // b
-    _, inverse, counts = np.unique(block, return_inverse=True, return_counts=True)
-    sums = np.bincount(inverse, flat.leverage)
-    whole = counts == b * b
-    assert whole.sum() > 300 and np.unique(block).size == flat.blocks
-    # Where the robust fit kept every pixel, the hat matrix's trace: 3; a pixel it trimmed adds a prediction's.
-    assert np.median(sums[whole]) == pytest.approx(3.0, abs=1e-9)
-    assert (sums[whole] >= 3.0 - 1e-9).all()
-
-
-def test_flat_surface_residuals__no_pixel_within_the_partner_range_of_a_corner():
-    truth: dict[str, np.ndarray] = {}
-    scene = corner(90.0, 1.6, 0.8, height=48, width=160, board_m=1.2, half_height_m=0.5)
-    scene = dataclasses.replace(scene, azimuth_rad=np.linspace(-0.7, 0.7, 160))
-    scan = rendered(scene, truth_out=truth, patch_spacing_m=0.05)
-    options = CorrectionOptions()
-    flat = flat_surface_residuals(scan, depth_usable(scan), options)
-    bias = np.abs(truth["bias_m"]).max(1)
-    assert bias.max() > 0.01 and (bias > 1e-3).mean() > 0.3  # a scene with strong multipath
-    assert flat.pixels.size > 500  # the boards' far ends
-    # Every pixel taken lies beyond the partner range from the corner line (x = 0, z = 1.6 m), less a block or two
-    # (blocks pair by their centres).
-    points = scan.reference_depth.ravel()[flat.pixels, None] * scan.rays().reshape(-1, 3)[flat.pixels]
-    from_edge_m = np.hypot(points[:, 0], points[:, 2] - 1.6)
-    assert from_edge_m.min() > options.partner_range_m - 0.1
-    # What the partner range leaves out: the far board still sends some multipath, under 1 mm (16 mm at the edge).
-    assert bias[flat.pixels].max() < 1e-3
-
-
-def test_flat_surface_residuals__a_scan_without_geometry_has_none():
-    scan = rendered(boards_scene())
-    bare = dataclasses.replace(scan, azimuth_rad=None, elevation_rad=None)
-    flat = flat_surface_residuals(bare, depth_usable(bare), CorrectionOptions())
-    assert flat.pixels.size == 0 and flat.residual_m.shape == (0, 4) and flat.blocks == 0
-    found = measure_sensor_scale(bare, depth_usable(bare), CorrectionOptions(), SENSOR)
-    assert not found.significant and found.reason == "only 0 flat pixels, at least 200 needed"
-
-
+@pytest.mark.integration
 @pytest.mark.slow
 @pytest.mark.parametrize("units_per_v2", [1.0, 4000.0, 0.01])
 def test_measure_sensor_scale__reads_the_boards_amplitude_unit(units_per_v2):
@@ -296,6 +195,7 @@ def test_measure_sensor_scale__reads_the_boards_amplitude_unit(units_per_v2):
     assert found.noise_scale == pytest.approx(1.0, rel=0.1)
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_measure_sensor_scale__reads_the_simulators_noise_scale():
     scan = in_units(rendered(boards_scene(), noise_scale=2.0), 4000.0)
@@ -306,6 +206,7 @@ def test_measure_sensor_scale__reads_the_simulators_noise_scale():
     assert found.amplitude_scale == pytest.approx(4000.0, rel=0.1)
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_measure_sensor_scale__recovers_added_offsets_relative_to_the_highest_frequency():
     # Whole-cycle windows: the simulator's own window error (up to 0.6 mm at 12.5 MHz, varying with depth) is gone.
@@ -323,6 +224,7 @@ def test_measure_sensor_scale__recovers_added_offsets_relative_to_the_highest_fr
     np.testing.assert_allclose(again.offsets_m, found.offsets_m, atol=1e-12)
 
 
+@pytest.mark.unit
 def test_measure_sensor_scale__a_wall_of_one_amplitude_gives_the_scale_only_with_the_noise_fixed():
     scan = in_units(rendered(flat_wall(height=48, width=64)), 4000.0)
     found = measure_sensor_scale(scan, depth_usable(scan), DEPTH_RULES, SENSOR)
@@ -332,6 +234,7 @@ def test_measure_sensor_scale__a_wall_of_one_amplitude_gives_the_scale_only_with
     assert fixed.significant and fixed.amplitude_scale == pytest.approx(4000.0, rel=0.1)
 
 
+@pytest.mark.unit
 def test_measure_sensor_scale__a_corner_has_too_few_flat_pixels():
     scan = rendered(corner(90.0, 2.0, 0.8, height=24, width=32))
     found = measure_sensor_scale(scan, depth_usable(scan), DEPTH_RULES, SENSOR)
@@ -339,29 +242,12 @@ def test_measure_sensor_scale__a_corner_has_too_few_flat_pixels():
     assert found.reason.startswith(f"only {found.pixels} flat pixels")
 
 
-def test_neighbourhood_helpers__equal_scipy_ndimage_filters():
-    from scipy.ndimage import convolve, maximum_filter
-
-    from mpi_lidar.correction.sensor_scale import _any_neighbour, _neighbourhood_max
-
-    rng = np.random.default_rng(0)
-    ring = np.ones((3, 3), dtype=np.uint8)
-    ring[1, 1] = 0
-    for _ in range(200):
-        values = rng.random((int(rng.integers(1, 9)), int(rng.integers(1, 9))))
-        np.testing.assert_array_equal(_neighbourhood_max(values), maximum_filter(values, size=3, mode="nearest"))
-        outliers = values > 0.8
-        np.testing.assert_array_equal(_any_neighbour(outliers),
-                                      convolve(outliers.astype(np.uint8), ring, mode="constant") > 0)
-
-
+@pytest.mark.unit
 def test_measure_sensor_scale__with_the_window_s_leakage_removed_a_wall_s_offsets_are_noise():
-    from mpi_lidar.correction.sensor_scale import measure_sensor_scale
-    from mpi_lidar.correction.validity import depth_rules_only
-
     scan = render(flat_wall(20.0, 1.0, 0.7, height=96, width=128), Config(), np.random.default_rng(0))
     raw, options = scan.raw_pixels(), CorrectionOptions()
-    by_depth = usable_depth_of(raw, validity_flags(raw, scan.frequencies_hz, depth_rules_only(options), SENSOR))
+    noise = NoiseModel.for_sensor(SENSOR, scan.frequencies_hz)
+    by_depth = usable_depth_of(raw, validity_flags(raw, depth_rules_only(options), noise))
     as_they_are = measure_sensor_scale(scan, by_depth, options, SENSOR, fix_noise_scale=1.0)
     windowed = measure_sensor_scale(scan, by_depth, options, SENSOR, fix_noise_scale=1.0, window=True)
     assert as_they_are.significant and windowed.significant
@@ -369,17 +255,9 @@ def test_measure_sensor_scale__with_the_window_s_leakage_removed_a_wall_s_offset
     assert (np.abs(windowed.offsets_m) <= 4 * windowed.offsets_sigma_m + 1e-12).all(), windowed.offsets_m
 
 
-def test_pool_scales__keeps_the_leakage_removed_where_that_leaves_smaller_offsets():
-    from mpi_lidar.workflows.calibrate import pool_scales
-
-    def scale(offsets_m):
-        return SensorScale(4000.0, 40.0, 1.0, 0.0, np.array(offsets_m), np.full(4, 2e-5), 5000, True, "")
-
-    leaking, left = scale([-4e-4, -2.4e-4, -1e-4, 0.0]), scale([1e-5, -1e-5, 0.0, 0.0])
-    pooled = pool_scales([leaking, leaking], [left, left])
-    assert pooled["window_leakage_removed"] is True
-    np.testing.assert_allclose(pooled["frequency_offsets_m"], left.offsets_m)
-    reversed_ = pool_scales([left, left], [leaking, leaking])
-    assert reversed_["window_leakage_removed"] is False
-    np.testing.assert_allclose(reversed_["frequency_offsets_m"], left.offsets_m)
-    assert "window_leakage_removed" not in pool_scales([leaking])
+@pytest.mark.unit
+def test_measure_sensor_scale__a_scan_without_geometry_measures_nothing():
+    bare = dataclasses.replace(rendered(boards_scene()), azimuth_rad=None, elevation_rad=None)
+    found = measure_sensor_scale(bare, depth_usable(bare), CorrectionOptions(), SENSOR)
+    assert not found.significant and found.reason == "only 0 flat pixels, at least 200 needed"
+    assert found.pixels == 0 and np.isnan(found.amplitude_scale) and found.offsets_m.shape == (4,)

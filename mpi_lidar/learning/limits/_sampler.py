@@ -1,19 +1,4 @@
-"""The Bayes limit: the best any estimator can do from depth and amplitude at the configured frequencies.
-
-For a measurement y (depth d_k [m] and amplitude A_k [V^2] at each frequency) the posterior over the scene
-parameters is p(theta | y) ~ p(theta) L(theta; y). Under the moment-matched sensor
-(:mod:`mpi_lidar.physics.moments`) the quadratures (P_k, Q_k) = A_k (cos phi_k, sin phi_k),
-phi_k = 4 pi f_k d_k / c (eq 5-7 inverted), are independent across frequencies and Gaussian with the exact
-mean and 2x2 covariance of eq 4 and 16-30. The map (P, Q) -> (d, A) has Jacobian A (4 pi f / c), which does
-not depend on theta, so L(theta; y) = prod_k N((P_k, Q_k); mu_k(theta), Sigma_k(theta)) up to a constant.
-The posterior median of d_AS minimises the expected absolute error (lowest MAE), its mean the expected
-squared error (lowest RMSE).
-
-Parameterisation (reciprocal prior): the likelihood depends on theta only through d_AS, d_AB, the albedo
-a = rho_SAS = rho_SAB = rho_BAS and q = rho_ABA = kappa * b, whose prior density is that of a product of two
-uniforms, p(q) = ln(hi(q) / lo(q)) / ((b1 - b0)(k1 - k0)) with lo = max(b0, q / k1), hi = min(b1, q / k0).
-With ``no_multipath_fraction`` = pi0 > 0 the prior also puts mass pi0 on q = 0 (one path); that component
-gets its own proposal and the two are mixed with equal probability.
+"""The per-row importance sampler of the posterior of d_AS given raw measurements.
 
 Importance sampling with the prior as proposal collapses at low noise (the likelihood pins d_AS and a to
 ~1e-5 of their prior range). The proposal here is built per row:
@@ -31,21 +16,6 @@ The weights p(theta) L(theta) / q(theta) are exact, so the estimates are consist
 the proposal only sets their variance. Each row reports its Kish effective sample size
 (sum w)^2 / sum w^2 over the particles of all stages, which together give the estimates (each stage's
 weights are exact, so they can be pooled).
-
-d_AS prior: uniform over ``d_as_m``, or log-uniform (density 1 / (d ln(high / low)),
-``PriorConfig.d_as_distribution``).
-
-Range and wrapping: a depth is measured as a phase, wrapped to [0, c / 2f) per frequency (4.8 m at 31.25 MHz).
-The likelihood sees the depths only through the phasors exp(i 4 pi f d / c), which do not change when a depth
-moves by a whole c / 2f: it is right for wrapped and unwrapped depths alike. The proposal is not: its centre
-is a single-path range, by default the weighted depth of the row, which is only meaningful once the depths are
-unwrapped. Past 4.8 m give :func:`posterior_estimates` unwrapped depths (as
-:func:`mpi_lidar.physics.noise.unwrapped_rows` makes them) or the unwrapped range of each row (``range_m``,
-e.g. :func:`mpi_lidar.physics.unwrap.unwrap_depths` ``.range_m``). Within 0.5-12 m a wrong wrap count carries
-no posterior mass at 12.5-31.25 MHz: the four phases agree again only 24 m further (c / 2 gcd(f)), and every
-other shift that locally fits them best within +-12 m leaves them 2.8 rad off or more (root sum of squares,
-at +-10.2 m), against a phase noise of at most 0.25 rad per frequency (12 m, albedo 0.14): a likelihood ratio
-below e^-60. So :func:`bayes_limit`, which knows the truth, unwraps its rows with the true wrap count.
 """
 
 from __future__ import annotations
@@ -58,9 +28,15 @@ from numpy.typing import NDArray
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import weighted_depth
-from mpi_lidar.physics.demod import unambiguous_range
+from mpi_lidar.learning.limits._prior import (
+    check_supported,
+    full_theta,
+    log_coupling_density,
+    log_d_as_density,
+    log_uniform,
+    sample_coupling,
+)
 from mpi_lidar.physics.moments import MomentSensor
-from mpi_lidar.simulation.sampling import sample_theta
 
 DEFAULT_POOL = 2000
 DEFAULT_STAGES = 4
@@ -94,105 +70,17 @@ class PosteriorEstimates:
     ess: NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class LimitResult:
-    """Bayes limit on a test set drawn from the prior.
-
-    mae_m : MAE of the posterior median against the true d_AS. [m]
-    rmse_m : RMSE of the posterior mean. [m]
-    mae_se_m, rmse_se_m : Monte-Carlo standard errors over the test rows. [m]
-    median_ess : median over rows of the effective sample size. [samples]
-    raw_mae_m : MAE of the measured depth at the highest frequency, same rows. [m]
-    raw : the measured rows (n, 2F), depths unwrapped with the true wrap count (as measured up to 4.8 m). [m, V^2]
-    """
-
-    mae_m: float
-    rmse_m: float
-    mae_se_m: float
-    rmse_se_m: float
-    median_ess: float
-    raw_mae_m: float
-    noise_scale: float
-    pool: int
-    theta: NDArray[np.float64]
-    raw: NDArray[np.float64]
-    posterior_median_m: NDArray[np.float64]
-    posterior_mean_m: NDArray[np.float64]
-    ess: NDArray[np.float64]
-
-
-def _check(config: Config) -> None:
-    if config.prior.scheme != "reciprocal":
-        raise MpiLidarError(f"the Bayes limit supports the reciprocal prior only, not {config.prior.scheme!r}")
-    if config.simulator.noise_scale <= 0:
-        raise MpiLidarError("the Bayes limit needs simulator.noise_scale > 0 (without noise the posterior is a point)")
-    if config.prior.d_as_m[1] <= config.prior.d_as_m[0] or config.prior.albedo[1] <= config.prior.albedo[0]:
-        raise MpiLidarError("the Bayes limit needs non-degenerate d_as_m and albedo ranges")
-
-
-def log_coupling_density(q: NDArray[np.float64], prior: PriorConfig) -> NDArray[np.float64]:
-    """Log prior density of rho_ABA = kappa * b for kappa ~ U(coupling), b ~ U(albedo). [log 1/1]"""
-    b0, b1 = prior.albedo
-    k0, k1 = prior.coupling
-    q = np.asarray(q, dtype=np.float64)
-    if b1 <= b0 or k1 <= k0:
-        raise MpiLidarError("the Bayes limit needs non-degenerate albedo and coupling ranges")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lo = np.maximum(b0, q / k1)
-        hi = np.minimum(b1, q / k0) if k0 > 0 else np.full_like(q, b1)
-        dens = np.log(hi / lo) / ((b1 - b0) * (k1 - k0))
-        out = np.where((q > 0) & (hi > lo), np.log(np.maximum(dens, 1e-300)), -np.inf)
-    return out
-
-
-def _sample_coupling(prior: PriorConfig, shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np.float64]:
-    return rng.uniform(*prior.coupling, shape) * rng.uniform(*prior.albedo, shape)
-
-
-def _log_uniform(x: NDArray[np.float64], interval: tuple[float, float]) -> NDArray[np.float64]:
-    lo, hi = interval
-    inside = (x >= lo) & (x <= hi)
-    return np.where(inside, -np.log(hi - lo) if hi > lo else 0.0, -np.inf)
-
-
-def log_d_as_density(d_as_m: NDArray[np.float64], prior: PriorConfig) -> NDArray[np.float64]:
-    """Log prior density of d_AS: uniform over ``prior.d_as_m``, or log-uniform, 1 / (d ln(high / low)). [log 1/m]"""
-    d = np.asarray(d_as_m, dtype=np.float64)
-    if prior.d_as_distribution == "uniform":
-        return _log_uniform(d, prior.d_as_m)
-    lo, hi = prior.d_as_m
-    inside = (d >= lo) & (d <= hi)
-    # ln of the clamped value: proposals land outside the support (even below 0), where the density is 0.
-    return np.where(inside, -np.log(np.clip(d, lo, hi)) - np.log(np.log(hi / lo)), -np.inf)
-
-
-def _unwrap_by_truth(depth_m: NDArray[np.float64], true_d_as_m: NDArray[np.float64],
-                     frequencies_hz: NDArray[np.float64], c: float) -> NDArray[np.float64]:
-    """Measured depths (n, F) moved by whole unambiguous ranges c / 2f to within half of one of the true d_AS. [m]
-
-    The wrap count a simulation knows; rows within half a range of the truth (every row of a prior below
-    2.4 m) are returned unchanged, bit for bit.
-    """
-    ambiguity = unambiguous_range(frequencies_hz, c)[None, :]
-    wraps = np.round((true_d_as_m[:, None] - depth_m) / ambiguity)
-    return depth_m + wraps * ambiguity
-
-
-def _full_theta(d_as, d_ab, a, q) -> NDArray[np.float64]:
-    return np.stack([d_as, d_ab, a, a, q, a], axis=-1)
-
-
 def _t_logpdf(x: NDArray[np.float64], nu: float) -> NDArray[np.float64]:
     from scipy.special import gammaln
 
     return gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * np.log(nu * np.pi) - (nu + 1) / 2 * np.log1p(x * x / nu)
 
 
-class _Posterior:
+class Posterior:
     """Per-row importance sampling of the posterior of d_AS given raw measurements."""
 
     def __init__(self, config: Config):
-        _check(config)
+        check_supported(config)
         self.config = config
         self.prior = config.prior
         self.exact = MomentSensor(config)
@@ -216,7 +104,7 @@ class _Posterior:
         s = self.config.sensor
         d = weighted_depth(raw, tuple(self.freqs)) if range_m is None else range_m
         a = np.clip(raw[:, 2 * f - 1] * d**2 / s.gamma_r_v2, 1e-6, 1.0)
-        theta = _full_theta(d, np.zeros_like(d), a, np.zeros_like(d))
+        theta = full_theta(d, np.zeros_like(d), a, np.zeros_like(d))
         _, cov = self.smooth.quadrature_moments(theta)
         return np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
 
@@ -245,7 +133,7 @@ class _Posterior:
         w_d = amp2 * self.omega**2
         for _ in range(steps):
             a = np.exp(log_a)
-            theta = _full_theta(d, d_ab, a, q)
+            theta = full_theta(d, d_ab, a, q)
             model = self._mean_phasor(self.smooth, theta)  # (n, m, F)
             ratio = z[:, None, :] / model
             x = a[..., None] * q[..., None] * np.exp(1j * self.omega * d_ab[..., None])
@@ -316,12 +204,12 @@ class _Posterior:
             log_a = lac + scale_la * t_a
             a = np.exp(log_a)
             log_prop = (_t_logpdf(t_d, NU) - np.log(scale_d) + _t_logpdf(t_a, NU) - np.log(scale_la) - log_a)
-            log_prior = log_d_as_density(d_as, prior) + _log_uniform(a, prior.albedo)
-            multi_prior = _log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
+            log_prior = log_d_as_density(d_as, prior) + log_uniform(a, prior.albedo)
+            multi_prior = log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
             log_prior = log_prior + np.where(multi, multi_prior, 0.0)
             log_w = log_prior - log_prop - np.where(multi, log_pq, 0.0) + log_mix
             ok = np.isfinite(log_w)
-            theta = _full_theta(d_as, d_ab, np.where(ok, a, 0.5), q)
+            theta = full_theta(d_as, d_ab, np.where(ok, a, 0.5), q)
             theta[..., 0] = np.where(ok, d_as, d0[:, None])
             log_l = self.log_likelihood(theta, p_meas[:, None, :], q_meas[:, None, :])
             log_w = np.where(ok, log_w + log_l, -np.inf)
@@ -346,8 +234,8 @@ class _Posterior:
         prior = self.prior
         if gauss is None:
             d_ab = rng.uniform(*prior.d_ab_m, (n, m))
-            q = _sample_coupling(prior, (n, m), rng)
-            log_q = _log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
+            q = sample_coupling(prior, (n, m), rng)
+            log_q = log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
             return d_ab, q, np.where(np.isfinite(log_q), log_q, 0.0)
         centres, cov = gauss
         k = centres.shape[1]
@@ -357,8 +245,8 @@ class _Posterior:
         g = np.take_along_axis(centres, pick[..., None], axis=1) + np.einsum("nij,nmj->nmi", chol, eps)
         from_prior = rng.random((n, m)) < DEFENSIVE
         d_ab = np.where(from_prior, rng.uniform(*prior.d_ab_m, (n, m)), g[..., 0])
-        q = np.where(from_prior, _sample_coupling(prior, (n, m), rng), g[..., 1])
-        log_prior = _log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
+        q = np.where(from_prior, sample_coupling(prior, (n, m), rng), g[..., 1])
+        log_prior = log_uniform(d_ab, prior.d_ab_m) + log_coupling_density(q, prior)
         x = np.stack([d_ab, q], -1)[:, :, None, :] - centres[:, None, :, :]  # (n, m, K, 2)
         inv = np.linalg.inv(cov)[:, None, None]
         maha = np.einsum("nmki,nmkij,nmkj->nmk", x, np.broadcast_to(inv, (n, 1, 1, 2, 2)), x)
@@ -413,56 +301,3 @@ def weighted_median(x: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[n
     lo_c, hi_c = cdf[rows, idx - 1], cdf[rows, idx]
     t = np.clip((0.5 - lo_c) / np.maximum(hi_c - lo_c, 1e-300), 0.0, 1.0)
     return xs[rows, idx - 1] + t * (xs[rows, idx] - xs[rows, idx - 1])
-
-
-def posterior_estimates(raw: NDArray, config: Config, rng: np.random.Generator, pool: int = DEFAULT_POOL,
-                        stages: int = DEFAULT_STAGES, range_m: NDArray | None = None) -> PosteriorEstimates:
-    """Posterior median, mean, std of d_AS and the effective sample size for each raw row (n, 2F) [m, V^2].
-
-    Uses the exact Gaussian likelihood of the moment-matched sensor of ``config`` (its noise scale included)
-    and the configured (reciprocal) prior; ``pool`` particles per row at the last stage. ``range_m`` (n,): the
-    unwrapped single-path range of each row, where the proposal is centred [m]; default the weighted depth of
-    the rows, whose depths must then be unwrapped. The likelihood takes the depths modulo c / 2f, so wrapped
-    depths with their unwrapped ``range_m`` give the same estimates as unwrapped depths.
-    """
-    return _Posterior(config).estimate(np.asarray(raw, dtype=np.float64), rng, pool, stages, range_m)
-
-
-def bayes_limit(config: Config, n_test: int, rng: np.random.Generator, pool: int = DEFAULT_POOL,
-                stages: int = DEFAULT_STAGES) -> LimitResult:
-    """The Bayes limit on ``n_test`` rows drawn from the prior and measured by the moment-matched sensor.
-
-    Returns the MAE of the posterior median and the RMSE of the posterior mean, with their Monte-Carlo
-    standard errors over the test rows, the median effective sample size and the raw (highest-frequency)
-    MAE of the same rows. Depths past an unambiguous range are unwrapped with the true wrap count first.
-    """
-    if n_test < 2:
-        raise MpiLidarError(f"n_test must be at least 2, got {n_test}")
-    _check(config)
-    theta = sample_theta(config.prior, n_test, rng)
-    depth, amplitude = MomentSensor(config).measure(theta, rng)
-    # The wrap count is taken from the truth: at these frequencies no other count carries posterior mass
-    # within 24 m (module docstring). A real pipeline unwraps the measured depths itself instead.
-    depth = _unwrap_by_truth(depth, theta[:, 0], np.asarray(config.frequencies_hz, dtype=np.float64),
-                             config.sensor.speed_of_light_m_per_s)
-    raw = np.hstack([depth, amplitude])
-    est = posterior_estimates(raw, config, rng, pool=pool, stages=stages)
-    truth = theta[:, 0]
-    abs_err = np.abs(est.median_m - truth)
-    sq_err = (est.mean_m - truth) ** 2
-    rmse = float(np.sqrt(sq_err.mean()))
-    return LimitResult(
-        mae_m=float(abs_err.mean()),
-        rmse_m=rmse,
-        mae_se_m=float(abs_err.std(ddof=1) / np.sqrt(n_test)),
-        rmse_se_m=float(sq_err.std(ddof=1) / np.sqrt(n_test) / (2 * max(rmse, 1e-300))),
-        median_ess=float(np.median(est.ess)),
-        raw_mae_m=float(np.abs(depth[:, -1] - truth).mean()),
-        noise_scale=config.simulator.noise_scale,
-        pool=pool,
-        theta=theta,
-        raw=raw,
-        posterior_median_m=est.median_m,
-        posterior_mean_m=est.mean_m,
-        ess=est.ess,
-    )

@@ -1,0 +1,110 @@
+"""mpi-lidar correct: a batch of scans, each with its outputs and report, and the batch's summary.
+
+Its options beyond the scans, the model and the output directory are declared once, as the fields of
+:class:`~mpi_lidar.correction.CorrectionOptions` and :class:`~mpi_lidar.workflows.batch_options.BatchOptions`
+(the correction flow takes the same, by the same names).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import click
+
+from mpi_lidar.cli._declared import DeclaredCommand, declared_options
+from mpi_lidar.terminal import Display, plural, print_table
+
+if TYPE_CHECKING:
+    from mpi_lidar.correction import ScanOutcome
+
+
+def declared() -> list[click.Parameter]:
+    """The options of every scan, then those of the batch."""
+    from mpi_lidar.correction.options import USER_OPTIONS, CorrectionOptions
+    from mpi_lidar.workflows.batch_options import BATCH_OPTIONS, BatchOptions
+
+    return [*declared_options(CorrectionOptions, USER_OPTIONS), *declared_options(BatchOptions, BATCH_OPTIONS)]
+
+
+@click.command(cls=DeclaredCommand, declared=declared)
+@click.argument("scans", nargs=-1, required=True)
+@click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output directory.")
+def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, **given: object) -> None:
+    """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
+
+    \b
+    Example:
+      mpi-lidar correct 'archive/2026-11-*/*.scan.zarr' --model runs/model --out corrected --fail-on degraded
+
+    Each scan ends corrected, unchanged (no pixel corrected), degraded (too many invalid pixels), unserved
+    (the model cannot serve it: the reason says which command helps), skipped (already done) or failed. Exit 1
+    when a scan failed, is unserved (unless --allow-unserved) or has a --fail-on status; 2 on a user error.
+    """
+    import time
+
+    from mpi_lidar.reporting.batch_report import write_batch_report
+    from mpi_lidar.workflows.batch_options import batch_options
+    from mpi_lidar.workflows.correct_archive import correct_archive, expand_archive, failing_outcomes, failure_line
+    from mpi_lidar.workflows.executor import InProcess, dask_executor
+
+    options, batch = batch_options(given)
+    started = time.perf_counter()
+    here = not batch.scheduler and not batch.workers
+    total = len(expand_archive(list(scans)))
+
+    def summarise(outcomes: list[ScanOutcome]) -> Path:  # while the batch still holds out_dir
+        return write_batch_report(outcomes, time.perf_counter() - started, out_dir)
+
+    with Display() as display, display.step("correcting scans", total) as advance:
+        with InProcess() if here else dask_executor(batch.scheduler, batch.workers or 2) as executor:
+            summaries: list[Path] = []
+            outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
+                                       on_scan=lambda outcome: advance(f"{outcome.name}: {outcome.status}"),
+                                       outputs=batch.outputs.value, point_clouds=batch.point_cloud_formats(),
+                                       on_done=lambda done: summaries.append(summarise(done)))
+    wall_s = time.perf_counter() - started
+    print_batch(outcomes, wall_s, summaries[0])
+    failing = failing_outcomes(outcomes, batch.fail_on, batch.allow_unserved)
+    for outcome in failing:
+        click.echo(f"error: {failure_line(outcome)}", err=True)
+    if failing:
+        sys.exit(1)
+
+
+def print_batch(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path) -> None:
+    """The batch on the terminal: a line counting the statuses, a table of the scans, where the summary is.
+
+    The same figures as the summary's report (``mpi_lidar.reporting.batch_report``), without its source paths and
+    links: each scan's outputs are named by their directory.
+    """
+    from mpi_lidar.correction import ScanStatus
+    from mpi_lidar.correction.outcome import invalid_share
+    from mpi_lidar.reporting.batch_report import GATED_OUT
+
+    def mm(metrics: dict[str, float], key: str) -> str:
+        value = metrics.get(key) if isinstance(metrics, dict) else None
+        return f"{1e3 * value:.3f}" if isinstance(value, int | float) else ""
+
+    def change(metrics: dict[str, float]) -> str:
+        raw, corrected = mm(metrics, "raw_mae_m"), mm(metrics, "corrected_mae_m")
+        return f"{raw} -> {corrected}" if raw and corrected else ""
+
+    rows = []
+    for o in outcomes:
+        total = max(sum(o.counts.values()), 1)
+        gated = sum(o.counts.get(name, 0) for name in GATED_OUT)
+        reason = f"{o.reason} ({o.kept_status})" if o.kept_status else o.reason
+        rows.append((o.name, o.status, f"{100 * gated / total:.1f} %" if o.counts else "",
+                     f"{100 * invalid_share(o.counts):.1f} %" if o.counts else "",
+                     change(o.metrics.get("whole map", {})), change(o.metrics.get("masked region", {})),
+                     f"{o.seconds:.2f}", o.output, "; ".join(n for n in (reason, *o.notes) if n)))
+    labels = {ScanStatus.SKIPPED: "already done"}
+    counted = ", ".join(f"{n} {labels.get(status, status.value)}" for status in ScanStatus
+                        if (n := sum(o.status == status for o in outcomes)))
+    click.echo(f"{plural(len(outcomes), 'scan')} in {wall_s:.1f} s" + (f": {counted}" if counted else ""))
+    print_table(("scan", "status", "gated out", "invalid", "MAE [mm]", "masked MAE [mm]", "seconds", "outputs",
+                 "notes"), rows, clip=("notes",))
+    click.echo(f"summary: {summary_dir / 'report.html'}")

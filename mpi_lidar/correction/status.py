@@ -1,0 +1,58 @@
+"""The status stage: whether the model could serve a scan, from its flags (:func:`unserved_reason`)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mpi_lidar.correction.options import CorrectionOptions, Flag, UnservedReason
+from mpi_lidar.correction.outcome import Unserved
+from mpi_lidar.correction.result import code_counts
+
+# A scene saturates where it is near and bright; amplitudes in a unit larger than the model's saturate nearly
+# everywhere. Above this share of the pixels with a measurement, a scan is unserved for its amplitude units.
+SATURATED_UNITS_SHARE = 0.9
+# Above this share of the pixels with a measurement ambiguous in range, the scan is unserved for it.
+AMBIGUOUS_SHARE = 0.5
+
+
+def unserved_reason(flags: NDArray[np.uint8], d_as_m: tuple[float, float], options: CorrectionOptions,
+                    served: bool = True) -> Unserved | None:
+    """Why a model of range ``d_as_m`` [m] could not serve a scan of these ``flags`` (H*W,), or None where it could.
+
+    ``served`` False: the model takes geometric inputs and the scan has none. Saturation in more than
+    :data:`SATURATED_UNITS_SHARE` of the measured pixels reads as amplitudes in another unit; no corrected pixel while
+    some pixels that may need correction were out of the model's range, as a range it was not trained for.
+    """
+    counts = code_counts(flags, len(Flag))
+    measured = max(int(flags.size - counts[Flag.NOT_FINITE]), 1)
+    low, high = d_as_m
+    if counts[Flag.SATURATED] / measured > SATURATED_UNITS_SHARE:
+        return Unserved(UnservedReason.AMPLITUDE_UNITS,
+                        f"{100 * counts[Flag.SATURATED] / measured:.0f} % of the pixels read as saturated (above "
+                        f"{options.saturation_amplitude_v2:g} V^2): the amplitudes are likely in another unit; "
+                        "give the scanner's unit per V^2 (mpi-lidar correct --amplitude-scale, or a profile from "
+                        "mpi-lidar calibrate: --sensor sensor.toml)")
+    if not served:
+        return Unserved(UnservedReason.NO_GEOMETRY,
+                        "the model takes geometric inputs and the scan has no geometry: import the scan with its "
+                        "azimuth and elevation (mpi-lidar import-scan), or train a model without them "
+                        "(mpi-lidar train --no-geometric)")
+    if counts[Flag.AMBIGUOUS] / measured > AMBIGUOUS_SHARE:
+        return Unserved(UnservedReason.AMBIGUOUS_RANGE,
+                        f"{100 * counts[Flag.AMBIGUOUS] / measured:.0f} % of the pixels have an ambiguous range: "
+                        "their frequencies' wrap counts cannot be told apart at their noise; if the scanner "
+                        "unwrapped its depths already, import them so (mpi-lidar import-scan --depths unwrapped)")
+    if counts[Flag.CORRECTED] == 0 and counts[Flag.OUT_OF_RANGE] > 0:
+        return Unserved(UnservedReason.OUT_OF_RANGE,
+                        f"{counts[Flag.OUT_OF_RANGE]:,} pixels that may need correction lie outside the model's "
+                        f"range ({low:g}-{high:g} m) and none inside it: train a model for the scan's range "
+                        "(mpi-lidar pipeline --config with prior.d_as_m set)")
+    return None
+
+
+def unknown_unit(reason: str) -> Unserved:
+    """A scan whose amplitude unit could not be measured (``reason``): it is left as measured."""
+    return Unserved(UnservedReason.AMPLITUDE_UNITS,
+                    f"the scan's amplitude unit could not be measured ({reason}): give it "
+                    "(mpi-lidar correct --amplitude-scale, or a profile from mpi-lidar calibrate: --sensor)")

@@ -1,0 +1,203 @@
+"""Reading a complete dataset store: what it says about itself, and its rows verified against their fingerprints."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+
+from mpi_lidar.config import Config
+from mpi_lidar.errors import StoreError
+from mpi_lidar.simulation.dataset._chunks import SPLIT_CODES
+from mpi_lidar.simulation.dataset._layout import DATA_ARRAYS, store_array
+from mpi_lidar.simulation.dataset._store import chunk_fingerprints, completed_chunks, open_store, store_config
+from mpi_lidar.storage.integrity import check_fingerprint, read_chunk
+
+if TYPE_CHECKING:
+    import dask.array as da
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    """What a store says about itself."""
+
+    path: str
+    config: Config
+    config_sha256: str
+    frequencies_hz: tuple[float, ...]
+    feature_names: tuple[str, ...]
+    theta_names: tuple[str, ...]
+    samples: int
+    chunks_done: int
+    chunks: int
+    package_version: str
+
+    @property
+    def complete(self) -> bool:
+        return self.chunks_done == self.chunks
+
+
+def dataset_info(path: str | Path) -> DatasetInfo:
+    group = open_store(path)
+    try:
+        return _info(path, group)
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:  # codecs raise RuntimeError on bad chunks
+        reason = str(exc).splitlines()[0] if str(exc) else ""
+        raise StoreError(f"dataset {path} has damaged metadata or chunk marks ({type(exc).__name__}: {reason}); "
+                         "regenerate it") from None
+
+
+def _info(path: str | Path, group: zarr.Group) -> DatasetInfo:
+    done = completed_chunks(group)
+    attrs: Mapping[str, Any] = group.attrs  # JSON whose layout open_store checked
+    return DatasetInfo(
+        path=str(path),
+        config=store_config(group),
+        config_sha256=attrs["config_sha256"],
+        frequencies_hz=tuple(attrs["frequencies_hz"]),
+        feature_names=tuple(attrs["feature_names"]),
+        theta_names=tuple(attrs["theta_names"]),
+        samples=int(attrs["samples"]),
+        chunks_done=int(done.sum()),
+        chunks=done.size,
+        package_version=str(attrs["package_version"]),
+    )
+
+
+def _complete_info(path: str | Path) -> DatasetInfo:
+    info = dataset_info(path)
+    if not info.complete:
+        raise StoreError(f"dataset {path} is incomplete ({info.chunks_done} of {info.chunks} chunks); "
+                         f"finish it with 'mpi-lidar simulate --out {path}' and the same configuration")
+    return info
+
+
+@dataclass(frozen=True)
+class LazyDataset:
+    """Dask arrays over a complete store, chunked as stored; nothing is read until computed."""
+
+    info: DatasetInfo
+    features: da.Array
+    target: da.Array
+    theta: da.Array
+    split: da.Array
+
+
+def read_lazy(path: str | Path) -> LazyDataset:
+    """Open a complete dataset as dask arrays (for training on a cluster)."""
+    info = _complete_info(path)
+    group = open_store(path)
+    fingerprints = chunk_fingerprints(group)
+    arrays = {name: _verified_lazy(path, store_array(group, name), k, fingerprints)
+              for k, name in enumerate(DATA_ARRAYS)}
+    return LazyDataset(info=info, **arrays)
+
+
+def _verified_lazy(path: str | Path, array: zarr.Array, k: int, fingerprints: NDArray | None) -> da.Array:
+    """A dask array whose every block is read and checked against its fingerprint where it is computed."""
+    import dask.array as da  # only where a dask array is built: the rest of the module stays light
+
+    chunks = da.core.normalize_chunks(array.chunks, array.shape)
+    return da.map_blocks(_load_verified_block, dtype=array.dtype, chunks=chunks, path=str(path),
+                         array_name=array.basename, k=k, fingerprints=fingerprints,
+                         meta=np.empty((0,) * array.ndim, dtype=array.dtype))
+
+
+def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArray | None, block_info=None) -> NDArray:
+    info = block_info[None]
+    where = tuple(slice(start, stop) for start, stop in info["array-location"])
+    index = info["chunk-location"][0]
+    group = zarr.open_group(store=path, mode="r", use_consolidated=False)
+    values = read_chunk(store_array(group, array_name), where, path, array_name, index)
+    if fingerprints is not None:
+        check_fingerprint(values, fingerprints[index, k], path, array_name, index)
+    return values
+
+
+def read_verified_chunk(path: str | Path, group: zarr.Group, index: int, fingerprints: NDArray | None,
+                        names: tuple[str, ...] = DATA_ARRAYS) -> dict[str, NDArray]:
+    """The rows of chunk ``index`` of the named arrays, each checked against its fingerprint."""
+    chunk_rows = store_array(group, "target").chunks[0]
+    rows = slice(index * chunk_rows, (index + 1) * chunk_rows)
+    out = {}
+    for name in names:
+        array = store_array(group, name)
+        where = (rows,) + (slice(None),) * (array.ndim - 1)
+        values = read_chunk(array, where, str(path), name, index)
+        if fingerprints is not None:
+            check_fingerprint(values, fingerprints[index, DATA_ARRAYS.index(name)], str(path), name, index)
+        out[name] = values
+    return out
+
+
+def read_verified(path: str | Path, names: tuple[str, ...] = DATA_ARRAYS,
+                  on_chunk: Callable[[dict[str, NDArray]], dict[str, NDArray]] | None = None) -> dict[str, NDArray]:
+    """Whole arrays of a store, streamed chunk by chunk and each chunk verified; ``on_chunk`` may reduce a chunk."""
+    group = open_store(path)
+    fingerprints = chunk_fingerprints(group)
+    done = completed_chunks(group)
+    if not done.all():  # an unfinished chunk has no fingerprint: its rows would be read as fill values
+        raise StoreError(f"dataset {path} is incomplete ({int(done.sum())} of {done.size} chunks); finish it with "
+                         f"'mpi-lidar simulate --out {path}' and the same configuration")
+    parts: dict[str, list[NDArray]] = {name: [] for name in names}
+    for index in range(done.size):
+        chunk = read_verified_chunk(path, group, index, fingerprints, names)
+        if on_chunk is not None:
+            chunk = on_chunk(chunk)
+        for name in names:
+            parts[name].append(chunk[name])
+    return {name: np.concatenate(parts[name]) for name in names}
+
+
+def verify_dataset(path: str | Path) -> int:
+    """Check every chunk of a complete dataset store against its fingerprint; the number of chunks checked."""
+    info = _complete_info(path)
+    read_verified(path, on_chunk=lambda chunk: {name: values[:0] for name, values in chunk.items()})
+    return info.chunks
+
+
+@dataclass(frozen=True)
+class Subsample:
+    """Rows of one split held in memory (for tuning), with their row numbers in the store."""
+
+    info: DatasetInfo
+    rows: NDArray[np.int64]
+    features: NDArray[np.float32]
+    target: NDArray[np.float64]
+    theta: NDArray[np.float64]
+
+
+def read_subsample(
+    path: str | Path, split: str = "train", max_rows: int | None = None, seed: int = 0
+) -> Subsample:
+    """Read the rows of ``split`` ("train", "test" or "all"), or a seeded random ``max_rows`` of them."""
+    info = _complete_info(path)
+    if split not in (*SPLIT_CODES, "all"):
+        raise StoreError(f"unknown split {split!r}; choose train, test or all")
+    split_codes = read_verified(path, ("split",))["split"]
+    rows = np.arange(info.samples) if split == "all" else np.flatnonzero(split_codes == SPLIT_CODES[split])
+    if max_rows is not None and max_rows < rows.size:
+        rows = np.sort(np.random.default_rng(seed).choice(rows, size=max_rows, replace=False))
+    if rows.size == 0:
+        raise StoreError(f"dataset {path} has no {split} rows")
+    arrays = _rows_verified(path, rows, ("features", "target", "theta"))
+    return Subsample(info=info, rows=rows, **arrays)
+
+
+def _rows_verified(path: str | Path, rows: NDArray[np.int64], names: tuple[str, ...]) -> dict[str, NDArray]:
+    """The given sorted rows of the named arrays, read chunk by chunk, every chunk touched verified."""
+    group = open_store(path)
+    fingerprints = chunk_fingerprints(group)
+    chunk_rows = store_array(group, "target").chunks[0]
+    parts: dict[str, list[NDArray]] = {name: [] for name in names}
+    for index in np.unique(rows // chunk_rows):
+        chunk = read_verified_chunk(path, group, int(index), fingerprints, names)
+        local = rows[(rows // chunk_rows) == index] - index * chunk_rows
+        for name in names:
+            parts[name].append(chunk[name][local])
+    return {name: np.concatenate(parts[name]) for name in names}
