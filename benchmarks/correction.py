@@ -6,9 +6,9 @@ One run prints six tables, each a markdown table (``--quick``: tiny sizes, secon
 
 1. Stages of one ``--side`` x ``--side`` render of the cornered board (4 frequencies, Table I noise,
    geometry gate, this process, caches warm): CPU seconds of this process (all threads, so robust when other
-   jobs share the machine) and CPU seconds per megapixel of read, validity, gate, features, inference, write
-   and figures. Features and inference are one call in ``correct_scan``; they are told apart by building the
-   same pixels' features again alone. Write and figures are given per output level (data, light, full).
+   jobs share the machine) and CPU seconds per megapixel of read, unit, validity, gate, features, inference,
+   baseline, write and figures. Features and inference are one call in ``correct_scan``; they are told apart by
+   building the same pixels' features again alone. Write and figures are given per output level (data, light, full).
 2. End to end, :func:`~mpi_lidar.workflows.correct_archive.process_scan` from the store to the written
    outputs, per output level (warm: model loaded, as for every scan of a batch but the first; the fastest
    of three runs, as the machine may be shared), and the
@@ -204,10 +204,13 @@ def stages(source: Path, model_dir: Path, work: Path) -> tuple[list[tuple[object
     raw = scan.raw_pixels()[needs]
     geometry = np.zeros((needs.size, 2)) if model.geometric else None  # computed by the gate; here only copied
     _, features_cpu, _ = _cpu_wall(model.spec.transform, raw, geometry)
-    cpu = {"read": read_cpu, "validity": correction.cpu_s.get("validity", 0.0),
-           "gate": correction.cpu_s.get("gate", 0.0),
+    # The stages of correct_scan (Correction.cpu_s): the amplitude unit, validity (the first pass), the gate (the
+    # scene geometry and the geometric inputs), inference, and the baseline (fusion and uncertainty, in the second).
+    cpu = {"read": read_cpu, "unit": correction.cpu_s.get("unit", 0.0),
+           "validity": correction.cpu_s.get("validity", 0.0), "gate": correction.cpu_s.get("gate", 0.0),
            "features": min(features_cpu, correction.cpu_s.get("inference", 0.0)),
-           "inference": max(correction.cpu_s.get("inference", 0.0) - features_cpu, 0.0)}
+           "inference": max(correction.cpu_s.get("inference", 0.0) - features_cpu, 0.0),
+           "baseline": correction.cpu_s.get("baseline", 0.0)}
     metrics = scan_metrics(scan, correction)
     written: dict[str, dict[str, float]] = {}
     for level in OUTPUT_LEVELS:
