@@ -130,8 +130,7 @@ def run(plan: Plan, model_dir: Path | None, work: Path) -> str:
 
     def writer(fmt: PointCloudFormat) -> Callable[[], object]:
         def write() -> None:
-            names[fmt] = write_point_clouds(written, (fmt,), rays, measured, correction.depth, correction.flags,
-                                            amplitude)
+            names[fmt] = write_point_clouds(written, (fmt,), rays, scan, correction)
         return write
 
     fields = correction_fields(measured, correction.depth, correction.flags, amplitude)

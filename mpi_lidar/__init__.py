@@ -26,6 +26,7 @@ _EXPORTS = {
     "load_scan_file": "mpi_lidar.scans.importers",
     "POINT_CLOUD_FORMATS": "mpi_lidar.scans.pointcloud",
     "correction_fields": "mpi_lidar.scans.pointcloud",
+    "point_cloud_fields": "mpi_lidar.reporting.point_cloud_files",
     "write_point_cloud": "mpi_lidar.scans.pointcloud",
     "simulate_rows": "mpi_lidar.simulation.dataset",
     "load_model": "mpi_lidar.learning.model",
@@ -42,9 +43,9 @@ _EXPORTS = {
 
 __all__ = [  # noqa: RUF022 (grouped as in _EXPORTS)
     "__version__", "Config", "Scan", "read_scan", "write_scan", "load_scan_file", "POINT_CLOUD_FORMATS",
-    "correction_fields", "write_point_cloud", "simulate_rows", "load_model", "train_arrays", "train_and_save",
-    "bayes_limit", "posterior_estimates", "CorrectionOptions", "correct_scan", "correct_archive", "generate",
-    "verify_store",
+    "correction_fields", "point_cloud_fields", "write_point_cloud", "simulate_rows", "load_model", "train_arrays",
+    "train_and_save", "bayes_limit", "posterior_estimates", "CorrectionOptions", "correct_scan", "correct_archive",
+    "generate", "verify_store",
 ]
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, __all__)

@@ -96,6 +96,18 @@ def redact(text: str) -> str:
     return text
 
 
+def split_user_part(url: str) -> tuple[str, str, str]:
+    """``(scheme://, user part, rest)`` of a URL; the user part (``user:password``, %-encoded or not, with an
+    unencoded ``@``, ``:`` or ``/`` in it) is empty where the URL has none. The same rule as :func:`redact`: the
+    user part ends at the last ``@`` that a host follows."""
+    match = _SCHEME.match(url)
+    if match is None:
+        return "", "", url
+    rest = url[match.end():]
+    at = _user_part_end(rest)
+    return (match.group(0), "", rest) if at < 0 else (match.group(0), rest[:at], rest[at + 1:])
+
+
 def carries_secret(text: str) -> bool:
     """Whether ``text`` holds a password or another secret :func:`redact` would mask."""
     return redact(text) != text

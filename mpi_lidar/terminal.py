@@ -70,6 +70,47 @@ def table_lines(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> lis
     return [line(cells[0]), line(["-" * w for w in widths]), *(line(row) for row in cells[1:])]
 
 
+def terminal_width(default: int = 80) -> int:
+    """The columns a summary may take: the terminal's (or ``COLUMNS``), ``default`` when piped."""
+    import shutil
+
+    return max(40, shutil.get_terminal_size((default, 24)).columns)
+
+
+def fitted_table_lines(headers: Sequence[str], rows: Sequence[Sequence[object]], width: int,
+                       optional: Sequence[str] = ()) -> list[str]:
+    """:func:`table_lines` without the columns that are empty in every row, and without the ``optional`` ones (the
+    last named first) while a line is wider than ``width``; the other columns stay whole."""
+    keep = [i for i in range(len(headers)) if any(plain_text(row[i]) for row in rows)] if rows else list(
+        range(len(headers)))
+    droppable = [headers.index(name) for name in optional if name in headers]
+
+    def lines() -> list[str]:
+        return table_lines([headers[i] for i in keep], [[row[i] for i in keep] for row in rows])
+
+    table = lines()
+    while max(map(len, table)) > width and any(i in keep for i in droppable):
+        keep.remove(next(i for i in reversed(droppable) if i in keep))
+        table = lines()
+    return table
+
+
+def note_codes(notes: Sequence[Sequence[str]]) -> tuple[list[str], list[tuple[str, str]]]:
+    """Short codes for the notes of each row (``n1 n3``), one code per distinct note, and the legend: (code, note)
+    in order of first use."""
+    codes: dict[str, str] = {}
+    for row in notes:
+        for note in row:
+            codes.setdefault(note, f"n{len(codes) + 1}")
+    return [" ".join(codes[note] for note in dict.fromkeys(row)) for row in notes], [(c, n) for n, c in codes.items()]
+
+
+def cut(text: str, width: int) -> str:
+    """``text`` on one line of at most ``width`` characters, cut with ``...`` where longer."""
+    text = plain_text(text)
+    return text if len(text) <= width else text[: max(0, width - 3)].rstrip() + "..."
+
+
 def print_table(headers: Sequence[str], rows: Sequence[Sequence[object]], title: str | None = None,
                 stream: TextIO | None = None, clip: Sequence[str] = ()) -> None:
     """A table on ``stream`` (standard output): a rich table on a terminal, aligned plain text otherwise.
@@ -163,8 +204,10 @@ class Display:
             self.stream.flush()
 
     @contextmanager
-    def step(self, description: str, total: int | None = None) -> Iterator[Advance]:
-        """Show one step while the block runs; yields the function that counts an item done."""
+    def step(self, description: str, total: int | None = None, announce: bool = True) -> Iterator[Advance]:
+        """Show one step while the block runs; yields the function that counts an item done. ``announce=False``: no
+        plain line when the step starts (a step that may be refused before its first item shows no "0/4"); the
+        first comes with the first item done, or after ``every_s``."""
         if total == 0:
             yield lambda label=None: None
             return
@@ -181,11 +224,11 @@ class Display:
             finally:
                 progress.remove_task(task)
             return
-        with self._plain_step(description, total) as advance:
+        with self._plain_step(description, total, announce) as advance:
             yield advance
 
     @contextmanager
-    def _plain_step(self, description: str, total: int | None) -> Iterator[Advance]:
+    def _plain_step(self, description: str, total: int | None, announce: bool = True) -> Iterator[Advance]:
         """Plain lines: one when the step starts, then one whenever every_s seconds passed without one (from
         the items as they finish, or from a clock while none does), and one for the last item."""
         started = time.monotonic()
@@ -219,7 +262,8 @@ class Display:
                         last_line = now
                         self._write(line(now))
 
-        self._write(f"{description} ..." if total is None else f"{description}: 0/{total}")
+        if announce:
+            self._write(f"{description} ..." if total is None else f"{description}: 0/{total}")
         stop = threading.Event()
         beater = threading.Thread(target=beat, name="mpi-lidar-progress", daemon=True)
         beater.start()

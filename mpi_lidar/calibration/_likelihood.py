@@ -15,9 +15,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.amplitude_unit import MEDIAN_AMPLITUDE_RANGE_V2
 from mpi_lidar.physics.noise import depth_noise_m
 from mpi_lidar.physics.robust import robust_sigma
+
+# Where the median amplitude would read as this range of V^2 the unit is looked for (wider than any sensor's).
+MEDIAN_AMPLITUDE_RANGE_V2 = (1e-7, 1e2)
 
 # Degrees of freedom of the Student-t the residuals are fitted with: heavy enough tails that a few plane leftovers
 # do not inflate the noise, light enough that Gaussian noise loses little (its scale efficiency is about 0.9).

@@ -8,13 +8,14 @@ the validity thresholds that depend on the sensor's gain (saturation, no return)
 
     schema = "mpi-lidar/sensor@1"
     footprint_area_m2 = 0.0231
-    saturation_amplitude_v2 = 0.7176
+    saturation_amplitude_v2 = 0.7176    # optional: else each scan's own plateau of clipped amplitudes
     min_amplitude_sigmas = 5.0
     amplitude_scale = 4000.0            # the scanner's amplitude unit per V^2 (1: V^2)
     frequencies_hz = [12500000.0, 18750000.0, 25000000.0, 31250000.0]
     noise_scale = 1.02                  # its depth noise over the simulator's noise model
     range_m = [0.6, 7.5]                # the depths its scans hold (1st-99th percentile)
     frequency_offsets_m = [-0.00058, -0.00025, -0.00001, 0.0]
+    speed_of_light_m_per_s = 299792458.0  # its scans' phase-to-range c: each frequency wraps at c / 2f
 
     [calibration]        # how the footprint was measured (written by mpi-lidar calibrate; optional)
     sigma_m2 = 0.0012
@@ -43,6 +44,7 @@ from mpi_lidar.correction.options import (
 )
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.safe_files import read_small_text
+from mpi_lidar.scans.scan import SPEED_OF_LIGHT_BOUNDS_M_PER_S
 from mpi_lidar.storage.atomic import atomic_path
 
 PROFILE_SCHEMA: Final = "mpi-lidar/sensor@1"
@@ -61,7 +63,8 @@ RANGE_MARGIN = 0.15
 class SensorProfile(BaseModel):
     """One sensor's footprint [m^2], validity thresholds [V^2, 1] and amplitude unit [units/V^2], with how the
     footprint was measured; optionally its frequencies [Hz], noise scale [1], working range [m] and the
-    frequencies' depth offsets relative to the highest [m], which simulating it for a model of its own uses."""
+    frequencies' depth offsets relative to the highest [m], which simulating it for a model of its own uses, and
+    the speed of light its scans convert phase to range with [m/s]."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
@@ -69,12 +72,17 @@ class SensorProfile(BaseModel):
     # Every number within its physical bounds (docs/reference/configuration.md, "Physical bounds"), strictly a
     # number: TOML's true is no square metre.
     footprint_area_m2: Annotated[float, Field(gt=0, le=MAX_FOOTPRINT_AREA_M2, strict=True)]
-    saturation_amplitude_v2: Annotated[float, Field(gt=0, le=MAX_AMPLITUDE_V2, strict=True)] = (
+    # None (or absent): each scan's own plateau of clipped amplitudes, if it has one.
+    saturation_amplitude_v2: Annotated[float, Field(gt=0, le=MAX_AMPLITUDE_V2, strict=True)] | None = (
         _DEFAULTS.saturation_amplitude_v2)
     min_amplitude_sigmas: Annotated[float, Field(ge=0, le=MAX_SIGMAS, strict=True)] = _DEFAULTS.min_amplitude_sigmas
     amplitude_scale: Annotated[float, Field(ge=AMPLITUDE_SCALE_BOUNDS[0], le=AMPLITUDE_SCALE_BOUNDS[1],
                                             strict=True)] = 1.0  # V^2
     frequencies_hz: Annotated[tuple[Frequency, ...], Field(min_length=1, max_length=MAX_FREQUENCIES)] | None = None
+    # The speed of light its scans convert phase to range with [m/s] (each scan carries its own; correction reads
+    # the scan's): calibrate records it where its scans agree. None: not recorded.
+    speed_of_light_m_per_s: Annotated[float, Field(ge=SPEED_OF_LIGHT_BOUNDS_M_PER_S[0],
+                                                   le=SPEED_OF_LIGHT_BOUNDS_M_PER_S[1], strict=True)] | None = None
     noise_scale: Annotated[float, Field(gt=0, le=100, strict=True)] | None = None
     range_m: tuple[Depth, Depth] | None = None
     frequency_offsets_m: Annotated[tuple[Offset, ...], Field(max_length=MAX_FREQUENCIES)] | None = None
@@ -95,7 +103,7 @@ class SensorProfile(BaseModel):
                              f"{len(self.frequencies_hz)} frequencies_hz; give one per frequency")
         return self
 
-    def options(self) -> dict[str, float]:
+    def options(self) -> dict[str, float | None]:
         """The correction options this profile sets (:meth:`CorrectionOptions.from_cli`)."""
         return {"footprint_area_m2": self.footprint_area_m2, "saturation_amplitude_v2": self.saturation_amplitude_v2,
                 "min_amplitude_sigmas": self.min_amplitude_sigmas, "amplitude_scale": self.amplitude_scale}
@@ -126,7 +134,8 @@ class SensorProfile(BaseModel):
         return {**data, "sha256": hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()}
 
     @classmethod
-    def from_estimate(cls, estimate: FootprintEstimate, sources: list[str], **measured: object) -> SensorProfile:
+    def from_estimate(cls, estimate: FootprintEstimate, sources: list[str], scans: list[str] | None = None,
+                      **measured: object) -> SensorProfile:
         """The profile of a pooled footprint estimate.
 
         Parameters
@@ -135,6 +144,8 @@ class SensorProfile(BaseModel):
             The footprint pooled over the scans (its area [m^2] and how it was measured).
         sources : list[str]
             The scans' paths, recorded in ``calibration.sources``.
+        scans : list[str] | None
+            What each scan measured, a line each, recorded in ``calibration.scans``.
         **measured : object
             The other fields, in their units ([V^2], [1], [Hz], [m]); None leaves a field out.
 
@@ -146,7 +157,8 @@ class SensorProfile(BaseModel):
         given = {key: value for key, value in measured.items() if value is not None}
         return cls.model_validate({"footprint_area_m2": estimate.area_m2, **given,
                                    "calibration": {**{k: v for k, v in estimate.to_dict().items() if k != "area_m2"},
-                                                   "sources": sources}})
+                                                   "sources": sources,
+                                                   **({"scans": scans} if scans is not None else {})}})
 
 
 def read_profile(path: str | Path) -> SensorProfile:
@@ -226,10 +238,11 @@ def write_profile(profile: SensorProfile, path: str | Path) -> Path:
     """
     lines = ["# mpi-lidar sensor profile: written by `mpi-lidar calibrate`, read by `mpi-lidar correct --sensor`.",
              f"schema = {_toml(PROFILE_SCHEMA)}"]
-    lines += [f"{key} = {_toml(value)}" for key, value in profile.options().items()]
+    lines += [f"{key} = {_toml(value)}" for key, value in profile.options().items() if value is not None]
     measured = {"frequencies_hz": profile.frequencies_hz, "noise_scale": profile.noise_scale,
                 "range_m": profile.range_m, "frequency_offsets_m": profile.frequency_offsets_m,
-                "window_leakage_removed": profile.window_leakage_removed}
+                "window_leakage_removed": profile.window_leakage_removed,
+                "speed_of_light_m_per_s": profile.speed_of_light_m_per_s}
     lines += [f"{key} = {_toml(value)}" for key, value in measured.items() if value is not None]
     if profile.calibration:
         lines += ["", "[calibration]"]

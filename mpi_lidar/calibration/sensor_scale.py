@@ -37,10 +37,12 @@ from numpy.typing import NDArray
 from mpi_lidar.calibration._likelihood import Likelihood, gaussian_t_scale
 from mpi_lidar.calibration.flat_residuals import MAX_PIXELS, flat_surface_residuals
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.amplitude_unit import MAX_RELATIVE_SIGMA
 from mpi_lidar.correction.options import CorrectionOptions
 from mpi_lidar.correction.scene import SceneGeometry
 from mpi_lidar.scans.scan import Scan
+
+# A scale is significant where its relative standard deviation is at most this.
+MAX_RELATIVE_SIGMA = 0.1
 
 __all__ = ["MIN_PIXELS", "OUTLIER_ROUNDS", "SensorScale", "estimate_sensor_scale", "gaussian_t_scale",
            "measure_sensor_scale"]

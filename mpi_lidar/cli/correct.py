@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import click
 
 from mpi_lidar.cli._declared import DeclaredCommand, declared_options
-from mpi_lidar.terminal import Display, plural, print_table
+from mpi_lidar.terminal import Display, plural
 
 if TYPE_CHECKING:
     from mpi_lidar.correction import ScanOutcome
@@ -31,8 +31,9 @@ def declared() -> list[click.Parameter]:
 @click.command(cls=DeclaredCommand, declared=declared)
 @click.argument("scans", nargs=-1, required=True)
 @click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output directory.")
-def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, **given: object) -> None:
+@click.option("--out", "out_dir", required=True, metavar="PATH|URL",
+              help="Output directory, or an object-store URL (s3://bucket/prefix).")
+def correct(scans: tuple[str, ...], model_dir: Path, out_dir: str, **given: object) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
 
     \b
@@ -45,22 +46,22 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, **given: obj
     """
     import time
 
-    from mpi_lidar.reporting.batch_report import write_batch_report
     from mpi_lidar.workflows.batch_options import batch_options
     from mpi_lidar.workflows.correct_archive import correct_archive, expand_archive, failing_outcomes, failure_line
     from mpi_lidar.workflows.executor import InProcess, dask_executor
+    from mpi_lidar.workflows.remote_outputs import write_summary
 
     options, batch = batch_options(given)
     started = time.perf_counter()
     here = not batch.scheduler and not batch.workers
     total = len(expand_archive(list(scans)))
 
-    def summarise(outcomes: list[ScanOutcome]) -> Path:  # while the batch still holds out_dir
-        return write_batch_report(outcomes, time.perf_counter() - started, out_dir)
+    def summarise(outcomes: list[ScanOutcome]) -> str:  # while the batch still holds out_dir
+        return write_summary(outcomes, time.perf_counter() - started, out_dir)
 
-    with Display() as display, display.step("correcting scans", total) as advance:
+    with Display() as display, display.step("correcting scans", total, announce=False) as advance:
         with InProcess() if here else dask_executor(batch.scheduler, batch.workers or 2) as executor:
-            summaries: list[Path] = []
+            summaries: list[str] = []
             outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
                                        on_scan=lambda outcome: advance(f"{outcome.name}: {outcome.status}"),
                                        outputs=batch.outputs.value, point_clouds=batch.point_cloud_formats(),
@@ -74,37 +75,38 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: Path, **given: obj
         sys.exit(1)
 
 
-def print_batch(outcomes: list[ScanOutcome], wall_s: float, summary_dir: Path) -> None:
-    """The batch on the terminal: a line counting the statuses, a table of the scans, where the summary is.
-
-    The same figures as the summary's report (``mpi_lidar.reporting.batch_report``), without its source paths and
-    links: each scan's outputs are named by their directory.
+def print_batch(outcomes: list[ScanOutcome], wall_s: float, summary_dir: str | Path, width: int | None = None) -> None:
+    """The batch on the terminal, in ``width`` columns (the terminal's; 80 piped): a line counting the statuses, a
+    compact table (every scan's name and status in full, its invalid share and MAE where any has one, its notes as
+    short codes), the codes' legend (each note cut to the width: whole in the summary's files) and where the summary
+    is. The same figures as the summary's report (``mpi_lidar.reporting.batch_report``).
     """
     from mpi_lidar.correction import ScanStatus
     from mpi_lidar.correction.outcome import invalid_share
-    from mpi_lidar.reporting.batch_report import GATED_OUT
+    from mpi_lidar.terminal import cut, fitted_table_lines, note_codes, terminal_width
 
-    def mm(metrics: dict[str, float], key: str) -> str:
-        value = metrics.get(key) if isinstance(metrics, dict) else None
-        return f"{1e3 * value:.3f}" if isinstance(value, int | float) else ""
+    width = width or terminal_width()
 
     def change(metrics: dict[str, float]) -> str:
-        raw, corrected = mm(metrics, "raw_mae_m"), mm(metrics, "corrected_mae_m")
-        return f"{raw} -> {corrected}" if raw and corrected else ""
+        raw, corrected = (metrics.get(key) if isinstance(metrics, dict) else None
+                          for key in ("raw_mae_m", "corrected_mae_m"))
+        if not (isinstance(raw, int | float) and isinstance(corrected, int | float)):
+            return ""
+        return f"{1e3 * raw:.2f} -> {1e3 * corrected:.2f}"
 
-    rows = []
-    for o in outcomes:
-        total = max(sum(o.counts.values()), 1)
-        gated = sum(o.counts.get(name, 0) for name in GATED_OUT)
-        reason = f"{o.reason} ({o.kept_status})" if o.kept_status else o.reason
-        rows.append((o.name, o.status, f"{100 * gated / total:.1f} %" if o.counts else "",
-                     f"{100 * invalid_share(o.counts):.1f} %" if o.counts else "",
-                     change(o.metrics.get("whole map", {})), change(o.metrics.get("masked region", {})),
-                     f"{o.seconds:.2f}", o.output, "; ".join(n for n in (reason, *o.notes) if n)))
+    notes = [[n for n in (f"{o.reason} ({o.kept_status})" if o.kept_status else o.reason, *o.notes) if n]
+             for o in outcomes]
+    codes, legend = note_codes(notes)
+    rows = [(o.name, o.status, f"{100 * invalid_share(o.counts):.1f} %" if o.counts else "",
+             change(o.metrics.get("whole map", {})), change(o.metrics.get("masked region", {})), code)
+            for o, code in zip(outcomes, codes, strict=True)]
     labels = {ScanStatus.SKIPPED: "already done"}
     counted = ", ".join(f"{n} {labels.get(status, status.value)}" for status in ScanStatus
                         if (n := sum(o.status == status for o in outcomes)))
     click.echo(f"{plural(len(outcomes), 'scan')} in {wall_s:.1f} s" + (f": {counted}" if counted else ""))
-    print_table(("scan", "status", "gated out", "invalid", "MAE [mm]", "masked MAE [mm]", "seconds", "outputs",
-                 "notes"), rows, clip=("notes",))
-    click.echo(f"summary: {summary_dir / 'report.html'}")
+    for line in fitted_table_lines(("scan", "status", "invalid", "MAE [mm]", "masked MAE [mm]", "notes"), rows, width,
+                                   optional=("invalid", "MAE [mm]", "masked MAE [mm]")):
+        click.echo(line)
+    for code, note in legend:
+        click.echo(cut(f"{code}: {note}", width))
+    click.echo(f"summary: {str(summary_dir).rstrip('/')}/report.html (every note in full)")

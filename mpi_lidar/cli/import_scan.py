@@ -24,8 +24,12 @@ from mpi_lidar.errors import MpiLidarError
               help="wrapped: each frequency's depth lies in [0, c/2f), as its phase measures it (correction "
                    "unwraps them into one range, out to 24 m at 12.5-31.25 MHz); unwrapped: the scanner gives "
                    "one range per frequency already.")
+@click.option("--speed-of-light", "speed_of_light", type=float, metavar="M_PER_S",
+              help="The speed of light the scanner converted phase to range with, in m/s, where the files hold "
+                   "neither speed_of_light_m_per_s nor wrap_period_m (each frequency's c/2f) [default: 299792458]. "
+                   "A wrapped depth beyond its frequency's c/2f refuses the import.")
 def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, variables: tuple[str, ...],
-                depths: str) -> None:
+                depths: str, speed_of_light: float | None) -> None:
     """Import scans from .npz archives or NetCDF/HDF5 files (.nc, .h5, .hdf5): files, directories or globs.
 
     \b
@@ -39,6 +43,7 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
     """
     from mpi_lidar.scans.importers import find_scan_files, import_files, plan_import
     from mpi_lidar.scans.importers.base import check_frequencies_in_hz
+    from mpi_lidar.scans.scan import check_speed_of_light
 
     freqs = None
     if frequencies:
@@ -47,14 +52,17 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
         except ValueError:
             raise MpiLidarError(f"--frequencies must be comma-separated numbers in Hz, got {frequencies!r}") from None
         check_frequencies_in_hz(freqs, "--frequencies")  # before any file is read
+    if speed_of_light is not None:
+        check_speed_of_light(speed_of_light, "--speed-of-light")  # before any file is read
     mapping = variable_mapping(variables)
     plan = plan_import(find_scan_files(sources), out)
 
     def echo(scan, target: Path) -> None:
         click.echo(f"scan {scan.name}: {scan.shape[0]} x {scan.shape[1]} pixels at {len(scan.frequencies_hz)} "
-                   f"frequencies written to {target}")
+                   f"frequencies (c = {scan.speed_of_light_m_per_s:.9g} m/s) written to {target}")
 
-    import_files(plan, freqs, mapping, on_scan=echo, depth_wrapped=depths == "wrapped")
+    import_files(plan, freqs, mapping, on_scan=echo, depth_wrapped=depths == "wrapped",
+                 speed_of_light_m_per_s=speed_of_light)
 
 
 def variable_mapping(variables: tuple[str, ...]) -> dict[str, str]:

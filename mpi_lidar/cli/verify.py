@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import click
 
@@ -12,12 +11,13 @@ from mpi_lidar.redact import redact
 
 
 @click.command()
-@click.argument("stores", nargs=-1, required=True, type=click.Path(path_type=Path))
-def verify(stores: tuple[Path, ...]) -> None:
+@click.argument("stores", nargs=-1, required=True)
+def verify(stores: tuple[str, ...]) -> None:
     """Check datasets, scans and corrected outputs chunk by chunk against the fingerprints written with them.
 
-    Prints one line per store; exits 1 if any store is damaged (a deleted, truncated or replaced chunk),
-    naming the array and chunk.
+    A store may be a path or an object-store URL (s3://bucket/out/scan: published outputs, every object
+    checked). Prints one line per store; exits 1 if any store is damaged (a deleted, truncated or replaced
+    chunk), naming the array and chunk.
 
     \b
     Example:

@@ -15,13 +15,17 @@ from numpy.typing import NDArray
 
 from mpi_lidar.correction.options import Baseline, CorrectionOptions, Flag
 from mpi_lidar.correction.validity import OffsetSample
+from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 from mpi_lidar.physics.noise import Fused, NoiseModel
+from mpi_lidar.scans.geometry import FacingBlocks
 
 # Valid pixels the model leaves alone, whose depth is the baseline's: fused where the frequencies agree.
 BASELINE_FLAGS = (Flag.NOT_NEEDED, Flag.NO_MULTIPATH, Flag.UNCALIBRATED, Flag.OUT_OF_RANGE)
 # The offsets are measured only with at least this many sampled pixels free of multipath (else none is removed).
 MIN_OFFSET_PIXELS = 500
-# A pixel is free of multipath for the offsets where the scene geometry expects a bias below this [m].
+# A pixel is free of multipath for the offsets where the scene geometry, with white partners and the default
+# footprint, expects a bias below this [m]: from the geometry alone, so that the same pixels are picked whatever
+# the amplitudes' unit and whether the scan's own footprint estimate is significant.
 QUIET_BIAS_M = 2e-5
 
 
@@ -53,12 +57,12 @@ class FrequencyOffsets:
     other_m: NDArray[np.float64] | None = None
 
 
-def frequency_offsets(sample: OffsetSample, flags: NDArray[np.uint8], bias_m: NDArray | None,
+def frequency_offsets(sample: OffsetSample, flags: NDArray[np.uint8], blocks: FacingBlocks | None,
                       options: CorrectionOptions) -> FrequencyOffsets:
     """What the fused depths remove: the options' (a sensor profile's) offsets where they give them, else the scan's
     own, measured on the sampled valid pixels (``sample``, of the validity pass) that the gate leaves to the baseline
-    (``flags`` (H*W,), after the gate) and the scene geometry expects free of multipath (``bias_m`` [m]); nothing
-    where it has too few such pixels or no geometry.
+    (``flags`` (H*W,), after the gate) and the scene geometry (``blocks``) expects free of multipath
+    (:data:`QUIET_BIAS_M`); nothing where it has too few such pixels or no geometry.
 
     The scan also says whether its sensor has the default window's leakage: the leakage is removed where that
     leaves the frequencies' measured offsets smaller (in sum of squares) than it finds them. A sensor with it
@@ -70,11 +74,12 @@ def frequency_offsets(sample: OffsetSample, flags: NDArray[np.uint8], bias_m: ND
     if options.frequency_offsets_m is not None:  # a profile's, measured with the leakage removed or not
         return FrequencyOffsets(np.asarray(options.frequency_offsets_m, dtype=np.float64),
                                 bool(options.window_leakage_removed), OffsetSource.PROFILE)
-    if bias_m is None:
+    if blocks is None:
         return FrequencyOffsets(source=OffsetSource.NO_GEOMETRY)
     stride = sample.stride  # only the sampled pixels: no mask of the whole scan
     quiet = np.isin(flags[::stride], [int(flag) for flag in BASELINE_FLAGS])
-    quiet &= bias_m.reshape(-1)[::stride] <= QUIET_BIAS_M
+    sampled = np.arange(0, flags.size, stride)
+    quiet &= blocks.block_potential(DEFAULT_FOOTPRINT_AREA_M2).pixels(sampled).bias_m <= QUIET_BIAS_M
     as_measured = _median_offsets(sample.differences, quiet)
     if as_measured is None:
         return FrequencyOffsets(source=OffsetSource.TOO_FEW_PIXELS)

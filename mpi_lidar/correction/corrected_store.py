@@ -18,6 +18,8 @@ from mpi_lidar.storage.variables import CORRECTED, Store, attributes
 if TYPE_CHECKING:
     from zarr.core.common import JSON
 
+CF_CONVENTIONS = "CF-1.10"  # the group's attributes and variables follow these conventions
+
 
 def write_corrected_store(path: Path, scan: Scan, correction: Correction, identity: dict[str, str],
                           options: CorrectionOptions, outputs: str = "full") -> None:
@@ -37,14 +39,18 @@ def write_corrected_store(path: Path, scan: Scan, correction: Correction, identi
         ("multipath_bias_m", correction.multipath_bias_m),
         ("azimuth_rad", scan.azimuth_rad), ("elevation_rad", scan.elevation_rad))
     arrays = {name: (np.asarray(values), CORRECTED[name].dims) for name, values in written if values is not None}
+    # CF flag attributes; valid_range bounds the codes (a plot's discrete levels: docs/reference/stores.md).
     flags: dict[str, JSON] = {"flag_values": [int(f) for f in Flag],
-                              "flag_meanings": " ".join(f.name.lower() for f in Flag)}
+                              "flag_meanings": " ".join(f.name.lower() for f in Flag),
+                              "valid_range": [0, len(Flag) - 1]}
     estimates: dict[str, JSON] = {"flag_values": [int(e) for e in Estimate],
-                                  "flag_meanings": " ".join(e.name.lower() for e in Estimate)}
+                                  "flag_meanings": " ".join(e.name.lower() for e in Estimate),
+                                  "valid_range": [0, len(Estimate) - 1]}
     write_described_arrays(group, arrays, scan.shape, metadata=attributes(Store.CORRECTED),
                            attributes={"flags": flags, "estimate": estimates})
     # One metadata write: group.attrs.update would rewrite the group's metadata once per key.
-    group.update_attributes({"schema": CORRECTED_SCHEMA, "scan_name": scan.name, **identity,
+    group.update_attributes({"Conventions": CF_CONVENTIONS, "schema": CORRECTED_SCHEMA, "scan_name": scan.name,
+                             **identity,
                              "options": options.model_dump(), "flag_codes": {f.name.lower(): int(f) for f in Flag},
                              "counts": correction.counts(), "frequencies_hz": list(scan.frequencies_hz),
                              **({} if correction.calibration is None else {"footprint": footprint_record(correction)}),

@@ -36,6 +36,8 @@ class Flag(IntEnum):
     NO_MULTIPATH = 7
     UNCALIBRATED = 8
     AMBIGUOUS = 9
+    # Past the frequencies' combined ambiguity: its amplitude is far too weak for the range its phases give.
+    BEYOND_AMBIGUITY = 10
 
 
 class Estimate(IntEnum):
@@ -61,7 +63,7 @@ class Baseline(StrEnum):
     RAW = "raw"
 
 
-INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT)
+INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT, Flag.BEYOND_AMBIGUITY)
 
 class ScanStatus(StrEnum):
     """How one scan of a batch ended (:func:`mpi_lidar.correction.outcome.scan_status` decides the first three).
@@ -136,11 +138,20 @@ class CorrectionOptions(BaseModel):
         "Which valid pixels get corrected: where the scan's geometry allows multipath (geometry; on scans without "
         "geometry a pixel-wise model corrects every valid pixel and a geometric model, the default, leaves them as "
         "measured: status unchanged), every valid pixel (all), or frequency disagreement (consistency)."))
+    # No return: an amplitude below this many times the no-light noise of the scan's own noise law (its read term)
+    # at some frequency, or none at all.
     min_amplitude_sigmas: Annotated[float, Field(ge=0, le=MAX_SIGMAS, strict=True)] = 5.0
-    # A perfect reflector at 0.5 m; set it from your sensor.
-    saturation_amplitude_v2: Annotated[float, Field(gt=0, le=NO_SATURATION_V2, strict=True)] = 0.7176
+    # The amplitude above which a pixel is saturated [V^2], from a sensor profile or the user. None: from the scan
+    # itself (a plateau of clipped amplitudes), never from a sensor table's limit in a guessed unit.
+    saturation_amplitude_v2: Annotated[float, Field(gt=0, le=NO_SATURATION_V2, strict=True)] | None = None
     # (A sensor profile, the options' source, holds at most MAX_AMPLITUDE_V2.)
-    max_depth_spread_m: Annotated[float, Field(gt=0, le=MAX_DEPTH_M, strict=True)] = 0.3
+    # Deprecated: a fixed spread of the frequencies' depths [m] past which a pixel is inconsistent. Consistency is
+    # judged in units of the noise (inconsistent_p_value); a value given here applies as well.
+    max_depth_spread_m: Annotated[float, Field(gt=0, le=MAX_DEPTH_M, strict=True)] | None = None
+    # A pixel whose frequencies disagree beyond chi-square's (1 - this) quantile under the scan's own noise law
+    # cannot be one range: inconsistent (invalid). Far beyond what multipath does to them (almost the same offset
+    # at every frequency); a wrong wrap count, a depth edge or a broken frequency.
+    inconsistent_p_value: Annotated[float, Field(gt=0, lt=0.01, strict=True)] = 1e-6
     # Zero: near the far end of its prior the model pulls depths inwards, so beyond it raw depth is safer.
     range_tolerance_m: Annotated[float, Field(ge=0, le=MAX_DEPTH_M, strict=True)] = 0.0
     # Multipath only lengthens a path, so a depth measured nearer than the prior's nearest d_AS is truly that
@@ -163,14 +174,15 @@ class CorrectionOptions(BaseModel):
             "Effective receiver footprint of your sensor, which scales the geometric coupling, or auto: each scan "
             "measures its own from its facing surfaces, and pixels that depend on an estimate that is not "
             "significant are not corrected (flag uncalibrated)."))
-    # The noise model's unit: the thresholds, the albedo and the model's inputs all read amplitudes in V^2.
-    # auto: mpi_lidar.correction.amplitude_unit.
+    # The model's inputs, the albedo and the radiometric limits read amplitudes in V^2.
+    # auto: mpi_lidar.correction.sensor_reading.
     amplitude_scale: (Annotated[float, Field(ge=AMPLITUDE_SCALE_BOUNDS[0], le=AMPLITUDE_SCALE_BOUNDS[1], strict=True)]
                       | Literal["auto"]) = Field(AUTO, description=(
         "The scanner's amplitude unit per V^2 (e.g. 4000 for amplitudes in counts of 1/4000 V^2; 1: amplitudes in "
-        "V^2): amplitudes are divided by it before anything reads them. auto: each scan reads its own from the "
-        "scatter of its frequencies' depths (a unit within a factor of 2 of V^2 is read as V^2); a scan where "
-        "that reading is not significant is left as measured (status unserved)."))
+        "V^2): amplitudes are divided by it before anything reads them. auto: V^2 unless the scan's own evidence "
+        "contradicts it (surfaces brighter than any albedo allows, or darker than any); then the model does not "
+        "correct the scan (status unserved) and its fused depths are still written. Fusion, unwrapping and the "
+        "consistency test need no unit: they use the noise law each scan measures."))
     # The sensor's depth noise over the noise model's and each frequency's depth offset relative to the highest
     # [m] (from a sensor profile): the fused depth's weights, sds and offsets. None: no offsets.
     noise_scale: Annotated[float, Field(gt=0, le=100)] = 1.0

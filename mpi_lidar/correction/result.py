@@ -7,11 +7,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.correction.amplitude_unit import AmplitudeUnit
 from mpi_lidar.correction.baseline import FrequencyOffsets
 from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.options import Estimate, Flag
 from mpi_lidar.correction.outcome import Unserved
+from mpi_lidar.correction.sensor_reading import SensorReading
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,7 +39,8 @@ class Correction:
     uncertainty_m : Each depth's 1-sigma uncertainty (NaN where it has none). [m]
     amplitude_units_per_v2 : The scanner's amplitude unit per V^2 the amplitudes were divided by (1: V^2); outputs
         that show amplitudes in V^2 divide by it too. [1 / V^2]
-    amplitude_unit : The scan's own amplitude-unit reading, where the unit was "auto" (None otherwise).
+    reading : What the scan said of its sensor: its noise law, the unit and whether its evidence contradicts V^2
+        (None: not read).
     offsets : What the fused depths removed from each frequency (:class:`FrequencyOffsets`).
     scene_notes : What the scene geometry says of the scan in words (no geometry, and the like).
     uncalibrated_pixels : Pixels that could hold multipath above the gate's threshold but were left alone because
@@ -62,7 +63,7 @@ class Correction:
     estimate: NDArray[np.uint8] | None = None
     uncertainty_m: NDArray[np.float32] | None = None
     amplitude_units_per_v2: float = 1.0
-    amplitude_unit: AmplitudeUnit | None = None
+    reading: SensorReading | None = None
     offsets: FrequencyOffsets = field(default_factory=FrequencyOffsets)
     scene_notes: tuple[str, ...] = ()
     uncalibrated_pixels: int = 0

@@ -29,10 +29,10 @@ def unserved_reason(flags: NDArray[np.uint8], d_as_m: tuple[float, float], optio
     low, high = d_as_m
     if counts[Flag.SATURATED] / measured > SATURATED_UNITS_SHARE:
         return Unserved(UnservedReason.AMPLITUDE_UNITS,
-                        f"{100 * counts[Flag.SATURATED] / measured:.0f} % of the pixels read as saturated (above "
-                        f"{options.saturation_amplitude_v2:g} V^2): the amplitudes are likely in another unit; "
-                        "give the scanner's unit per V^2 (mpi-lidar correct --amplitude-scale, or a profile from "
-                        "mpi-lidar calibrate: --sensor sensor.toml)")
+                        f"{100 * counts[Flag.SATURATED] / measured:.0f} % of the pixels read as saturated: the "
+                        "amplitudes are clipped nearly everywhere (a scanner's gain, or a threshold in another unit); "
+                        "give the scanner's unit per V^2 and saturation level (a profile from mpi-lidar calibrate: "
+                        "--sensor sensor.toml, or mpi-lidar correct --amplitude-scale)")
     if not served:
         return Unserved(UnservedReason.NO_GEOMETRY,
                         "the model takes geometric inputs and the scan has no geometry: import the scan with its "
@@ -51,8 +51,10 @@ def unserved_reason(flags: NDArray[np.uint8], d_as_m: tuple[float, float], optio
     return None
 
 
-def unknown_unit(reason: str) -> Unserved:
-    """A scan whose amplitude unit could not be measured (``reason``): it is left as measured."""
+def untrusted_unit(evidence: str) -> Unserved:
+    """A scan whose own evidence contradicts the V^2 its amplitudes were assumed in (``evidence``): the model does
+    not read them; its fused depths are still written."""
     return Unserved(UnservedReason.AMPLITUDE_UNITS,
-                    f"the scan's amplitude unit could not be measured ({reason}): give it "
-                    "(mpi-lidar correct --amplitude-scale, or a profile from mpi-lidar calibrate: --sensor)")
+                    f"the model was not applied: {evidence}; give the scanner's unit per V^2 (mpi-lidar correct "
+                    "--amplitude-scale, or a profile from mpi-lidar calibrate: --sensor sensor.toml); the fused "
+                    "depths are written")

@@ -28,34 +28,101 @@ UNUSABLE_FLAGS = (*INVALID_FLAGS, Flag.AMBIGUOUS)
 OFFSET_SAMPLE_PIXELS = 100_000
 
 
-def validity_flags(raw: NDArray, options: CorrectionOptions, noise: NoiseModel,
-                   confidence: NDArray | None = None) -> NDArray[np.uint8]:
+def validity_flags(raw: NDArray, options: CorrectionOptions, noise: NoiseModel, confidence: NDArray | None = None,
+                   saturation_v2: NDArray | None = None, beyond: BeyondAmbiguity | None = None) -> NDArray[np.uint8]:
     """Flag per pixel of raw rows (n, 2F) [m, V^2]: NOT_NEEDED for valid pixels (the gate decides later), else the
-    first reason it is invalid.
+    most basic reason it is invalid.
 
-    ``confidence`` (n,): the unwrapping's confidence of rows whose depths were unwrapped (:meth:`NoiseModel.unwrap`);
-    rows below ``options.min_unwrap_confidence`` are AMBIGUOUS, unless a more basic reason holds. The no-return
-    floor is ``options.min_amplitude_sigmas`` times the noise model's quadrature noise with no light.
+    Parameters
+    ----------
+    raw : Raw rows, depths in one range. [m, V^2]
+    options : ``min_amplitude_sigmas`` (no return: an amplitude below this many times the no-light noise),
+        ``inconsistent_p_value`` (the frequencies disagree beyond chi-square's quantile under ``noise``),
+        ``min_unwrap_confidence``, and the deprecated ``max_depth_spread_m`` where given.
+    noise : The scan's noise model.
+    confidence : The unwrapping's confidence of rows whose depths were unwrapped (:meth:`NoiseModel.unwrap`); rows
+        below ``options.min_unwrap_confidence`` are AMBIGUOUS, unless a more basic reason holds.
+    saturation_v2 : Each frequency's saturation amplitude (F,) [V^2] (None: ``options.saturation_amplitude_v2``,
+        where given, else none).
+    beyond : The test for a range past the frequencies' combined ambiguity (None: none).
     """
     f = len(noise.frequencies_hz)
-    depth, amplitude = raw[:, :f], raw[:, f:]
+    amplitude = raw[:, f:]
     flags = np.full(raw.shape[0], Flag.NOT_NEEDED, dtype=np.uint8)
-    high = low = depth[:, 0]
-    for column in range(1, f):  # column by column: a row reduction over F values is several times slower
-        high, low = np.maximum(high, depth[:, column]), np.minimum(low, depth[:, column])
-    spread = high - low  # NaN where a depth is NaN, as a row's max - min: those rows are NOT_FINITE
-    floor = options.min_amplitude_sigmas * noise.floor_v2
     ambiguous = np.zeros(raw.shape[0], bool) if confidence is None else ~(confidence >= options.min_unwrap_confidence)
     rules = [
-        (Flag.INCONSISTENT, spread > options.max_depth_spread_m),
+        (Flag.INCONSISTENT, _inconsistent(raw, options, noise)),
+        (Flag.BEYOND_AMBIGUITY, np.zeros(raw.shape[0], bool) if beyond is None else beyond.flags(raw, noise)),
         (Flag.AMBIGUOUS, ambiguous),
-        (Flag.SATURATED, (amplitude > options.saturation_amplitude_v2).any(axis=1)),
-        (Flag.NO_RETURN, (amplitude < floor[None, :]).any(axis=1)),
+        (Flag.SATURATED, (amplitude >= _saturation_levels(saturation_v2, options, f)[None, :]).any(axis=1)),
+        (Flag.NO_RETURN, _no_return(amplitude, options, noise)),
         (Flag.NOT_FINITE, ~np.isfinite(raw).all(axis=1)),
     ]
     for flag, where in rules:  # later rules win: the most basic reason is reported
         flags[where] = flag
     return flags
+
+
+def _saturation_levels(saturation_v2: NDArray | None, options: CorrectionOptions, f: int) -> NDArray[np.float64]:
+    """Each frequency's saturation amplitude (F,) [V^2]: those given, else the options' threshold, else none."""
+    if saturation_v2 is not None:
+        return np.asarray(saturation_v2, dtype=np.float64)
+    return np.full(f, np.inf if options.saturation_amplitude_v2 is None else options.saturation_amplitude_v2)
+
+
+def _no_return(amplitude: NDArray, options: CorrectionOptions, noise: NoiseModel) -> NDArray[np.bool_]:
+    """Rows (n,) whose amplitude at some frequency lies below ``options.min_amplitude_sigmas`` times the noise
+    model's no-light noise (its read term: the scan's own where it measured one), or is zero or less."""
+    if options.min_amplitude_sigmas == 0:
+        return np.zeros(amplitude.shape[0], bool)
+    floor = options.min_amplitude_sigmas * noise.floor_v2
+    with np.errstate(invalid="ignore"):
+        return ((amplitude < floor[None, :]) | ~(amplitude > 0)).any(axis=1)
+
+
+def _inconsistent(raw: NDArray, options: CorrectionOptions, noise: NoiseModel) -> NDArray[np.bool_]:
+    """Rows (n,) whose frequencies' depths disagree beyond chi-square's ``1 - options.inconsistent_p_value``
+    quantile under the noise model, or spread over more than the deprecated ``max_depth_spread_m`` where given."""
+    from scipy.special import chdtri  # the quantile without scipy.stats's imports
+
+    f = len(noise.frequencies_hz)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        inconsistent = noise.chi2(raw) > chdtri(f - 1, options.inconsistent_p_value)
+        if options.max_depth_spread_m is not None:
+            depth = raw[:, :f]
+            high = low = depth[:, 0]
+            for column in range(1, f):  # column by column: a row reduction over F values is several times slower
+                high, low = np.maximum(high, depth[:, column]), np.minimum(low, depth[:, column])
+            inconsistent |= high - low > options.max_depth_spread_m
+    return np.asarray(inconsistent)
+
+
+@dataclass(frozen=True)
+class BeyondAmbiguity:
+    """A range past the frequencies' combined ambiguity L looks by phase like one L nearer; only its amplitude,
+    far too weak for the near range, tells it. A pixel is flagged where its amplitude times its range squared over
+    Gamma_R (its albedo times the cosine of incidence, were it that near) reads below ``near_albedo`` and would read
+    as a plausible surface (at most ``far_albedo``) one ambiguity farther. A dark surface near by reads its own
+    albedo, a few per cent at least.
+
+    ambiguity_m : The frequencies' combined ambiguity. [m]
+    gamma_r_v2 : The sensor's amplitude of a white surface at 1 m. [V^2 m^2]
+    """
+
+    ambiguity_m: float
+    gamma_r_v2: float
+    near_albedo: float = 0.01
+    far_albedo: float = 2.0
+
+    def flags(self, raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
+        f = len(noise.frequencies_hz)
+        top = int(np.argmax(noise.frequencies_hz))
+        with np.errstate(invalid="ignore", over="ignore"):
+            range_m = raw[:, top].astype(np.float64)
+            amplitude = raw[:, f + top].astype(np.float64)
+            near = amplitude * range_m**2 / self.gamma_r_v2
+            far = amplitude * (range_m + self.ambiguity_m) ** 2 / self.gamma_r_v2
+            return (range_m > 0) & (near < self.near_albedo) & (far <= self.far_albedo) & (amplitude > 0)
 
 
 def usable_depth_of(raw: NDArray, flags: NDArray) -> NDArray:
@@ -66,9 +133,9 @@ def usable_depth_of(raw: NDArray, flags: NDArray) -> NDArray:
 
 
 def depth_rules_only(options: CorrectionOptions) -> CorrectionOptions:
-    """``options`` without amplitude thresholds (no-return floor 0, saturation out of reach): validity from the
-    depths alone, for amplitudes whose unit is not known yet."""
-    return options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": 1e30})
+    """``options`` without amplitude thresholds (no-return floor 0, no saturation threshold): validity from the
+    depths alone."""
+    return options.model_copy(update={"min_amplitude_sigmas": 0.0, "saturation_amplitude_v2": None})
 
 
 @dataclass(frozen=True)
@@ -125,9 +192,11 @@ class Validity:
 
 
 def check_validity(scan: Scan, noise: NoiseModel, options: CorrectionOptions, tiles: list[slice],
-                   gate: Gate | None = None) -> Validity:
-    """Unwrapping and validity of every pixel of ``scan`` (amplitudes in V^2), tile by tile, in one pass; with a
-    pixel-wise ``gate`` (:attr:`Gate.pixel_wise`), its decision for every pixel too."""
+                   gate: Gate | None = None, saturation_v2: NDArray | None = None,
+                   beyond: BeyondAmbiguity | None = None) -> Validity:
+    """Unwrapping and validity of every pixel of ``scan`` (amplitudes in V^2), tile by tile, in one pass
+    (:func:`validity_flags`, with ``saturation_v2`` and ``beyond``); with a pixel-wise ``gate``
+    (:attr:`Gate.pixel_wise`), its decision for every pixel too."""
     f = len(scan.frequencies_hz)
     size = scan.shape[0] * scan.shape[1]
     flags = np.empty(size, dtype=np.uint8)
@@ -140,7 +209,7 @@ def check_validity(scan: Scan, noise: NoiseModel, options: CorrectionOptions, ti
     for pixels, raw in raw_tiles(scan, tiles):
         def check(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
             part, part_confidence = noise.unwrap(raw[rows]) if scan.depth_wrapped else (raw[rows], None)
-            part_flags = validity_flags(part, options, noise, part_confidence)
+            part_flags = validity_flags(part, options, noise, part_confidence, saturation_v2, beyond)
             where = slice(start + rows.start, start + rows.stop)
             flags[where] = part_flags
             usable = ~np.isin(part_flags, [int(flag) for flag in UNUSABLE_FLAGS])

@@ -5,18 +5,18 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.correction.amplitude_unit import V2_TOLERANCE, AmplitudeUnit, reads_as_v2
 from mpi_lidar.correction.baseline import MIN_OFFSET_PIXELS, FrequencyOffsets, OffsetSource
 from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.result import Correction
+from mpi_lidar.correction.sensor_reading import SensorReading
 
 
 def correction_notes(correction: Correction) -> tuple[str, ...]:
-    """The report's notes of one correction, in the stages' order: amplitude unit, scene geometry, footprint,
-    the training prior's reach, frequency offsets."""
+    """The report's notes of one correction, in the stages' order: the sensor reading (noise law, unit), scene
+    geometry, footprint, the training prior's reach, frequency offsets."""
     notes: list[str] = []
-    if correction.amplitude_unit is not None:
-        notes.append(unit_note(correction.amplitude_unit))
+    if correction.reading is not None:
+        notes.extend(reading_notes(correction.reading))
     notes.extend(correction.scene_notes)
     calibration = correction.calibration
     if calibration is not None and calibration.pixels > 0:  # nothing to say where nothing faces
@@ -27,15 +27,26 @@ def correction_notes(correction: Correction) -> tuple[str, ...]:
     return (*notes, *(() if offsets is None else (offsets,)))
 
 
-def unit_note(unit: AmplitudeUnit) -> str:
-    """What a report says of a scan's own amplitude unit."""
-    if not unit.significant:
-        return f"amplitude unit auto: not measured ({unit.reason}); every pixel left as measured"
-    measured = (f"amplitude unit auto: {unit.amplitude_scale:.4g} +- {unit.relative_sigma * unit.amplitude_scale:.2g}"
-                f" per V^2 from the scatter of the frequencies on {unit.pixels:,} pixels")
-    if reads_as_v2(unit):
-        return f"{measured}, within a factor {V2_TOLERANCE:g} of V^2: read as V^2"
-    return f"{measured}; amplitudes divided by it"
+def reading_notes(reading: SensorReading) -> tuple[str, ...]:
+    """What a report says of the scan's own noise law and amplitude unit."""
+    law = reading.law
+    if law is not None and law.significant:
+        measured = (f"noise law: measured on {law.pixels:,} pixels from the scatter of the frequencies, read noise "
+                    f"{law.read_scale:.3g} +- {law.read_sigma:.2g} and shot noise {law.shot_scale:.3g} +- "
+                    f"{law.shot_sigma:.2g} times the sensor model's (in V^2 after the amplitude unit)")
+    else:
+        why = "no pixels" if law is None else law.reason
+        measured = f"noise law: not measured ({why}); the sensor model's is used"
+    if reading.disagrees_with_reference:
+        measured += (f"; it is {reading.noise_over_reference:.2g} times the sensor model's noise (a profile's noise "
+                     "scale included), which the scan's own law replaces")
+    if reading.unit_given:
+        unit = f"amplitude unit: {reading.units_per_v2:g} per V^2, as given"
+    elif reading.unit_contradiction:
+        unit = f"amplitude unit: not V^2 ({reading.unit_contradiction}); the model was not applied"
+    else:
+        unit = "amplitude unit: V^2 (not given; nothing in the scan contradicts it)"
+    return measured, unit
 
 
 def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:

@@ -1,11 +1,15 @@
 """Which point-cloud files a corrected scan's outputs hold, what they record, and their writing.
 
-The corrected cloud as LAS/LAZ keeps every pixel with a finite raw range: a valid pixel at its corrected
-range, an invalid one (flags 2-5) at its raw range, marked Withheld and classification 7 (noise). Its JSON
-record carries the flag codes (:data:`FLAG_MEANINGS`) and the scanner frame (:data:`SCANNER_FRAME`). The PLY
-files (``raw.ply``, ``corrected.ply``) hold the valid pixels only, coloured by amplitude (corrected pixels in
-amber). Every file: docs/reference/point-clouds.md.
-"""
+Every file's fields come from one function, :func:`point_cloud_fields` (the scan and its
+:class:`~mpi_lidar.correction.Correction`: the measured, unwrapped range and the amplitude in V^2), which the Python
+API offers as ``mpi_lidar.point_cloud_fields``. The corrected cloud as LAS/LAZ holds every valid pixel at its
+corrected range, and a saturated or inconsistent pixel (flags 4-5) with a positive measured range at that range,
+marked Withheld and classification 7 (noise); a pixel without a return or a finite depth, or past the combined
+ambiguity distance (flags 2, 3 and 10), has no range it can be placed at and is left out, unless
+``no_return_range_m`` places it on its ray at that range (Withheld too). Its JSON record carries the flag codes
+(:mod:`mpi_lidar.reporting.legend`) and the frame (:func:`frame_record`). The PLY files (``raw.ply``,
+``corrected.ply``) hold the valid pixels only, coloured by amplitude (corrected pixels in amber). Every file:
+docs/reference/point-clouds.md."""
 
 from __future__ import annotations
 
@@ -15,16 +19,19 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.correction.options import INVALID_FLAGS, Flag
+from mpi_lidar.correction import Correction, Flag
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.reporting.legend import FLAG_LEGEND, estimate_record, flag_record
+from mpi_lidar.reporting.metrics import measured_depth
 from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.scans.geometry import point_cloud
 from mpi_lidar.scans.pointcloud import (
     LAS_DESCRIPTION_CHARS,
     LasBand,
     PointCloudFormat,
+    PointCloudFrame,
     correction_fields,
-    intensity_scale,
+    in_frame,
     write_las_bands,
     write_ply,
 )
@@ -47,24 +54,9 @@ LEVEL_POINT_CLOUDS: dict[OutputLevel, tuple[PointCloudFormat, ...]] = {
     OutputLevel.DATA: (),
 }
 # One letter per flag code, for the 31 characters of the LAS ``flag`` description ("0C 1N 2F ...").
-FLAG_LETTERS = {
-    Flag.CORRECTED: "C", Flag.NOT_NEEDED: "N", Flag.NOT_FINITE: "F", Flag.NO_RETURN: "R", Flag.SATURATED: "S",
-    Flag.INCONSISTENT: "I", Flag.OUT_OF_RANGE: "O", Flag.NO_MULTIPATH: "M", Flag.UNCALIBRATED: "U",
-    Flag.AMBIGUOUS: "A",
-}
-# What each flag code means (docs/reference/flags.md says more), as the JSON record carries it.
-FLAG_MEANINGS = {
-    Flag.CORRECTED: "valid, corrected by the model",
-    Flag.NOT_NEEDED: "valid, skipped by a pixel-wise gate; raw range kept",
-    Flag.NOT_FINITE: "invalid: a NaN or infinite depth or amplitude",
-    Flag.NO_RETURN: "invalid: amplitude below the no-light noise",
-    Flag.SATURATED: "invalid: amplitude above saturation",
-    Flag.INCONSISTENT: "invalid: the frequencies' depths disagree",
-    Flag.OUT_OF_RANGE: "valid, outside the model's range; measured range kept",
-    Flag.NO_MULTIPATH: "valid, no facing surface causes multipath; raw range kept",
-    Flag.UNCALIBRATED: "valid, footprint estimate not significant; raw range kept",
-    Flag.AMBIGUOUS: "wrap counts ambiguous; range as measured (wrapped)",
-}
+FLAG_LETTERS = {flag: entry.letter for flag, entry in FLAG_LEGEND.items()}
+# Invalid pixels without a range of their own: left out of the LAS/LAZ unless placed at a stated range.
+RANGELESS_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.BEYOND_AMBIGUITY)
 # How x, y, z follow from a pixel's azimuth and elevation (mpi_lidar.scans.scan.grid_rays).
 SCANNER_FRAME = {
     "origin": "the scanner's optical centre",
@@ -73,7 +65,7 @@ SCANNER_FRAME = {
     "y": "sin(elevation) * range",
     "z": "cos(elevation) * cos(azimuth) * range",
     "handedness": "right-handed: +z is the ray at azimuth 0 and elevation 0, elevation turns towards +y, azimuth "
-                  "turns from +z towards +x (counter-clockwise seen from +y)",
+                  "turns from +z towards +x (counter-clockwise seen from +y); +x is the scanner's left",
     "row": "index of the scan's elevation_rad (or of its ray_directions' first axis)",
     "column": "index of the scan's azimuth_rad (or of its ray_directions' second axis)",
     "rays": "a scan stored with ray_directions uses those unit vectors as they are",
@@ -89,14 +81,44 @@ def flag_description() -> str:
     return spaced if len(spaced) <= LAS_DESCRIPTION_CHARS else spaced.replace(" ", "")
 
 
-def point_cloud_metadata() -> dict[str, object]:
-    """What the LAS/LAZ JSON record adds to the writer's own: the flag codes and the scanner frame."""
+def frame_record(frame: str = PointCloudFrame.SCANNER) -> dict[str, str]:
+    """How a file's x, y, z follow from a pixel's azimuth, elevation and range in ``frame``
+    (:class:`~mpi_lidar.scans.pointcloud.PointCloudFrame`)."""
+    if PointCloudFrame(frame) == PointCloudFrame.SCANNER:
+        return {"name": PointCloudFrame.SCANNER.value, **SCANNER_FRAME}
+    return {"name": PointCloudFrame.Z_UP.value, "origin": SCANNER_FRAME["origin"], "units": "m",
+            "x": "cos(elevation) * cos(azimuth) * range (forward)",
+            "y": "cos(elevation) * sin(azimuth) * range (the scanner's left)",
+            "z": "sin(elevation) * range (up)",
+            "handedness": "right-handed, z up: the scanner frame's axes (z, x, y) as (x, y, z)",
+            "row": SCANNER_FRAME["row"], "column": SCANNER_FRAME["column"], "rays": SCANNER_FRAME["rays"]}
+
+
+def point_cloud_metadata(frame: str = PointCloudFrame.SCANNER, no_return_range_m: float | None = None
+                         ) -> dict[str, object]:
+    """What the LAS/LAZ JSON record adds to the writer's own: the flag codes, the estimates and the frame, and where
+    withheld points lie."""
+    placed = ("left out" if no_return_range_m is None
+              else f"withheld at {no_return_range_m:g} m on their ray (raw_range_m keeps what was measured)")
     return {
-        "flags": {str(int(flag)): {"name": flag.name.lower(), "letter": FLAG_LETTERS[flag],
-                                   "meaning": FLAG_MEANINGS[flag], "invalid": flag in INVALID_FLAGS}
-                  for flag in Flag},
-        "frame": SCANNER_FRAME,
+        "flags": flag_record(),
+        "estimates": estimate_record(),
+        "frame": frame_record(frame),
+        "withheld_points": {"saturated, inconsistent": "withheld at their measured range where it is positive, "
+                                                       "else as not finite",
+                            "not finite, no return, beyond ambiguity": placed},
     }
+
+
+def point_cloud_fields(scan: Scan, correction: Correction, rows: slice = slice(None)) -> dict[str, NDArray]:
+    """The per-point fields of a corrected scan's rows (each (h, W)), as every point cloud of it holds them: those of
+    :func:`~mpi_lidar.scans.pointcloud.correction_fields` from the correction's measured range (unwrapped where the
+    scan's depths wrapped: :attr:`Correction.measured_depth`) and the scan's highest-frequency amplitude in V^2
+    (divided by :attr:`Correction.amplitude_units_per_v2`), with the uncertainty where the correction has one."""
+    amplitude = np.asarray(scan.amplitude[-1, rows], dtype=np.float32) / np.float32(correction.amplitude_units_per_v2)
+    uncertainty = correction.uncertainty_m
+    return correction_fields(measured_depth(scan, correction, rows), correction.depth[rows], correction.flags[rows],
+                             amplitude, None if uncertainty is None else uncertainty[rows])
 
 
 def point_cloud_colors(flags: NDArray, amplitude: NDArray) -> NDArray[np.uint8]:
@@ -134,57 +156,66 @@ def point_cloud_files(scan: Scan, outputs: str, point_clouds: tuple[str, ...] | 
     return [name for fmt in point_cloud_formats(outputs, point_clouds) for name in POINT_CLOUD_FILES[fmt]]
 
 
-def write_point_clouds(directory: Path, formats: tuple[PointCloudFormat, ...], rays: NDArray | RayRows,
-                       measured_depth: NDArray, corrected_depth: NDArray, flags: NDArray, amplitude_v2: NDArray,
-                       uncertainty_m: NDArray | None = None) -> list[str]:
-    """The point clouds of ``formats`` into ``directory``; returns the names of the files written.
+def write_point_clouds(directory: Path, formats: tuple[PointCloudFormat, ...], rays: NDArray | RayRows, scan: Scan,
+                       correction: Correction, *, frame: str = PointCloudFrame.SCANNER,
+                       no_return_range_m: float | None = None) -> list[str]:
+    """The point clouds of ``formats`` of a corrected scan into ``directory``; returns the names of the files written.
 
     ``rays`` (H, W, 3) unit rays, or a :class:`~mpi_lidar.scans.scan.RayRows` where no PLY is written (the LAS
-    and LAZ files are built a band of rows at a time, the PLY files whole); ``measured_depth`` the highest
-    frequency's measured (unwrapped) range and ``corrected_depth`` the corrected range (NaN where invalid) [m];
-    ``flags`` the pixel flags; ``amplitude_v2`` the highest frequency's amplitude [V^2]; ``uncertainty_m`` the
-    corrected range's uncertainty [m], an extra
-    field where given. Each file's fields are those of :func:`~mpi_lidar.scans.pointcloud.correction_fields`.
+    and LAZ files are built a band of rows at a time, the PLY files whole). Each file's fields are those of
+    :func:`point_cloud_fields`; its coordinates in ``frame`` (``scanner`` or ``z-up``). ``no_return_range_m``: the
+    range [m] at which the LAS/LAZ places pixels without a range (not finite, no return), withheld; None leaves them
+    out.
     """
     if not formats:
         return []
+    if no_return_range_m is not None and not (np.isfinite(no_return_range_m) and no_return_range_m > 0):
+        raise MpiLidarError(f"no_return_range_m must be a positive number of metres, got {no_return_range_m!r}")
     written = []
     if PointCloudFormat.PLY in formats:
-        fields = correction_fields(measured_depth, corrected_depth, flags, amplitude_v2, uncertainty_m)
+        fields = point_cloud_fields(scan, correction)
         valid = np.isfinite(fields["corrected_range_m"])
         whole_rays = rays[:]  # a RayRows builds every row
         colors = point_cloud_colors(fields["flag"], fields["amplitude_v2"])
-        comments = (f"scalar_flag codes: {flag_description()} (docs/reference/point-clouds.md)",)
+        comments = (f"scalar_flag codes: {flag_description()} (docs/reference/point-clouds.md)",
+                    f"frame: {frame_record(frame)['handedness']}")
         for name, depth in zip(POINT_CLOUD_FILES[PointCloudFormat.PLY],
                                (np.where(valid, fields["raw_range_m"], np.nan), fields["corrected_range_m"]),
                                strict=True):
-            write_ply(directory / name, point_cloud(depth, whole_rays), fields, colors, comments)
+            write_ply(directory / name, in_frame(point_cloud(depth, whole_rays), frame), fields, colors, comments)
             written.append(name)
     las_formats = [fmt for fmt in (PointCloudFormat.LAS, PointCloudFormat.LAZ) if fmt in formats]
     if las_formats:
-        band = _las_band(rays, measured_depth, corrected_depth, flags, amplitude_v2, uncertainty_m)
-        # Every pixel with a finite raw or corrected range has a point (rays are finite).
-        placed = np.isfinite(corrected_depth) | np.isfinite(measured_depth)
-        per_count = intensity_scale(np.where(placed, amplitude_v2, np.nan))
+        band = _las_band(rays, scan, correction, frame, no_return_range_m)
         for fmt in las_formats:
             (name,) = POINT_CLOUD_FILES[fmt]
-            write_las_bands(directory / name, np.shape(flags), band, per_count, compress=fmt == PointCloudFormat.LAZ,
-                            descriptions={"flag": flag_description()}, metadata=point_cloud_metadata())
+            write_las_bands(directory / name, np.shape(correction.flags), band, compress=fmt == PointCloudFormat.LAZ,
+                            descriptions={"flag": flag_description()},
+                            metadata=point_cloud_metadata(frame, no_return_range_m))
             written.append(name)
     return [name for fmt in formats for name in POINT_CLOUD_FILES[fmt] if name in written]
 
 
-def _las_band(rays: NDArray | RayRows, measured_depth: NDArray, corrected_depth: NDArray, flags: NDArray,
-              amplitude_v2: NDArray, uncertainty_m: NDArray | None) -> Callable[[slice], LasBand]:
-    """The LAS/LAZ file's points a band of rows at a time: a valid pixel at its corrected range, an invalid one
-    with a finite raw range at its raw range, withheld."""
+def las_ranges(fields: dict[str, NDArray], no_return_range_m: float | None = None
+               ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Where each pixel's LAS/LAZ point lies along its ray [m] (NaN: no point) and which points are withheld: a valid
+    pixel at its corrected range; an invalid one withheld, at its measured range where that is positive and the
+    pixel has a return, else at ``no_return_range_m`` (None: no point). Never behind the scanner."""
+    corrected, raw = fields["corrected_range_m"], fields["raw_range_m"]
+    valid = np.isfinite(corrected)
+    rangeless = np.isin(fields["flag"], [int(f) for f in RANGELESS_FLAGS]) | ~(raw > 0)
+    stated = np.float32(np.nan if no_return_range_m is None else no_return_range_m)
+    ranges = np.where(valid, corrected, np.where(rangeless, stated, raw)).astype(np.float32)
+    return ranges, ~valid & np.isfinite(ranges)
+
+
+def _las_band(rays: NDArray | RayRows, scan: Scan, correction: Correction, frame: str,
+              no_return_range_m: float | None) -> Callable[[slice], LasBand]:
+    """The LAS/LAZ file's points a band of rows at a time, placed as :func:`las_ranges` says."""
 
     def band(rows: slice) -> LasBand:
-        fields = correction_fields(measured_depth[rows], corrected_depth[rows], flags[rows], amplitude_v2[rows],
-                                   None if uncertainty_m is None else uncertainty_m[rows])
-        valid = np.isfinite(fields["corrected_range_m"])
-        withheld = ~valid & np.isfinite(fields["raw_range_m"])
-        points = point_cloud(np.where(valid, fields["corrected_range_m"], fields["raw_range_m"]), rays[rows])
-        return points, fields, withheld
+        fields = point_cloud_fields(scan, correction, rows)
+        ranges, withheld = las_ranges(fields, no_return_range_m)
+        return in_frame(point_cloud(ranges, rays[rows]), frame), fields, withheld
 
     return band

@@ -15,12 +15,12 @@ import numpy as np
 from mpi_lidar.correction import Correction, CorrectionOptions
 from mpi_lidar.correction.corrected_store import write_corrected_store
 from mpi_lidar.reporting.correction_notes import correction_notes
-from mpi_lidar.reporting.metrics import amplitude_v2, measured_depth, metric_regions
+from mpi_lidar.reporting.metrics import measured_depth, metric_regions
 from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.reporting.point_cloud_files import point_cloud_formats, write_point_clouds
 from mpi_lidar.reporting.report import REPORT_MARKER, Embed, error_histogram_figure, save_figure
 from mpi_lidar.reporting.scan_report import scan_report
-from mpi_lidar.reporting.thumbnail import thumbnail_image, thumbnail_legend, write_png
+from mpi_lidar.reporting.thumbnail import thumbnail_image, thumbnail_legend, with_key, write_png
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.pointcloud import PointCloudFormat
 from mpi_lidar.scans.scan import Scan
@@ -42,7 +42,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
 
     ``data``: ``corrected.zarr`` and ``metrics.json`` (counts, metrics, notes, the outputs written); ``light``:
     those, ``report.md``/``report.html``, ``corrected.laz`` and ``thumbnail.png`` (corrected depth and flags, at
-    most :data:`~mpi_lidar.reporting.thumbnail.THUMBNAIL_PX` pixels wide); ``full``: those but the thumbnail, plus the
+    most :data:`~mpi_lidar.reporting.thumbnail.THUMBNAIL_PX` pixels wide); ``full``: those, plus the
     maps, the error histogram, the point-cloud views, an interactive 3-D view in report.html (linking one shared
     ``plotly.min.js`` in ``bundle_dir``, by default the folder holding ``target``: one per batch) and the point
     clouds. ``point_clouds``: the formats written at any level
@@ -76,7 +76,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
         staging.mkdir()
         # The thumbnail needs nothing of the store: it is drawn on a thread beside the store's writing.
         thumbnail = (beside.submit(_thread_cpu, _write_thumbnail, staging, correction)
-                     if level == OutputLevel.LIGHT else None)
+                     if level != OutputLevel.DATA else None)
         started = time.process_time()
         write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options, outputs)
         depth_limits, thumbnail_cpu = thumbnail.result() if thumbnail is not None else (None, 0.0)
@@ -103,9 +103,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
         if cloud_rays is not None:
             measured = measured_depth(scan, correction)
             with _cpu(cpu_s, "write"):
-                files += write_point_clouds(staging, formats, cloud_rays, measured, correction.depth,
-                                            correction.flags, amplitude_v2(scan, correction),
-                                            getattr(correction, "uncertainty_m", None))
+                files += write_point_clouds(staging, formats, cloud_rays, scan, correction)
             if level == OutputLevel.FULL and rays is not None:
                 with _cpu(cpu_s, "figures"):
                     raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), measured, np.nan), rays)
@@ -125,7 +123,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
             with _cpu(cpu_s, "figures"):
                 for name, fig in figures.items():
                     save_figure(fig, staging / name)
-        images = (sorted(figures) if level == OutputLevel.FULL
+        images = (sorted([*figures, "thumbnail.png"]) if level == OutputLevel.FULL
                   else ["thumbnail.png"] if level == OutputLevel.LIGHT else [])
         files += images + ([] if level == OutputLevel.DATA else ["report.md", "report.html"]) + ["metrics.json"]
         with _cpu(cpu_s, "write"):
@@ -142,7 +140,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
 def _write_thumbnail(staging: Path, correction: Correction) -> tuple[float, float]:
     """``thumbnail.png`` of the correction in ``staging``; returns the depth limits of its colour scale [m]."""
     image, depth_limits = thumbnail_image(correction)
-    write_png(staging / "thumbnail.png", image)
+    write_png(staging / "thumbnail.png", with_key(image, correction.flags, depth_limits))
     return depth_limits
 
 

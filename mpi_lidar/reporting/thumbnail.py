@@ -1,4 +1,4 @@
-"""``thumbnail.png``: the corrected depth and the flags side by side, drawn without matplotlib.
+"""``thumbnail.png``: the corrected depth and the flags side by side over a colour key, drawn without matplotlib.
 
 The default output level writes a thumbnail of every scan; importing matplotlib for it would cost a one-scan
 correction 0.35 s of start-up. The image is a colour lookup, written as a PNG by Pillow.
@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from mpi_lidar.correction import Correction, Flag
+from mpi_lidar.reporting.legend import FLAG_COLOURS as FLAG_COLOURS  # the registry's, re-exported
 
-FLAG_COLOURS = ["#2e86de", "#c8d6e5", "#222f3e", "#576574", "#ee5253", "#ff9f43", "#10ac84", "#f6e58d", "#a55eea",
-                "#ff6b81"]
+KEY_ROW_PX = 14  # one line of the colour key under the panels [px]
 THUMBNAIL_PX = 512  # longest side of thumbnail.png [px]
 THUMBNAIL_GAP_PX = 4
 # matplotlib's viridis, its 256 colours as RGB bytes (tests/reporting/test_thumbnail.py checks them against it).
@@ -61,11 +61,32 @@ def thumbnail_image(correction: Correction, limit: int = THUMBNAIL_PX) -> tuple[
     return image, (low, high)
 
 
+def with_key(image: np.ndarray, flags: np.ndarray, depth_limits: tuple[float, float]) -> np.ndarray:
+    """``image`` over a colour key: the depth scale (viridis, its limits in metres) and a swatch and name for every
+    flag the scan has, as many per line as fit the image's width."""
+    from PIL import Image, ImageDraw  # imported where used, as in write_png
+
+    present = [flag for flag in Flag if (flags == flag).any()]
+    width = max(image.shape[1], 220)
+    per_line = max(1, width // 110)
+    lines = 1 + -(-len(present) // per_line)
+    canvas = Image.new("RGB", (width, image.shape[0] + KEY_ROW_PX * lines + 4), "white")
+    canvas.paste(Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)), (0, 0))
+    draw = ImageDraw.Draw(canvas)
+    top = image.shape[0] + 2
+    bar = viridis(np.linspace(0.0, 1.0, 60))[None].repeat(KEY_ROW_PX - 4, axis=0)
+    canvas.paste(Image.fromarray(np.ascontiguousarray(bar)), (2, top + 2))
+    draw.text((66, top), f"depth {depth_limits[0]:.2f} - {depth_limits[1]:.2f} m", fill="black")
+    for i, flag in enumerate(present):
+        x, y = 2 + (i % per_line) * 110, top + KEY_ROW_PX * (1 + i // per_line)
+        draw.rectangle((x, y + 2, x + 9, y + KEY_ROW_PX - 3), fill=FLAG_COLOURS[flag], outline="black")
+        draw.text((x + 13, y), flag.name.lower().replace("_", " "), fill="black")
+    return np.asarray(canvas)
+
+
 def thumbnail_legend(depth_limits: tuple[float, float]) -> str:
-    flags = ", ".join(f"{flag.name.lower().replace('_', ' ')} {colour}" for flag, colour in zip(Flag, FLAG_COLOURS,
-                                                                                                  strict=True))
     return (f"Thumbnail: corrected depth (left; viridis from {depth_limits[0]:.3f} to {depth_limits[1]:.3f} m, "
-            f"invalid pixels white) and what was done per pixel (right; {flags}).")
+            "pixels without a depth white) and what was done per pixel (right); the key is under the panels.")
 
 
 def write_png(path: Path, image: np.ndarray) -> None:

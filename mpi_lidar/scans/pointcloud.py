@@ -6,17 +6,16 @@ of :func:`correction_fields`. A pixel whose point is not finite is left out; eve
 atomically (built beside the target, then renamed), replacing a previous file. What each file holds, field by
 field, and how viewers open it: docs/reference/point-clouds.md.
 
-LAS: version 1.4, point format 6, x/y/z scaled to 0.1 mm; every field is an extra-bytes dimension of its own
-dtype, with its unit in the description (31 characters at most). ``intensity`` holds the field
-:data:`INTENSITY_FIELD` (the amplitude) scaled to 16 bits, 65,535 at the file's largest amplitude; the scale
-is in that field's description and in the JSON record. Points marked ``withheld`` (an invalid pixel placed at
-its raw range) carry the Withheld bit and classification 7 (low point, noise); the others classification 1
-(unclassified). One variable-length record (user :data:`LAS_METADATA_USER_ID`, record
-:data:`LAS_METADATA_RECORD_ID`) holds a JSON object: the generator, each field's description, the intensity
-scale, what withheld means, and whatever ``metadata`` the caller adds (the flag codes, the scanner frame). The
-header names mpi-lidar and its version as the generating software. LAZ (laspy's lazrs backend) is the same,
-compressed, its chunks on
-every core (:func:`mpi_lidar.threads.cores`).
+LAS: version 1.4, point format 6, x/y/z scaled to 0.1 mm; every field is an extra-bytes dimension of its own dtype,
+with its unit in the description (31 characters at most). ``intensity`` holds the field :data:`INTENSITY_FIELD` (the
+amplitude [V^2]) on one fixed scale, :data:`INTENSITY_PER_COUNT_V2` per count, the same in every file (so
+intensities compare across an archive); the scale is in that field's description and in the JSON record. Points
+marked ``withheld`` (an invalid pixel) carry the Withheld bit and classification 7 (low point, noise); the others
+classification 1 (unclassified). The header's bounds are those of the points written. One variable-length record
+(user :data:`LAS_METADATA_USER_ID`, record :data:`LAS_METADATA_RECORD_ID`) holds a JSON object: the generator, each
+field's description, the intensity scale, what withheld means, and whatever ``metadata`` the caller adds (the flag
+codes, the scanner frame). The header names mpi-lidar and its version as the generating software. LAZ (laspy's lazrs
+backend) is the same, compressed, its chunks on every core (:func:`mpi_lidar.threads.cores`).
 
 PLY: binary little-endian, float32 ``x``, ``y``, ``z`` [m], optional uchar ``red``, ``green``, ``blue`` (what
 Open3D reads as positions and colours) and one property ``scalar_<field>`` per field (CloudCompare loads
@@ -65,7 +64,10 @@ FIELD_DESCRIPTIONS = {
     "column": "pixel column of the scan grid",
 }
 INTENSITY_FIELD = "amplitude_v2"  # the field LAS intensity is filled from
-INTENSITY_MAX = 65535  # the largest amplitude of a file maps to this intensity
+INTENSITY_MAX = 65535
+# Amplitude per intensity count [V^2]: one scale for every file, so that intensities compare across scans and an
+# archive. 65,535 counts are 0.655 V^2, about the default saturation (0.7176 V^2); a 2 m wall's 0.03 V^2 is 3,000.
+INTENSITY_PER_COUNT_V2 = 1e-5
 LAS_CLASS_UNCLASSIFIED = 1
 LAS_CLASS_LOW_NOISE = 7  # ASPRS class 7, "low point (noise)": withheld points
 LAS_METADATA_USER_ID = "mpi-lidar"
@@ -138,12 +140,24 @@ def _points_and_fields(points: NDArray, fields: Mapping[str, NDArray], first_row
     return grid.reshape(-1, 3)[keep], kept, keep
 
 
-def intensity_scale(amplitude: NDArray) -> float:
-    """Amplitude per intensity count [unit of the amplitude]: the largest finite amplitude over
-    :data:`INTENSITY_MAX` (1 where none is positive)."""
-    values = np.asarray(amplitude)
-    largest = float(np.nanmax(values, initial=0.0, where=np.isfinite(values))) if values.size else 0.0
-    return largest / INTENSITY_MAX if largest > 0 else 1.0
+class PointCloudFrame(StrEnum):
+    """The axes of a point cloud's coordinates. ``scanner``: the scan frame (x to the scanner's left, y up, z
+    forward: :func:`mpi_lidar.scans.scan.grid_rays`); ``z-up``: x forward, y to the left, z up, as most point-cloud
+    viewers and robotics tools (ROS REP 103) expect. Both right-handed, the scanner at the origin."""
+
+    SCANNER = "scanner"
+    Z_UP = "z-up"
+
+
+# Which scanner-frame axis each axis of a frame is: z-up's x is the scanner's z (forward), and so on.
+_FRAME_AXES = {PointCloudFrame.SCANNER: (0, 1, 2), PointCloudFrame.Z_UP: (2, 0, 1)}
+
+
+def in_frame(points: NDArray, frame: str = PointCloudFrame.SCANNER) -> NDArray:
+    """``points`` (..., 3) of the scanner frame in ``frame`` (:class:`PointCloudFrame`): a cyclic permutation of the
+    axes, so lengths and handedness are kept. [m]"""
+    axes = _FRAME_AXES[PointCloudFrame(frame)]
+    return points if axes == (0, 1, 2) else points[..., list(axes)]
 
 
 def intensity_counts(amplitude: NDArray, scale: float) -> NDArray[np.uint16]:
@@ -172,30 +186,25 @@ def write_las(path: str | Path, points: NDArray, fields: Mapping[str, NDArray], 
     if wrong:
         raise ValueError(f"field {wrong[0]!r} must have shape {grid.shape[:2]} like the points, got "
                          f"{np.shape(fields[wrong[0]])}")
-    per_count = 1.0
-    if INTENSITY_FIELD in fields:
-        placed = np.isfinite(grid).all(axis=-1)
-        per_count = intensity_scale(np.where(placed, np.asarray(fields[INTENSITY_FIELD], dtype=np.float64), np.nan))
-
     def band(rows: slice) -> LasBand:
         marked = None if withheld is None else np.asarray(withheld)[rows]
         return grid[rows], {name: np.asarray(values)[rows] for name, values in fields.items()}, marked
 
-    return write_las_bands(path, grid.shape[:2], band, per_count, compress, descriptions=descriptions,
+    return write_las_bands(path, grid.shape[:2], band, INTENSITY_PER_COUNT_V2, compress, descriptions=descriptions,
                            metadata=metadata)
 
 
 def write_las_bands(path: str | Path, shape: tuple[int, ...], band: Callable[[slice], LasBand],
-                    intensity_per_count: float = 1.0, compress: bool | None = None, *,
+                    intensity_per_count: float = INTENSITY_PER_COUNT_V2, compress: bool | None = None, *,
                     descriptions: Mapping[str, str] | None = None,
                     metadata: Mapping[str, object] | None = None) -> Path:
     """Write a LAS 1.4 file (LAZ when ``compress``, by default when the suffix is ``.laz``) of a scan grid of
     ``shape`` (H, W), a band of rows at a time, so that memory stays that of a band of :data:`LAS_BAND_PIXELS`
     pixels whatever the scan's size: ``band(rows)`` gives those rows' points, fields and withheld marks
     (:data:`LasBand`), the same fields in every band. ``intensity_per_count``: the :data:`INTENSITY_FIELD` value
-    of one intensity count (:func:`intensity_scale` of the points' values). Coordinates are stored in
-    :data:`LAS_SCALE_M` steps from the scanner at the origin (int32: 214 km either way). ``descriptions`` and
-    ``metadata`` as :func:`write_las` takes them.
+    of one intensity count (:data:`INTENSITY_PER_COUNT_V2`). The header's bounds are the written points'.
+    Coordinates are stored in :data:`LAS_SCALE_M` steps from the scanner at the origin (int32: 214 km either
+    way). ``descriptions`` and ``metadata`` as :func:`write_las` takes them.
     """
     import laspy  # here, not at the top: laspy takes 0.2 s to import, which a run without LAS files never pays
 
@@ -237,11 +246,11 @@ def _las_header(dtypes: Mapping[str, np.dtype], per_count: float, descriptions: 
     if INTENSITY_FIELD in dtypes:
         described[INTENSITY_FIELD] = f"{described[INTENSITY_FIELD]} = {per_count:.2e} * I"
         record["intensity"] = {"field": INTENSITY_FIELD, "per_count": per_count,
-                               "meaning": f"{INTENSITY_FIELD} = intensity * per_count, intensity {INTENSITY_MAX} "
-                                          "at the file's largest amplitude"}
+                               "meaning": f"{INTENSITY_FIELD} = intensity * per_count, the same scale in every file; "
+                                          f"intensity {INTENSITY_MAX} (clipped) at and above "
+                                          f"{INTENSITY_MAX * per_count:.4g}"}
     record["withheld"] = (f"withheld points (classification {LAS_CLASS_LOW_NOISE}, low point/noise) are invalid "
-                          f"pixels placed at their raw range; the others have classification "
-                          f"{LAS_CLASS_UNCLASSIFIED}")
+                          f"pixels; the others have classification {LAS_CLASS_UNCLASSIFIED}")
     record.update(metadata or {})
     header = laspy.LasHeader(version="1.4", point_format=6)
     header.generating_software = generator()[:32]

@@ -3,7 +3,8 @@
 A :class:`Scan` holds depth and amplitude (F, H, W) [m, V^2] at F modulation frequencies; optional geometry:
 ``azimuth_rad`` (W,) and ``elevation_rad`` (H,) of the scan grid, or ``ray_directions`` (H, W, 3) unit
 vectors; optional ``reference_depth`` (H, W) [m] and ``reference_mask`` (H, W) bool for evaluation; raw
-``taps`` (F, 4, H, W) [V^2] where it was demodulated from them (:func:`from_taps`). Every array is declared in
+``taps`` (F, 4, H, W) [V^2] where it was demodulated from them (:func:`from_taps`); the speed of light its
+depths were converted from phases with [m/s], which sets each frequency's wrap period c / 2f. Every array is declared in
 :mod:`mpi_lidar.storage.variables`, which :func:`validate` checks against. The store is
 :mod:`mpi_lidar.scans.store`, the importers of other formats :mod:`mpi_lidar.scans.importers`.
 
@@ -23,6 +24,7 @@ from typing import TypedDict, Unpack
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.errors import StoreError
 from mpi_lidar.physics import demod
 from mpi_lidar.scans.stored_map import StoredMap
@@ -31,6 +33,14 @@ from mpi_lidar.storage.variables import FIXED_SIZES, SCAN
 # The optional arrays of a scan (neither required nor a coordinate), in the order they are checked.
 OPTIONAL_ARRAYS: dict[str, tuple[str, ...]] = {
     v.name: v.dims for v in SCAN.values() if not v.required and not v.coordinate}
+
+
+# The speeds of light a scanner's firmware may convert phases to ranges with [m/s]: the physical value
+# 299,792,458 m/s, Table I's 3.0e8, or a value for air; anything outside is a wrong number or a wrong unit.
+SPEED_OF_LIGHT_BOUNDS_M_PER_S = (2.9e8, 3.1e8)
+# How far a wrapped depth may pass its frequency's wrap period before the period is wrong: a relative share of
+# the period [1] plus an absolute margin [m] (float32 rounding and a phase of 2 pi read back as one of 0).
+WRAP_TOLERANCE = (1e-3, 1e-3)
 
 
 class ScanError(StoreError):
@@ -73,6 +83,14 @@ class Scan:
     # unwrapped into one range by the scanner (False). Under the highest frequency's ambiguity distance
     # (4.8 m at 31.25 MHz) the two are the same.
     depth_wrapped: bool = True
+    # The speed of light the scanner converted phase to range with [m/s]: each frequency's depth wraps at
+    # c / 2f. Scans of the simulator record its own (Table I's 3.0e8 by default).
+    speed_of_light_m_per_s: float = TABLE_SPEED_OF_LIGHT_M_PER_S
+
+    @property
+    def wrap_periods_m(self) -> tuple[float, ...]:
+        """Each frequency's wrap period c / 2f, the depth at which its phase wraps. [m]"""
+        return tuple(float(p) for p in demod.unambiguous_range(self.frequencies_hz, self.speed_of_light_m_per_s))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -116,11 +134,13 @@ class Scan:
                        for maps in (self.depth, self.amplitude))
 
     def content_sha256(self) -> str:
-        """Identity of what correction reads: frequencies, depth and amplitude maps (and whether the depths are
-        wrapped), geometry."""
+        """Identity of what correction reads: frequencies, depth and amplitude maps (whether the depths are
+        wrapped, and the speed of light they were converted with), geometry."""
         digest = hashlib.sha256(json.dumps([float(f) for f in self.frequencies_hz]).encode())
         if not self.depth_wrapped:  # the common case leaves the identities of earlier scans as they were
             digest.update(b"depth unwrapped")
+        if self.speed_of_light_m_per_s != TABLE_SPEED_OF_LIGHT_M_PER_S:  # as above: Table I's c adds nothing
+            digest.update(json.dumps({"speed_of_light_m_per_s": float(self.speed_of_light_m_per_s)}).encode())
         for array in (self.depth, self.amplitude, self.azimuth_rad, self.elevation_rad, self.ray_directions):
             parts = array.c_order_parts() if isinstance(array, StoredMap) else [] if array is None else [array]
             for part in parts:
@@ -163,6 +183,7 @@ def validate(scan: Scan, source: str) -> Scan:
     if len(set(scan.frequencies_hz)) != f:
         raise ScanError(f"{source}: frequencies_hz has duplicates {list(scan.frequencies_hz)}; each frequency "
                         "is measured once")
+    check_speed_of_light(scan.speed_of_light_m_per_s, source)
     stored = isinstance(scan.depth, StoredMap) and isinstance(scan.amplitude, StoredMap)
     depth: NDArray | StoredMap = scan.depth if stored else np.asarray(scan.depth)
     amplitude: NDArray | StoredMap = scan.amplitude if stored else np.asarray(scan.amplitude)
@@ -191,6 +212,47 @@ def validate(scan: Scan, source: str) -> Scan:
         return replace(scan, depth=depth.astype(np.float32, copy=False),
                        amplitude=amplitude.astype(np.float32, copy=False))
     return scan
+
+
+def check_speed_of_light(c: object, source: str) -> float:
+    """The speed of light a scan's phases were converted with [m/s], checked: a finite number within
+    :data:`SPEED_OF_LIGHT_BOUNDS_M_PER_S`."""
+    low, high = SPEED_OF_LIGHT_BOUNDS_M_PER_S
+    if isinstance(c, bool) or not isinstance(c, int | float | np.floating | np.integer) or not low <= c <= high:
+        raise ScanError(f"{source}: speed_of_light_m_per_s is {c!r}, not a speed of light in m/s within "
+                        f"{low:.3g}-{high:.3g}; give the one the scanner converted phase to range with (299792458 "
+                        "in vacuum)")
+    return float(c)
+
+
+def check_wrap_periods(scan: Scan, source: str) -> None:
+    """Refuse a wrapped scan whose finite depth at some frequency passes that frequency's wrap period c / 2f
+    (beyond :data:`WRAP_TOLERANCE`): its depths are unwrapped already, or were converted with another c."""
+    if not scan.depth_wrapped:
+        return
+    relative, absolute = WRAP_TOLERANCE
+    maxima = _largest_per_frequency(scan.depth)
+    for f, period, largest in zip(scan.frequencies_hz, scan.wrap_periods_m, maxima, strict=True):
+        if largest > period * (1 + relative) + absolute:
+            raise ScanError(f"{source}: its depth at {f / 1e6:g} MHz reaches {largest:.4f} m, beyond that "
+                            f"frequency's wrap period {period:.4f} m (c / 2f with c = "
+                            f"{scan.speed_of_light_m_per_s:.9g} m/s); give the speed of light the scanner used "
+                            "(import-scan --speed-of-light M_PER_S), or import depths the scanner unwrapped with "
+                            "--depths unwrapped")
+
+
+def _largest_per_frequency(depth: NDArray | StoredMap) -> list[float]:
+    """The largest finite depth (F,) of each frequency's map [m] (-inf where none is finite); a stored map is
+    read a band of one frequency's rows at a time, past the band it keeps for correction's tiles."""
+    largest = np.full(depth.shape[0], -np.inf)
+    if isinstance(depth, StoredMap):  # its parts: each frequency's bands of rows, frequency by frequency
+        per_frequency = len(depth.row_bands())
+        for index, part in enumerate(depth.c_order_parts()):
+            finite = np.where(np.isfinite(part), part, -np.inf)
+            largest[index // per_frequency] = max(largest[index // per_frequency], finite.max(initial=-np.inf))
+        return [float(x) for x in largest]
+    values = np.asarray(depth).reshape(depth.shape[0], -1)
+    return [float(x) for x in np.where(np.isfinite(values), values, -np.inf).max(axis=1, initial=-np.inf)]
 
 
 def _check_dtype(source: str, name: str, values: NDArray | StoredMap) -> None:
@@ -222,5 +284,5 @@ def from_taps(name: str, frequencies_hz: tuple[float, ...], taps: NDArray, c: fl
     depth, amplitude = demod.depth_and_amplitude(moved, freqs, c)
     return Scan(name=name, frequencies_hz=tuple(frequencies_hz), depth=depth.astype(np.float32),
                 amplitude=amplitude.astype(np.float32), taps=taps.astype(np.float32),
-                scene={} if scene is None else scene, **extras)
+                scene={} if scene is None else scene, speed_of_light_m_per_s=float(c), **extras)
 

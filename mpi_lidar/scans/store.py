@@ -6,9 +6,10 @@ Store (``*.scan.zarr``, Zarr v3, schema ``mpi-lidar/scan@1``): ``depth`` and ``a
 demodulated; optional geometry: ``azimuth_rad`` (W,) and ``elevation_rad`` (H,) of the scan grid, or
 ``ray_directions`` (H, W, 3) unit vectors; optional ``reference_depth`` (H, W) [m] and ``reference_mask``
 (H, W) bool for evaluation. Root attributes: ``schema``, ``frequencies_hz``, ``name``, free ``scene``
-metadata and the chunk fingerprints ``chunk_sha256`` (required: a scan without them, or without some array's,
-is damaged; see :mod:`mpi_lidar.storage.integrity`). Every array is declared in
-:mod:`mpi_lidar.storage.variables` (``docs/reference/stores.md``).
+metadata, ``depth_wrapped``, ``speed_of_light_m_per_s`` (the c of each frequency's wrap period c / 2f; Table I's
+3.0e8 where absent, as in every store written before it) and the chunk fingerprints ``chunk_sha256`` (required:
+a scan without them, or without some array's, is damaged; see :mod:`mpi_lidar.storage.integrity`). Every array,
+and the root attributes, are declared in :mod:`mpi_lidar.storage.variables` (``docs/reference/stores.md``).
 
 For xarray (``xr.open_zarr``) the store also holds the coordinate ``frequency_hz`` (F,) [Hz] of the frequency
 dimension and, where the scan has no azimuth (elevation) grid, the pixel indices ``x`` (``y``); ``azimuth_rad``
@@ -30,7 +31,17 @@ from numpy.typing import DTypeLike, NDArray
 
 from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.errors import StoreError
-from mpi_lidar.scans.scan import OPTIONAL_ARRAYS, Scan, ScanError, from_taps, scan_extras, validate
+from mpi_lidar.locations import Location, location
+from mpi_lidar.scans.scan import (
+    OPTIONAL_ARRAYS,
+    Scan,
+    ScanError,
+    check_speed_of_light,
+    check_wrap_periods,
+    from_taps,
+    scan_extras,
+    validate,
+)
 from mpi_lidar.scans.stored_map import StoredMap
 from mpi_lidar.storage.atomic import atomic_path
 from mpi_lidar.storage.integrity import (
@@ -42,6 +53,7 @@ from mpi_lidar.storage.integrity import (
     verified_chunks,
     verify_array,
 )
+from mpi_lidar.storage.objects import list_files, zarr_store
 from mpi_lidar.storage.variables import SCAN, Store, attributes
 from mpi_lidar.threads import on_cores
 
@@ -75,6 +87,7 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
     """Write a scan store atomically (built beside ``path``, then renamed). Refuses to overwrite by default."""
     path = Path(path)
     scan = validate(scan, str(path))
+    check_wrap_periods(scan, str(path))
     if path.exists() and not overwrite:
         raise ScanError(f"{path} already exists; choose another name or remove it")
     with atomic_path(path, replace=overwrite, what="scan", error=ScanError) as staging:
@@ -88,6 +101,7 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
         scene = cast("JSON", scan.scene)  # free metadata that zarr writes as JSON
         group.attrs.update({"schema": SCAN_SCHEMA, "frequencies_hz": [float(f) for f in scan.frequencies_hz],
                             "name": scan.name, "scene": scene, "depth_wrapped": scan.depth_wrapped,
+                            "speed_of_light_m_per_s": float(scan.speed_of_light_m_per_s),
                             "chunk_sha256": store_fingerprints(group)})
         consolidate(staging)
     return path
@@ -152,21 +166,20 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
               ) -> Scan:
     """Read and validate a scan store; depth/amplitude are demodulated from taps when only taps are stored.
 
+    The scan's speed of light is the store's ``speed_of_light_m_per_s``, or ``c`` [m/s] for a store written
+    before it (Table I's 3.0e8, as they all were). A wrapped scan whose depth passes a frequency's wrap period is
+    refused (:func:`~mpi_lidar.scans.scan.check_wrap_periods`).
+
     A store whose depth and amplitude (and ray directions) take more than ``stored_above_bytes`` as float32
     keeps them in the store: they come as :class:`StoredMap`, every chunk checked against its fingerprint
     here (one chunk at a time) and read again where correction needs it, a band of rows at a time.
     """
-    path = Path(path)
-    if not path.exists():
-        raise ScanError(f"scan {path} does not exist")
-    # Links, FIFOs and devices inside the store, and oversized metadata, are refused before zarr opens a file.
-    try:
-        files = check_store_files(path) if path.is_dir() else {}
-    except IntegrityError as exc:
-        raise DamagedScanError(str(exc)) from None
+    where = location(path)
+    path = Path(where.path) if where.is_local else where.url  # a URL names the scan in every message
+    files = _store_files(where)
     try:
         # Each array's own metadata, not the consolidated copy: that is what the chunks were written with.
-        group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
+        group = zarr.open_group(store=zarr_store(where), mode="r", use_consolidated=False)
         attrs: dict[str, Any] = dict(group.attrs)  # JSON as stored: checked where it is used
         arrays = dict(group.arrays())  # opened together: one round trip to the store, not one per array
         members = set(arrays)
@@ -202,17 +215,20 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
         if "frequency_hz" in coordinates and not np.array_equal(coordinates["frequency_hz"], frequencies):
             raise ScanError(f"{path}: its frequency_hz array {coordinates['frequency_hz'].tolist()} differs from "
                             f"its frequencies_hz attribute {list(frequencies)}; the store was altered")
-        name = str(attrs.get("name") or path.name.removesuffix(SCAN_SUFFIX))
+        name = str(attrs.get("name") or where.name.removesuffix(SCAN_SUFFIX))
         scene = attrs.get("scene") or {}
         wrapped = attrs.get("depth_wrapped", True)  # absent in scans written before unwrapping: as measured
         if not isinstance(wrapped, bool):
             raise ScanError(f"{path}: its depth_wrapped attribute is {wrapped!r}, not true or false; the store was "
                             "altered")
+        # Absent in stores written before it, all made with Table I's c (or ``c``, which demodulates taps).
+        light = check_speed_of_light(attrs.get("speed_of_light_m_per_s", c), str(path))
         if {"depth", "amplitude"} <= members:
             scan = Scan(name=name, frequencies_hz=frequencies, depth=read("depth"), amplitude=read("amplitude"),
-                        taps=optional.get("taps"), scene=scene, depth_wrapped=wrapped, **scan_extras(optional))
+                        taps=optional.get("taps"), scene=scene, depth_wrapped=wrapped,
+                        speed_of_light_m_per_s=light, **scan_extras(optional))
         elif "taps" in members:
-            scan = from_taps(name, frequencies, optional["taps"], c, scene=scene, **scan_extras(optional))
+            scan = from_taps(name, frequencies, optional["taps"], light, scene=scene, **scan_extras(optional))
         else:
             raise ScanError(f"{path} has neither depth+amplitude nor taps; it is truncated or not a scan")
     except StoreError:  # ScanError and IntegrityError: already one clear line
@@ -220,7 +236,9 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
     except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:  # codecs raise RuntimeError
         reason = str(exc).splitlines()[0] if str(exc) else ""
         raise ScanError(f"{path} is damaged or truncated ({type(exc).__name__}: {reason})") from None
-    return validate(scan, str(path))
+    scan = validate(scan, str(path))
+    check_wrap_periods(scan, str(path))
+    return scan
 
 
 def _standing_in(stored: StoredMap) -> NDArray:
@@ -229,7 +247,24 @@ def _standing_in(stored: StoredMap) -> NDArray:
     return cast("NDArray", stored)
 
 
-def _check_declared_sizes(path: Path, arrays: Mapping[str, zarr.Array]) -> None:
+def _store_files(where: Location) -> dict[str, int]:
+    """Every file (object) of a scan store with its size, after refusing links, FIFOs, devices and oversized
+    metadata (before zarr opens anything); a store that does not exist is refused with one line."""
+    try:
+        if where.is_local:
+            path = where.local_path()
+            if not path.exists():
+                raise ScanError(f"scan {path} does not exist")
+            return check_store_files(path) if path.is_dir() else {}
+        files = list_files(where)
+    except IntegrityError as exc:
+        raise DamagedScanError(str(exc)) from None
+    if "zarr.json" not in files:
+        raise ScanError(f"scan {where} does not exist")
+    return files
+
+
+def _check_declared_sizes(path: Path | str, arrays: Mapping[str, zarr.Array]) -> None:
     """Refuse a store whose declared arrays exceed the memory budget, before allocating anything.
 
     A damaged or hostile store can declare 4 x 8000 x 8000 pixels in a few hundred bytes of metadata.
@@ -237,7 +272,7 @@ def _check_declared_sizes(path: Path, arrays: Mapping[str, zarr.Array]) -> None:
     check_memory_budget(path, [(f"array {name!r}", array.shape, array.dtype) for name, array in arrays.items()])
 
 
-def check_memory_budget(path: Path, declared: Sequence[tuple[str, tuple[int, ...], DTypeLike]]) -> None:
+def check_memory_budget(path: Path | str, declared: Sequence[tuple[str, tuple[int, ...], DTypeLike]]) -> None:
     """Refuse what a scan's arrays declare, (what, shape, dtype) each, beyond one array's or the scan's budget.
 
     Called with the declared shapes only (store metadata, .npy headers, NetCDF variables), before any value

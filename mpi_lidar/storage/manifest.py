@@ -92,22 +92,30 @@ def _listed(directory: Path) -> dict[str, dict[str, object]]:
         if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_METADATA_BYTES:
             raise IntegrityError(f"{path} is not a regular file of at most {MAX_METADATA_BYTES:,} bytes; correct "
                                  "the scan again")
-        data = json.loads(path.read_bytes()) if info.st_size else None
+        text = path.read_bytes() if info.st_size else b""
     except OSError as exc:
         raise IntegrityError(f"{directory}: its manifest {MANIFEST_FILE} cannot be read ({exc.strerror or exc}); "
                              "correct the scan again") from None
+    return manifest_entries(text, str(directory))
+
+
+def manifest_entries(text: bytes, where: str) -> dict[str, dict[str, object]]:
+    """The entries of a manifest's bytes (relative POSIX path -> bytes, sha256), checked for form; an empty,
+    malformed or foreign manifest is an :class:`IntegrityError` naming ``where``."""
+    try:
+        data = json.loads(text) if text else None
     except ValueError:
         data = {}
     files = data.get("files") if isinstance(data, dict) and data.get("schema") == MANIFEST_SCHEMA else None
     if data is None:
-        raise IntegrityError(f"{directory}: its files have no manifest (written before manifests, or interrupted); "
+        raise IntegrityError(f"{where}: its files have no manifest (written before manifests, or interrupted); "
                              "correct the scan again")
     if not isinstance(files, dict) or not all(
             isinstance(name, str) and not name.startswith("/") and ".." not in name.split("/")
             and isinstance(entry, dict) and isinstance(entry.get("bytes"), int)
             and isinstance(entry.get("sha256"), str) and HEX_FINGERPRINT.fullmatch(entry["sha256"])
             for name, entry in files.items()):
-        raise IntegrityError(f"{directory}: its manifest {MANIFEST_FILE} is malformed; correct the scan again")
+        raise IntegrityError(f"{where}: its manifest {MANIFEST_FILE} is malformed; correct the scan again")
     return files
 
 

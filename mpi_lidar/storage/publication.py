@@ -4,7 +4,9 @@ A batch (``mpi-lidar correct``, the correction flow) holds its output location f
 (:class:`OutputLock`), and publishes each output inside it whole or not at all: built under a staging name and
 published at once (:func:`mpi_lidar.storage.atomic.atomic_path`). While it holds the location it may remove
 the staging a killed batch left there, since no other batch writes there. :class:`LocalOutputLock` is the
-location on a local (or NFSv4) file system; :func:`output_lock` holds a local directory.
+location on a local (or NFSv4) file system; :func:`output_lock` holds a local directory;
+:class:`mpi_lidar.storage.objects.ObjectOutputLock` a prefix in an object store, whose outputs are published by
+a manifest written last instead of a rename (:func:`mpi_lidar.storage.objects.publish_directory`).
 """
 
 from __future__ import annotations

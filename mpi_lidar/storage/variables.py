@@ -9,7 +9,8 @@ declarations drive what the stores write and check:
 - the corrected store (``corrected.zarr``): the same attributes, through
   :func:`mpi_lidar.scans.store.write_described_arrays`;
 - the dataset store (``*.zarr`` of ``mpi-lidar simulate``): its arrays' dimensions, dtypes and attributes;
-- the reference page ``docs/reference/stores.md`` (:func:`reference_markdown`).
+- the reference page ``docs/reference/stores.md`` (:func:`reference_markdown`), with the root attributes of the
+  scan store (:data:`ATTRIBUTES`).
 
 ``kind`` is what a reader accepts (a numpy dtype kind: ``f`` floating point, ``b`` boolean, ``i`` signed and
 ``u`` unsigned integer), ``dtype`` what the project writes.
@@ -156,6 +157,41 @@ VARIABLES: tuple[Variable, ...] = (
 )
 
 
+@dataclass(frozen=True)
+class Attribute:
+    """One root attribute of one store (JSON in the store's metadata).
+
+    Attributes
+    ----------
+    name : The attribute's name.
+    store : The store that holds it.
+    units : Its units (``1`` for none).
+    meaning : What it is, and what a store without it reads as.
+    required : Whether every store of its kind holds it.
+    """
+
+    name: str
+    store: Store
+    units: str
+    meaning: str
+    required: bool = False
+
+
+ATTRIBUTES: tuple[Attribute, ...] = (
+    Attribute("schema", Store.SCAN, "1", "`mpi-lidar/scan@1`", required=True),
+    Attribute("frequencies_hz", Store.SCAN, "Hz", "the modulation frequencies, in the order of the frequency axis",
+              required=True),
+    Attribute("name", Store.SCAN, "1", "the scan's name (the store's name without `.scan.zarr` where absent)"),
+    Attribute("scene", Store.SCAN, "1", "free metadata (JSON object) of how the scan was made"),
+    Attribute("depth_wrapped", Store.SCAN, "1",
+              "whether each frequency's depth lies in [0, c / 2f), as its phase measures it (true where absent)"),
+    Attribute("speed_of_light_m_per_s", Store.SCAN, "m/s",
+              "the speed of light c the depths were converted from phases with: each frequency's wrap period is "
+              "c / 2f. 3.0e8 (Table I) where absent, as in stores written before it; within 2.9e8-3.1e8"),
+    Attribute("chunk_sha256", Store.SCAN, "1", "SHA-256 of every chunk of every array", required=True),
+)
+
+
 def variables(store: Store) -> dict[str, Variable]:
     """The variables of one store by name, in declaration order."""
     return {v.name: v for v in VARIABLES if v.store == store}
@@ -195,6 +231,10 @@ def reference_markdown() -> str:
             meaning = v.long_name + (f". {v.note}" if v.note else "")
             lines.append(f"| `{v.name}` | ({', '.join(v.dims)}) | `{v.kind}` | {v.dtype} | {v.units} | {role} "
                          f"| {meaning} |")
+        declared = [a for a in ATTRIBUTES if a.store == store]
+        if declared:
+            lines += ["", "Root attributes:", "", "| attribute | units | required | meaning |", "|---|---|---|---|"]
+            lines += [f"| `{a.name}` | {a.units} | {'yes' if a.required else 'no'} | {a.meaning} |" for a in declared]
     return "\n".join(lines) + "\n"
 
 

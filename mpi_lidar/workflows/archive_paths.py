@@ -22,7 +22,9 @@ import re
 from pathlib import Path, PurePosixPath
 
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.locations import Location, location
 from mpi_lidar.scans.store import SCAN_SUFFIX
+from mpi_lidar.storage.objects import filesystem, store_error
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")  # fullmatch: "$" would let a final newline pass
 SUMMARY_NAME = "summary"  # <out>/summary/: the batch summary (mpi_lidar.reporting.batch_report)
@@ -55,8 +57,13 @@ def scan_output_paths(sources: list[str]) -> dict[str, str]:
     """
     if not sources:
         return {}
-    absolute = {source: Path(os.path.abspath(source)) for source in sources}
-    root = Path(os.path.commonpath([str(path.parent) for path in absolute.values()]))
+    places = {source: location(source) for source in sources}
+    if len({place.scheme for place in places.values()}) > 1:
+        raise MpiLidarError("the scans of one batch must all be local or all in one kind of store; correct them in "
+                            "separate batches")
+    absolute = {source: PurePosixPath("/" + place.path) if not place.is_local
+                else Path(os.path.abspath(place.path)) for source, place in places.items()}
+    root = PurePosixPath(os.path.commonpath([str(path.parent) for path in absolute.values()]))
     outputs: dict[str, str] = {}
     for source, path in absolute.items():
         parts = list(path.relative_to(root).parts)
@@ -84,7 +91,7 @@ def _refuse_collisions(outputs: dict[str, str]) -> None:
                                     "separate batches or move one")
 
 
-def safe_output(out_dir: Path, output: str) -> Path:
+def safe_output(out_dir: Path | Location, output: str) -> Path | Location:
     """``out_dir`` joined with ``output`` after every component passed the safe-name rule."""
     for part in output.split("/"):
         safe_scan_name(part, "output directory component",
@@ -100,7 +107,11 @@ def expand_archive(inputs: list[str]) -> list[str]:
     """
     found: list[str] = []
     for item in inputs:
-        path = Path(item)
+        place = location(item)
+        if not place.is_local:
+            found += _expand_in_store(item, place)
+            continue
+        path = place.local_path()
         if glob.has_magic(item):
             matches = [m for m in sorted(glob.glob(item)) if _is_scan_store(Path(m))]
             if not matches:
@@ -120,6 +131,29 @@ def expand_archive(inputs: list[str]) -> list[str]:
         else:
             raise MpiLidarError(f"{item} is not a scan store (*{SCAN_SUFFIX}){_import_hint([item])}")
     return sorted(dict.fromkeys(found))
+
+
+def _expand_in_store(item: str, place: Location) -> list[str]:
+    """:func:`expand_archive` of one object-store URL: a scan store, a prefix holding some (one listing of its
+    children, none of their chunks) or a glob of them; the URLs found."""
+    fs = filesystem(place)
+    try:
+        if glob.has_magic(item):
+            candidates = sorted(str(m) for m in fs.glob(place.path))
+        elif fs.exists(f"{place.path}/zarr.json"):
+            return [place.url]
+        else:
+            candidates = sorted(str(m) for m in fs.ls(place.path, detail=False) if str(m).endswith(SCAN_SUFFIX))
+    except FileNotFoundError:
+        candidates = []
+    except Exception as exc:  # botocore raises many types
+        raise store_error(place, exc, "list") from None
+    found = [f"{place.scheme}://{m.removeprefix(place.scheme + '://').rstrip('/')}" for m in candidates
+             if m.rstrip("/").endswith(SCAN_SUFFIX)]
+    if not found:
+        raise MpiLidarError(f"{place} holds no *{SCAN_SUFFIX} store; give *{SCAN_SUFFIX} stores, a prefix or a glob "
+                            "of them")
+    return found
 
 
 def _is_scan_store(path: Path) -> bool:

@@ -2,7 +2,10 @@
 
 Per scan the outputs (``corrected.zarr``, report files, point clouds) go into a directory named after the scan
 store's path (:mod:`mpi_lidar.workflows.archive_paths`). Each scan's directory is built under a staging name and
-renamed into place (:mod:`mpi_lidar.storage.atomic`), so a scan's outputs are all there or not at all. A scan
+renamed into place (:mod:`mpi_lidar.storage.atomic`), so a scan's outputs are all there or not at all. Scans
+and ``out_dir`` may be object-store URLs (``s3://bucket/prefix``): outputs are then built the same way in a
+temporary directory and published by their manifest, written last
+(:mod:`mpi_lidar.workflows.remote_outputs`, :mod:`mpi_lidar.storage.objects`). A scan
 already corrected by the same model with the same options, its outputs intact, is skipped
 (:mod:`mpi_lidar.workflows.existing_outputs`). A batch holds its output directory for as long as it
 runs (:class:`~mpi_lidar.storage.publication.OutputLock`): a second batch into the same ``out_dir`` at the same
@@ -28,17 +31,26 @@ from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, cor
 from mpi_lidar.correction.outcome import scan_status
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, CorrectionModel, load_model
+from mpi_lidar.locations import Location, location
 from mpi_lidar.reporting.metrics import scan_metrics
 from mpi_lidar.reporting.output_levels import check_outputs
 from mpi_lidar.reporting.point_cloud_files import point_cloud_files, point_cloud_formats
 from mpi_lidar.reporting.scan_outputs import write_scan_outputs
 from mpi_lidar.scans.store import STORED_MAPS_ABOVE_BYTES, read_scan
 from mpi_lidar.storage.manifest import unsealed, write_manifest
+from mpi_lidar.storage.objects import ObjectOutputLock
 from mpi_lidar.storage.publication import LocalOutputLock
 from mpi_lidar.workflows.archive_paths import expand_archive, safe_output, safe_scan_name, scan_output_paths
 from mpi_lidar.workflows.batch_failure import FAIL_ON, batch_failure, failing_outcomes, failure_line
 from mpi_lidar.workflows.executor import Executor, as_executor
-from mpi_lidar.workflows.existing_outputs import already_done, existing_results, outputs_damage
+from mpi_lidar.workflows.existing_outputs import (
+    already_done,
+    existing_results,
+    has_files,
+    has_outputs,
+    outputs_damage,
+)
+from mpi_lidar.workflows.remote_outputs import written_at
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -80,10 +92,12 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
     try:
         if output is None:
             output = scan_output_paths([source])[source]
-        return _process_scan(source, Path(model_dir), safe_output(Path(out_dir), output), options, started,
-                             outputs, point_clouds, bundle_dir=Path(out_dir))
+        out = location(out_dir)
+        base = out.local_path() if out.is_local else out
+        return _process_scan(source, Path(model_dir), safe_output(base, output), options, started,
+                             outputs, point_clouds, bundle_dir=base, output=output)
     except Exception as exc:  # one bad scan, whatever went wrong, must not stop the batch
-        return ScanOutcome(source, Path(source).name, ScanStatus.FAILED, _one_line(exc),
+        return ScanOutcome(source, location(source).name, ScanStatus.FAILED, _one_line(exc),
                            seconds=time.perf_counter() - started)
 
 
@@ -130,21 +144,22 @@ def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None
     return tuple(signature)
 
 
-def _process_scan(source: str, model_dir: Path, target: Path, options: CorrectionOptions,
+def _process_scan(source: str, model_dir: Path, target: Path | Location, options: CorrectionOptions,
                   started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None,
-                  bundle_dir: Path | None = None) -> ScanOutcome:
+                  bundle_dir: Path | Location | None = None, output: str = "") -> ScanOutcome:
     share_one_heap()
     scan = read_scan(source, stored_above_bytes=STORED_MAPS_ABOVE_BYTES)  # a large scan stays in its store
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
     model_sha, options_sha = model.card.model_sha256, options.sha256()
     damage = None
-    if (target / "corrected.zarr").exists() or not scan.in_memory():
+    found = has_outputs(target)
+    if found or not scan.in_memory():
         scan_sha = scan.content_sha256()
         # What is skipped is verified first: every file the outputs' manifest lists, as written.
-        damage = outputs_damage(target) if (target / "corrected.zarr").exists() else None
-        done = damage is None and already_done(target, scan_sha, model_sha, options_sha, outputs) and all(
-            (target / name).is_file() for name in point_cloud_files(scan, outputs, point_clouds))
+        damage = outputs_damage(target) if found else None
+        done = damage is None and already_done(target, scan_sha, model_sha, options_sha, outputs) and has_files(
+            target, list(point_cloud_files(scan, outputs, point_clouds)))
         existing = existing_results(target) if done else None
         if existing is not None:
             counts, kept_reason = existing["counts"], existing["unserved"]
@@ -164,14 +179,14 @@ def _process_scan(source: str, model_dir: Path, target: Path, options: Correctio
     identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
     # A scan in memory is measured on a thread while its outputs are written; one in its store before (its
     # band of decoded rows would come on top of the writing's memory).
-    with ThreadPoolExecutor(1) as beside:
+    with ThreadPoolExecutor(1) as beside, written_at(target, bundle_dir, output) as (directory, bundle):
         measuring = beside.submit(scan_metrics, scan, correction) if scan.in_memory() else None
         metrics = scan_metrics(scan, correction) if measuring is None else {}
-        notes = write_scan_outputs(target, scan, correction, metrics if measuring is None else measuring, identity,
-                                   options, outputs, point_clouds=point_clouds, bundle_dir=bundle_dir)
+        notes = write_scan_outputs(directory, scan, correction, metrics if measuring is None else measuring,
+                                   identity, options, outputs, point_clouds=point_clouds, bundle_dir=bundle)
         metrics = metrics if measuring is None else measuring.result()
-    if unsealed(target):  # atomic_path wrote the manifest with the outputs; a marker left empty gets it now
-        write_manifest(target)
+        if unsealed(directory):  # atomic_path wrote the manifest with the outputs; a marker left empty gets it now
+            write_manifest(directory)
     if damage is not None:
         notes = [*notes, f"existing outputs were damaged, corrected again ({damage})"]
     counts = correction.counts()
@@ -207,19 +222,15 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     point_clouds = None if point_clouds is None else point_cloud_formats(level, point_clouds)
     _cached_model(str(model_dir))  # a broken model fails the whole batch at once, with one clear line
     make_gate(options)
-    out_dir = Path(out_dir)
+    out = location(out_dir)
     sources = expand_archive(inputs)
     directories = scan_output_paths(sources)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
-    lock = LocalOutputLock(out_dir)
+    lock = LocalOutputLock(_created(out.local_path())) if out.is_local else ObjectOutputLock(out)
     with lock.hold():  # a second batch into out_dir is refused while this one runs
         for folder in sorted({PurePosixPath(output).parent for output in directories.values()}):
             if ".." not in folder.parts:
                 lock.remove_interrupted(folder)
-        calls = [{"source": source, "model_dir": str(model_dir), "out_dir": str(out_dir), "options": options,
+        calls = [{"source": source, "model_dir": str(model_dir), "out_dir": out.url, "options": options,
                   "output": directories[source], "outputs": level, "point_clouds": point_clouds}
                  for source in sources]
         outcomes: list[ScanOutcome] = []
@@ -231,3 +242,11 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
         if on_done:  # the batch summary, written while the output directory is still this batch's
             on_done(outcomes)
     return outcomes
+
+
+def _created(out_dir: Path) -> Path:
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise MpiLidarError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
+    return out_dir

@@ -5,6 +5,11 @@ one without them, or without some array's, is damaged. A scan's output directory
 ``corrected.zarr`` chunk by chunk, and every file its manifest lists (:mod:`mpi_lidar.storage.manifest`).
 Declared shapes and chunk files are checked before anything is read, and the arrays are read one chunk at a
 time, so a store whose metadata declares 100000 x 100000 values is refused without allocating them.
+
+In an object store (``s3://...``) a scan's outputs exist only where published: a ``corrected.zarr`` (or an
+output folder) without its manifest fails, and every object the manifest lists is read and its SHA-256
+checked (:func:`mpi_lidar.storage.objects.verify_published`). Scans there are verified as on disk; datasets
+in a store are not yet.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import zarr
 
 from mpi_lidar.correction import CORRECTED_SCHEMA
 from mpi_lidar.errors import StoreError
+from mpi_lidar.locations import Location, location
 from mpi_lidar.scans.store import MAX_ARRAY_VALUES, SCAN_SCHEMA, read_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.integrity import (
@@ -26,7 +32,8 @@ from mpi_lidar.storage.integrity import (
     recorded_fingerprints,
     verified_chunks,
 )
-from mpi_lidar.storage.manifest import is_output_directory, verify_manifest
+from mpi_lidar.storage.manifest import MANIFEST_FILE, is_output_directory, verify_manifest
+from mpi_lidar.storage.objects import exists, list_files, verify_published, zarr_store
 from mpi_lidar.storage.variables import CORRECTED
 
 CORRECTED_STORE = "corrected.zarr"
@@ -46,7 +53,10 @@ class Verified:
 
 def verify_store(path: str | Path) -> Verified:
     """Check one store (a dataset, a scan, a corrected store or a scan's output directory); raise on damage."""
-    path = Path(path)
+    where = location(path)
+    if not where.is_local:
+        return _verify_in_store(where)
+    path = where.local_path()
     if path.is_dir() and (is_output_directory(path) or (path / CORRECTED_STORE).is_dir()):
         path = path / CORRECTED_STORE  # a scan's output directory: its files, then its store
     outputs = path.parent if path.name == CORRECTED_STORE and is_output_directory(path.parent) else None
@@ -73,25 +83,44 @@ def _schema(path: Path) -> object:
         raise StoreError(f"{path} is not a readable Zarr store ({type(exc).__name__})") from None
 
 
-def _verified_arrays(path: Path, kind: str, check: bool, files: int = 0) -> Verified:
+def _verify_in_store(where: Location) -> Verified:
+    """:func:`verify_store` of a URL: an output folder or its ``corrected.zarr`` (published), or a scan."""
+    if exists(where.joinpath(MANIFEST_FILE)):
+        where = where.joinpath(CORRECTED_STORE)
+    folder = where.parent if where.name == CORRECTED_STORE else None
+    if folder is not None:
+        listed = len(verify_published(folder))  # unpublished (no manifest) or differing: an IntegrityError
+        return _verified_arrays(where, "corrected output", check=True, files=listed)
+    try:
+        schema = zarr.open_group(store=zarr_store(where), mode="r").attrs.get("schema")
+    except Exception as exc:  # zarr raises several types for foreign or broken metadata
+        raise StoreError(f"{where} is not a readable Zarr store ({type(exc).__name__})") from None
+    if schema == SCAN_SCHEMA:
+        read_scan(where.url)
+        return _verified_arrays(where, "scan", check=False)
+    raise StoreError(f"{where} is not an mpi-lidar scan or published corrected output (schema {schema!r}); "
+                     "datasets in an object store cannot be verified yet")
+
+
+def _verified_arrays(path: Path | Location, kind: str, check: bool, files: int = 0) -> Verified:
     """Count (and, with ``check``, verify one chunk at a time) every chunk of every array against the store's
     recorded fingerprints, after its files, declared chunks and shapes passed."""
-    found = check_store_files(path)
+    found = check_store_files(path) if isinstance(path, Path) else list_files(path)
     try:
-        group = zarr.open_group(store=str(path), mode="r", use_consolidated=False)
+        group = zarr.open_group(store=zarr_store(location(path)), mode="r", use_consolidated=False)
         arrays = dict(group.arrays())
         attrs = dict(group.attrs)
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
         raise IntegrityError(f"{path}: its metadata cannot be read ({type(exc).__name__}); the store is damaged: "
                              "restore or regenerate it") from None
-    check_chunk_files(path, found, arrays)
-    fingerprints = recorded_fingerprints(path, attrs.get("chunk_sha256"), arrays)
+    check_chunk_files(str(path), found, arrays)
+    fingerprints = recorded_fingerprints(str(path), attrs.get("chunk_sha256"), arrays)
     if check:
         missing = sorted(name for name, v in CORRECTED.items() if v.required and name not in arrays)
         if missing:
             raise IntegrityError(f"{path}: array {missing[0]!r} is gone; the store is damaged: restore it or "
                                  "correct the scan again")
-        check_dimensions(path, arrays, {name: v.dims for name, v in CORRECTED.items()}, MAX_ARRAY_VALUES)
+        check_dimensions(str(path), arrays, {name: v.dims for name, v in CORRECTED.items()}, MAX_ARRAY_VALUES)
         for name, array in sorted(arrays.items()):
             for _ in verified_chunks(array, fingerprints[name], str(path), name):
                 pass

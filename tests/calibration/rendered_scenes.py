@@ -8,8 +8,8 @@ import numpy as np
 
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import CorrectionOptions, validity_flags
+from mpi_lidar.correction.sensor_reading import read_sensor
 from mpi_lidar.correction.validity import usable_depth_of
-from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import Rectangle, Scene, render
 
@@ -61,7 +61,9 @@ def rendered(scene: Scene, seed: int = 1, truth_out: dict | None = None, patch_s
 def depth_usable(scan: Scan) -> np.ndarray:
     """Highest-frequency depth (H*W,) of the pixels the depth rules alone keep, NaN elsewhere. [m]"""
     raw = scan.raw_pixels()
-    return usable_depth_of(raw, validity_flags(raw, DEPTH_RULES, NoiseModel.for_sensor(SENSOR, scan.frequencies_hz)))
+    # The scan's own noise law in its own unit: the consistency test needs no other.
+    noise = read_sensor(scan, SENSOR, CorrectionOptions(amplitude_scale=1.0)).noise
+    return usable_depth_of(raw, validity_flags(raw, DEPTH_RULES, noise))
 
 
 def in_units(scan: Scan, units_per_v2: float) -> Scan:

@@ -39,6 +39,24 @@ def test_profile__round_trip_and_no_overwrite(tmp_path):
     assert read_profile(path) == profile
 
 
+def test_profile__speed_of_light_and_each_scans_values_round_trip(tmp_path):
+    pooled = FootprintEstimate(0.02, 0.001, 900, 2, (EstimateMethod.REFERENCE,), 3)
+    profile = SensorProfile.from_estimate(pooled, ["a"], ["a: 0.02 m^2; c = 299792458 m/s"],
+                                          speed_of_light_m_per_s=299_792_458.0)
+    back = read_profile(write_profile(profile, tmp_path / "sensor.toml"))
+    assert back == profile and back.speed_of_light_m_per_s == 299_792_458.0
+    assert back.calibration is not None and back.calibration["scans"] == ["a: 0.02 m^2; c = 299792458 m/s"]
+    assert "speed_of_light_m_per_s = 299792458.0" in (tmp_path / "sensor.toml").read_text()
+
+
+@pytest.mark.parametrize("c", [3e5, 3.2e8, 3])
+def test_read_profile__a_speed_of_light_out_of_bounds_is_refused(tmp_path, c):
+    path = tmp_path / "sensor.toml"
+    path.write_text(f"footprint_area_m2 = 0.02\nspeed_of_light_m_per_s = {c}\n")
+    with pytest.raises(MpiLidarError, match=r"is invalid \(.*speed_of_light_m_per_s"):
+        read_profile(path)
+
+
 def test_from_estimate__none_leaves_a_field_out_and_the_sources_are_recorded():
     pooled = FootprintEstimate(0.02, 0.001, 900, 2, (EstimateMethod.REFERENCE,), 3)
     profile = SensorProfile.from_estimate(pooled, ["a"], noise_scale=None, range_m=(1.0, 2.0))

@@ -30,6 +30,7 @@ from tests.model_factory import tiny_model
 pytestmark = pytest.mark.integration
 
 README = Path(__file__).resolve().parents[2] / "README.md"
+ACTIVATE = "source .venv/bin/activate"
 SMALL_CONFIG = "[dataset]\nsamples = 3000\nchunk_rows = 1500\nseed = 3\n"
 
 
@@ -39,10 +40,20 @@ def readme_shell_blocks() -> list[str]:
 
 
 def own_scans_block() -> list[str]:
-    """The command lines of the README's "Correct your own scans" block (each a ``mpi-lidar`` command)."""
+    """The command lines of the README's "Correct your own scans" block (each a ``mpi-lidar`` command), after the
+    line that activates the environment, which the block starts with."""
     section = README.read_text().split("\n## Correct your own scans\n", 1)[1].split("\n## ", 1)[0]
     block = re.findall(r"```bash\n(.*?)```", section, flags=re.S)[0]
-    return [line for line in block.splitlines() if line.strip()]
+    lines = [line for line in block.splitlines() if line.strip()]
+    assert lines[0] == ACTIVATE, "the block activates the environment before its first mpi-lidar command"
+    return lines[1:]
+
+
+def test_readme__activates_the_environment_before_the_first_mpi_lidar_command():
+    text = README.read_text()
+    assert text.index(ACTIVATE) < text.index("\nmpi-lidar ")
+    venv = README.parent / ".venv" / "bin"
+    assert (venv / "activate").is_file() and (venv / "mpi-lidar").is_file(), "what the line puts on the PATH"
 
 
 def readme_commands() -> list[str]:

@@ -118,3 +118,40 @@ def test_main__leaves_the_environment_of_its_caller_as_it_was(monkeypatch, capsy
     monkeypatch.setenv("PYTHONWARNINGS", "error::DeprecationWarning")
     call_main(monkeypatch, capsys, "correct", "--frobnicate")
     assert os.environ["PYTHONWARNINGS"] == "error::DeprecationWarning"
+
+
+def _outcomes():
+    from mpi_lidar.correction import ScanOutcome, ScanStatus
+
+    long_note = "footprint estimate not significant (0.4 sigma): 1,204 pixels left uncalibrated; " * 6
+    counts = {"corrected": 10, "no_multipath": 80, "no_return": 10}
+    metrics = {"whole map": {"raw_mae_m": 0.0076, "corrected_mae_m": 0.0017}}
+    return [
+        ScanOutcome("s/a", "corridor_north_wing_2026-11-25_station_0001", ScanStatus.CORRECTED, counts=counts,
+                    metrics=metrics, notes=(long_note, "no reference depth")),
+        ScanOutcome("s/b", "flat_wall", ScanStatus.UNCHANGED, counts=counts, notes=("no reference depth",)),
+        ScanOutcome("s/c", "corner_fp30cm_6m_in_counts", ScanStatus.UNSERVED, counts=counts,
+                    reason="amplitude_units: 97 % of the pixels read as saturated; pass --amplitude-scale auto"),
+        ScanOutcome("s/d", "dark", ScanStatus.DEGRADED, counts={"no_return": 100}, notes=(long_note,)),
+    ]
+
+
+@pytest.mark.parametrize("width", [80, 120, None])
+def test_print_batch__fits_the_width_every_name_and_status_whole_notes_as_codes(width, capsys, monkeypatch):
+    from mpi_lidar.cli.correct import print_batch
+
+    monkeypatch.delenv("COLUMNS", raising=False)  # piped (width None): 80 columns
+    outcomes = _outcomes()
+    print_batch(outcomes, 2.5, "corrected/summary", width)
+    lines = capsys.readouterr().out.splitlines()
+    assert all(len(line) <= (width or 80) for line in lines), max(lines, key=len)
+    assert lines[0] == "4 scans in 2.5 s: 1 corrected, 1 unchanged, 1 degraded, 1 unserved"
+    for o in outcomes:
+        assert any(line.startswith(o.name) and f" {o.status} " in f"{line} " for line in lines), o.name
+    legend = [line for line in lines if line.startswith("n")]
+    assert [line.split(":")[0] for line in legend] == ["n1", "n2", "n3"]
+    assert "amplitude_units" in lines[lines.index(legend[0]) + 2]
+    assert lines[-1].startswith("summary: corrected/summary/report.html")
+    header = next(line for line in lines if line.startswith("scan "))
+    assert "seconds" not in header and "outputs" not in header and "masked" not in header, "empty columns go"
+    assert ("MAE [mm]" in header) == (width == 120)

@@ -48,7 +48,8 @@ def damaged(scan: Scan) -> Scan:
 
 @pytest.mark.unit
 def test_correct_scan__flags_say_what_was_done(pixelwise_model):
-    correction = correct_scan(damaged(two_path_scan("d")), load_model(pixelwise_model), CorrectionOptions(gate="all"))
+    options = CorrectionOptions(gate="all", saturation_amplitude_v2=0.7176)  # a threshold given, as a profile does
+    correction = correct_scan(damaged(two_path_scan("d")), load_model(pixelwise_model), options)
     assert [correction.flags[0, j] for j in range(4)] == [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED,
                                                          Flag.INCONSISTENT]
     assert np.isnan(correction.depth[0, :4]).all()
@@ -220,9 +221,9 @@ def test_geometry_gate__flat_wall_is_left_exactly_as_measured(pixelwise_model):
     assert (pixelwise.flags[valid] == Flag.CORRECTED).all()
     assert correction.multipath_bias_m is not None and float(correction.multipath_bias_m.max()) == 0.0
     notes = correction_notes(correction)
-    assert notes[0].startswith("amplitude unit auto: ") and "read as V^2" in notes[0]
-    assert len(notes) == 2 and notes[1].startswith("frequency offsets: ")
-    assert correction_notes(raw) == correction_notes(correction)[:1], "nothing fused, no offsets measured"
+    assert notes[0].startswith("noise law: measured on ") and notes[1].startswith("amplitude unit: V^2 (not given")
+    assert len(notes) == 3 and notes[2].startswith("frequency offsets: ")
+    assert correction_notes(raw)[1:] == correction_notes(correction)[1:2], "nothing fused, no offsets measured"
 
 
 @pytest.mark.unit
@@ -294,8 +295,8 @@ def test_geometry_gate__corner_is_corrected_near_its_edge_only(pixelwise_model):
 def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(pixelwise_model, tmp_path):
     scan = replace(two_path_scan("nogeo"), azimuth_rad=None, elevation_rad=None)
     correction = correct_scan(scan, load_model(pixelwise_model), CorrectionOptions())
-    assert correction_notes(correction)[1] == NO_GEOMETRY_NOTE and correction.frequency_offsets_m is None
-    assert "no scene geometry" in correction_notes(correction)[2]
+    assert correction_notes(correction)[2] == NO_GEOMETRY_NOTE and correction.frequency_offsets_m is None
+    assert "no scene geometry" in correction_notes(correction)[3]
     assert (correction.flags == Flag.CORRECTED).all() and correction.multipath_bias_m is None
     write_scan(scan, tmp_path / "nogeo.scan.zarr")
     outcome = process_scan(tmp_path / "nogeo.scan.zarr", pixelwise_model, tmp_path / "out", CorrectionOptions(),
@@ -308,9 +309,9 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(pixelwise_m
 
 @pytest.mark.unit
 def test_flag__existing_codes_are_stable():
-    assert [int(f) for f in Flag] == list(range(10))
+    assert [int(f) for f in Flag] == list(range(11))
     assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0 and Flag.UNCALIBRATED == 8
-    assert Flag.AMBIGUOUS == 9
+    assert Flag.AMBIGUOUS == 9 and Flag.BEYOND_AMBIGUITY == 10
 
 
 @pytest.mark.unit

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mpi_lidar.correction.options import CorrectionOptions, Flag, UnservedReason
-from mpi_lidar.correction.status import AMBIGUOUS_SHARE, SATURATED_UNITS_SHARE, unknown_unit, unserved_reason
+from mpi_lidar.correction.status import AMBIGUOUS_SHARE, SATURATED_UNITS_SHARE, unserved_reason, untrusted_unit
 
 pytestmark = pytest.mark.unit
 
@@ -47,7 +47,7 @@ def test_unserved_reason__not_finite_pixels_do_not_count_towards_the_shares():
     assert unserved_reason(flags, RANGE, CorrectionOptions()).reason == UnservedReason.AMPLITUDE_UNITS
 
 
-def test_unknown_unit__says_why_and_what_helps():
-    why = unknown_unit("too few pixels")
-    assert why.reason == UnservedReason.AMPLITUDE_UNITS and "too few pixels" in why.message
-    assert "--amplitude-scale" in why.message
+def test_untrusted_unit__says_why_and_what_helps():
+    why = untrusted_unit("surfaces 4000 times brighter than white")
+    assert why.reason == UnservedReason.AMPLITUDE_UNITS and "4000 times brighter" in why.message
+    assert "--amplitude-scale" in why.message and "fused depths are written" in why.message

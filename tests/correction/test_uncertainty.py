@@ -7,14 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mpi_lidar.config import Config, SensorConfig
+from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, correct_scan
 from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.options import Estimate
 from mpi_lidar.correction.uncertainty import corrected_uncertainty_m, footprint_left_open
 from mpi_lidar.learning.error_model import corrected_sigma_m
 from mpi_lidar.learning.model import UncertaintyCard, load_model
-from mpi_lidar.physics.noise import fused_depths
 from mpi_lidar.simulation.scenes import corner, render
 from tests.model_factory import tiny_model
 
@@ -72,7 +71,8 @@ def test_correct_scan__corrected_pixels_take_the_cards_uncertainty_model(geometr
     corrected = correction.estimate == Estimate.CORRECTED
     assert corrected.sum() > 50
     raw = scan.raw_pixels()[corrected.ravel()]
-    fused_sigma = fused_depths(raw, scan.frequencies_hz, SensorConfig()).sigma_m
+    assert correction.reading is not None
+    fused_sigma = correction.reading.noise.fuse(raw).sigma_m  # the scan's own noise law
     expected = corrected_sigma_m(UNCERTAINTY, fused_sigma, (correction.depth - correction.measured_depth)[corrected])
     np.testing.assert_allclose(correction.uncertainty_m[corrected], expected, rtol=1e-5)
     old = correct_scan(scan, geometric_model, options)

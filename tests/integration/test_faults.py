@@ -43,7 +43,7 @@ from tests.scan_factory import two_path_scan
 pytestmark = pytest.mark.slow
 
 SCAN_OUTPUTS = {"corrected.zarr", "maps.png", "error_hist.png", "point_cloud.png", "raw.ply", "corrected.ply",
-                "corrected.laz", "report.md", "report.html", "metrics.json", ".mpi-lidar-report"}
+                "corrected.laz", "report.md", "report.html", "metrics.json", ".mpi-lidar-report", "thumbnail.png"}
 STAGING = re.compile(r"^\.scan\d{3}\.writing-[0-9a-f]{8}$")
 BATCH = 4  # scans of a batch on the cluster: two workers, so a killed one has a scan to lose and more queued
 CLI_BATCH = 4  # scans of the command-line batch killed after the first two

@@ -113,12 +113,16 @@ def _batch(work: Path, model: Path) -> dict[str, Path]:
     wall = render(flat_wall(height=24, width=32), Config(), np.random.default_rng(1))
     write_scan(wall, scans / "flat_wall.scan.zarr")
     write_scan(_no_valid_pixel("dark"), scans / "dark.scan.zarr")
+    # no scan grid for a geometric model: the model cannot serve it
+    write_scan(replace(wall, name="wall_no_grid", azimuth_rad=None, elevation_rad=None),
+               scans / "wall_no_grid.scan.zarr")
     out = work / "batch"
     # Amplitudes in V^2, given: the dark scan's amplitudes are below the no-light noise in that unit.
     outcomes = correct_archive([str(scans)], model, out, CorrectionOptions(gate="geometry", amplitude_scale=1.0),
                                outputs="full")
     statuses = {o.name: o.status for o in outcomes}
     assert statuses[LONG_NAME] == "corrected" and statuses["flat_wall"] == "unchanged", outcomes
+    assert statuses["wall_no_grid"] == "unserved", outcomes
     write_batch_report(outcomes, 1.0, out)
     return {"scan-full": out / LONG_NAME / "report.html", "scan-flat-wall": out / "flat_wall" / "report.html",
             "scan-no-valid-pixel": out / "dark" / "report.html", "batch": out / "summary" / "report.html"}
@@ -216,3 +220,19 @@ def test_reports__every_kind_fits_a_1280_pixel_window_in_chromium(chromium, repo
         assert "nan" not in re.findall(r"[a-z]+", findings["text"].lower()), kind
     assert seen["scan-full"]["plots"] and seen["scan-full"]["images"], "the full report shows its figures"
     assert not seen["scan-no-valid-pixel"]["images"] and not seen["scan-no-valid-pixel"]["plots"]
+
+
+def test_batch_summary__four_scans_one_unserved_fit_1280_by_800(chromium, reports, tmp_path):
+    shot = tmp_path / "batch-summary.png"
+    findings = browse(chromium, reports["batch"], screenshot=shot, height_px=800)
+    assert findings["scrollWidth"] <= WINDOW_PX and findings["problems"] == [], findings["scrollWidth"]
+    assert shot.is_file() and shot.stat().st_size > 0
+    text = findings["text"]
+    assert "4 scans in" in text and "1 unserved" in text
+    rows = [line for line in text.splitlines() if line.split("\t")[0] in (LONG_NAME, "flat_wall", "dark",
+                                                                         "wall_no_grid")]
+    assert [row.split("\t")[0] for row in rows][:2] == ["wall_no_grid", "dark"] or \
+        [row.split("\t")[0] for row in rows][:2] == ["dark", "wall_no_grid"], "problem rows first"
+    assert all("⚠" in row for row in rows[:2])
+    html = reports["batch"].read_text()
+    assert "<details>" in html and "status-chart" in html and "Made by: model" in html

@@ -5,11 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mpi_lidar.correction.amplitude_unit import AmplitudeUnit
+from mpi_lidar.config import PAPER_FREQUENCIES_HZ, SensorConfig
 from mpi_lidar.correction.baseline import FrequencyOffsets, OffsetSource
 from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.result import Correction
-from mpi_lidar.reporting.correction_notes import correction_notes, offsets_mm
+from mpi_lidar.correction.sensor_reading import SensorReading
+from mpi_lidar.physics.noise import NoiseModel
+from mpi_lidar.physics.noise_law import NoiseLaw
+from mpi_lidar.reporting.correction_notes import correction_notes, offsets_mm, reading_notes
 
 pytestmark = pytest.mark.unit
 
@@ -20,21 +23,36 @@ def test_correction_notes__nothing_to_say_for_a_plain_correction():
     assert correction_notes(Correction(**MAPS)) == ()
 
 
+def _reading(law: NoiseLaw | None, given: bool = False, contradiction: str = "") -> SensorReading:
+    noise = NoiseModel.for_sensor(SensorConfig(), PAPER_FREQUENCIES_HZ)
+    return SensorReading(4000.0 if given else 1.0, given, contradiction, law, noise, np.full(4, np.inf))
+
+
 def test_correction_notes__each_stage_in_order():
-    unit = AmplitudeUnit(4012.0, 0.012, 9000, True)
+    law = NoiseLaw(1.02, 0.98, 0.02, 0.03, 9000, 0.02, True)
     footprint = FootprintEstimate(0.031, 0.004, 1200, 2)
     offsets = FrequencyOffsets(np.array([0.0011, 0.0, -0.0002, 0.0]), True, OffsetSource.MEASURED,
                                np.array([0.0015, 0.0001, -0.0001, 0.0]))
-    notes = correction_notes(Correction(**MAPS, amplitude_unit=unit, scene_notes=("a scene note",),
+    notes = correction_notes(Correction(**MAPS, reading=_reading(law), scene_notes=("a scene note",),
                                         calibration=footprint, beyond_prior_pixels=17, prior_reach=(1.0, 0.15),
                                         offsets=offsets))
-    assert len(notes) == 5
-    assert notes[0].startswith("amplitude unit auto: 4012 +- 48 per V^2") and notes[0].endswith("divided by it")
-    assert notes[1] == "a scene note"
-    assert notes[2].startswith("footprint auto: 0.031 +- 0.004 m^2 from 1,200 pixels on 2 surfaces")
-    assert notes[3].startswith("17 corrected pixels have multipath beyond") and "rho_ABA above 1 " in notes[3]
-    assert "+1.100, +0.000, -0.200, +0.000 mm" in notes[4] and "leakage removed first" in notes[4]
-    assert "+1.500, +0.100, -0.100, +0.000 mm otherwise" in notes[4]
+    assert len(notes) == 6
+    assert notes[0].startswith("noise law: measured on 9,000 pixels") and "read noise 1.02 +- 0.02" in notes[0]
+    assert notes[1].startswith("amplitude unit: V^2 (not given")
+    assert notes[2] == "a scene note"
+    assert notes[3].startswith("footprint auto: 0.031 +- 0.004 m^2 from 1,200 pixels on 2 surfaces")
+    assert notes[4].startswith("17 corrected pixels have multipath beyond") and "rho_ABA above 1 " in notes[4]
+    assert "+1.100, +0.000, -0.200, +0.000 mm" in notes[5] and "leakage removed first" in notes[5]
+    assert "+1.500, +0.100, -0.100, +0.000 mm otherwise" in notes[5]
+
+
+def test_reading_notes__a_unit_given_contradicted_or_a_law_not_measured():
+    unmeasured = NoiseLaw(float("nan"), float("nan"), float("inf"), float("inf"), 12, float("inf"), False, "too few")
+    law, unit = reading_notes(_reading(unmeasured, given=True))
+    assert law == "noise law: not measured (too few); the sensor model's is used"
+    assert unit == "amplitude unit: 4000 per V^2, as given"
+    _, contradicted = reading_notes(_reading(None, contradiction="too bright"))
+    assert "not V^2 (too bright)" in contradicted and "model was not applied" in contradicted
 
 
 def test_correction_notes__offsets_not_measured_say_why_and_a_profiles_say_nothing():

@@ -63,9 +63,9 @@ def test_point_cloud_formats__default_by_level_and_unknown_refused(model_dir, ar
     assert not (tmp_path / "out").exists(), "refused before anything is written"
 
 
-@pytest.mark.parametrize("amplitude_scale", [4000.0, "auto"])
+@pytest.mark.parametrize("amplitude_scale", [4000.0])
 def test_light__amplitudes_in_the_scanners_unit_reach_the_laz_in_v2(model_dir, archived, tmp_path, amplitude_scale):
-    """A scan in counts (4000 per V^2), its unit given or read: the LAZ's amplitude_v2 is the V^2 amplitude."""
+    """A scan in counts (4000 per V^2), its unit given: the LAZ's amplitude_v2 is the V^2 amplitude."""
     from dataclasses import replace
 
     import numpy as np
@@ -79,5 +79,4 @@ def test_light__amplitudes_in_the_scanners_unit_reach_the_laz_in_v2(model_dir, a
                            outputs="light")
     las = laspy.read(Path(outcome.output) / "corrected.laz")
     expected = np.asarray(scan.amplitude[-1])[np.asarray(las.row), np.asarray(las.column)]
-    # the unit read from the frequencies' scatter is within its reading's sd of 4000, not exactly it
-    np.testing.assert_allclose(np.asarray(las.amplitude_v2), expected, rtol=1e-6 if amplitude_scale != "auto" else 0.05)
+    np.testing.assert_allclose(np.asarray(las.amplitude_v2), expected, rtol=1e-6)

@@ -19,7 +19,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.reporting.figures import PLOTLY_JS, VIEW_3D_FALLBACK
 from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS, OutputLevel, covers
-from mpi_lidar.reporting.thumbnail import FLAG_COLOURS
+from mpi_lidar.reporting.thumbnail import FLAG_COLOURS, KEY_ROW_PX
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import cornered_board, render
 from mpi_lidar.workflows.correct_archive import process_scan
@@ -101,7 +101,7 @@ FILES = {
     "data": {"corrected.zarr", "metrics.json"},
     "light": {"corrected.zarr", "metrics.json", "report.md", "report.html", "thumbnail.png", "corrected.laz"},
     "full": {"corrected.zarr", "metrics.json", "report.md", "report.html", "maps.png", "error_hist.png",
-             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.laz"},
+             "point_cloud.png", "raw.ply", "corrected.ply", "corrected.laz", "thumbnail.png"},
 }
 GEOMETRY_FILES = {"point_cloud.png", "raw.ply", "corrected.ply", "corrected.laz"}
 
@@ -135,9 +135,13 @@ def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, l
 def test_thumbnail__written_at_level_light_with_its_legend(level_outputs):
     outcome = level_outputs("light")
     image = matplotlib.image.imread(Path(outcome.output) / "thumbnail.png")
-    assert image.shape[1] == 2 * 56 + 4 and image.shape[0] == 40  # small scans are shown at full size
+    # small scans are shown at full size, over a colour key with a line per few flags (at least 220 pixels wide)
+    assert image.shape[1] == max(2 * 56 + 4, 220) and image.shape[0] > 40 + 2 * KEY_ROW_PX
+    flags = np.asarray(image[40:, :, :3] * 255).round().astype(int).reshape(-1, 3)
+    swatch = tuple(int(FLAG_COLOURS[0][i:i + 2], 16) for i in (1, 3, 5))
+    assert (flags == swatch).all(axis=1).any(), "the key shows the corrected flag's colour"
     report = (Path(outcome.output) / "report.md").read_text()
-    assert "Thumbnail: corrected depth (left" in report and FLAG_COLOURS[0] in report
+    assert "Thumbnail: corrected depth (left" in report and "#" not in report.split("Thumbnail:")[1].split("\n")[0]
 
 
 @pytest.mark.integration

@@ -12,6 +12,7 @@ from plyfile import PlyData
 from mpi_lidar.scans.geometry import point_cloud
 from mpi_lidar.scans.pointcloud import (
     INTENSITY_MAX,
+    INTENSITY_PER_COUNT_V2,
     LAS_CLASS_LOW_NOISE,
     LAS_CLASS_UNCLASSIFIED,
     LAS_METADATA_RECORD_ID,
@@ -21,7 +22,6 @@ from mpi_lidar.scans.pointcloud import (
     correction_fields,
     generator,
     intensity_counts,
-    intensity_scale,
     las_metadata,
     write_las,
     write_ply,
@@ -79,7 +79,7 @@ def test_write_las__laspy_reads_points_and_every_field(tmp_path, cloud, suffix):
     assert not np.any(las.withheld) and set(las.classification) == {LAS_CLASS_UNCLASSIFIED}
 
 
-def test_write_las__intensity_is_the_amplitude_scaled_to_16_bits_with_the_scale_recorded(tmp_path, cloud):
+def test_write_las__intensity_is_the_amplitude_on_one_fixed_scale_recorded(tmp_path, cloud):
     points, fields = cloud
     las = laspy.read(write_las(tmp_path / "scan.laz", points, fields))
     keep = np.isfinite(points).all(axis=-1)
@@ -87,10 +87,16 @@ def test_write_las__intensity_is_the_amplitude_scaled_to_16_bits_with_the_scale_
     record = las_metadata(tmp_path / "scan.laz")
     scale = record["intensity"]["per_count"]
     assert record["intensity"]["field"] == "amplitude_v2"
-    assert scale == pytest.approx(amplitude.max() / INTENSITY_MAX, rel=1e-12)
+    assert scale == INTENSITY_PER_COUNT_V2, "one scale for every file of an archive"
     intensity = np.asarray(las.intensity)
-    assert intensity.max() == INTENSITY_MAX and intensity.min() > 0, "blank intensity is what viewers showed before"
-    np.testing.assert_allclose(intensity * scale, amplitude, atol=scale / 2 * (1 + 1e-9))
+    expected = np.clip(np.rint(amplitude / scale), 0, INTENSITY_MAX)
+    np.testing.assert_array_equal(intensity, expected)
+    assert intensity.min() > 0, "blank intensity is what viewers showed before"
+    # twice the amplitude: twice the intensity, not the same file-relative counts
+    doubled = laspy.read(write_las(tmp_path / "doubled.laz", points,
+                                   {**fields, "amplitude_v2": 2 * fields["amplitude_v2"]}))
+    unclipped = expected < INTENSITY_MAX / 2
+    np.testing.assert_allclose(np.asarray(doubled.intensity)[unclipped], 2 * intensity[unclipped], atol=1)
     description = next(p.description for p in las.point_format.extra_dimensions if p.name == "amplitude_v2")
     assert f"{scale:.2e}" in description
 
@@ -138,9 +144,7 @@ def test_correction_fields__uncertainty_an_extra_field_when_given(tmp_path, clou
     assert {p.name: p.description for p in las.point_format.extra_dimensions}["uncertainty_m"].endswith("[m]")
 
 
-def test_intensity_scale__nan_and_dark_inputs():
-    assert intensity_scale(np.array([np.nan, 2.0, np.inf, 1.0])) == pytest.approx(2.0 / INTENSITY_MAX)
-    assert intensity_scale(np.array([np.nan, 0.0])) == 1.0 and intensity_scale(np.array([])) == 1.0
+def test_intensity_counts__nan_negative_and_clipped():
     counts = intensity_counts(np.array([np.nan, -1.0, 1.0, 2.0, 5.0]), 2.0 / INTENSITY_MAX)
     np.testing.assert_array_equal(counts, [0, 0, 32768, INTENSITY_MAX, INTENSITY_MAX])
 

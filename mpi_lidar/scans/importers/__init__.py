@@ -27,7 +27,7 @@ from mpi_lidar.scans.importers.base import (
 )
 from mpi_lidar.scans.importers.netcdf import NetcdfImporter, load_netcdf
 from mpi_lidar.scans.importers.npz import NpzImporter, load_npz
-from mpi_lidar.scans.scan import Scan, ScanError
+from mpi_lidar.scans.scan import Scan, ScanError, check_wrap_periods
 from mpi_lidar.scans.store import MAX_SCAN_BYTES, SCAN_SUFFIX, read_scan, write_scan
 
 __all__ = ["IMPORTERS", "IMPORT_SUFFIXES", "MAX_FILE_BYTES", "SCAN_VARIABLES", "ScanImporter", "check_regular_file",
@@ -46,7 +46,7 @@ def importer_for(path: Path) -> ScanImporter | None:
 
 
 def load_scan_file(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
-                   variables: Mapping[str, str] | None = None) -> Scan:
+                   variables: Mapping[str, str] | None = None, speed_of_light_m_per_s: float | None = None) -> Scan:
     """Import one file by its suffix: ``.npz`` (:func:`load_npz`), ``.nc``/``.h5``/``.hdf5`` (:func:`load_netcdf`).
 
     Only a regular file of at most :data:`MAX_FILE_BYTES` is opened (every importer checks it with
@@ -57,7 +57,7 @@ def load_scan_file(path: str | Path, frequencies_hz: tuple[float, ...] | None = 
     if importer is None:
         raise ScanError(f"{path}: cannot import {path.suffix.lower() or 'a file without suffix'}; give "
                         f"{', '.join(IMPORT_SUFFIXES)}")
-    return importer.load(path, frequencies_hz, variables)
+    return importer.load(path, frequencies_hz, variables, speed_of_light_m_per_s)
 
 
 def find_scan_files(sources: Sequence[str | Path]) -> list[Path]:
@@ -120,11 +120,15 @@ def plan_import(files: Sequence[Path], out: str | Path) -> list[tuple[Path, Path
 
 def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float, ...] | None = None,
                  variables: Mapping[str, str] | None = None,
-                 on_scan: Callable[[Scan, Path], None] | None = None, depth_wrapped: bool = True) -> list[Path]:
+                 on_scan: Callable[[Scan, Path], None] | None = None, depth_wrapped: bool = True,
+                 speed_of_light_m_per_s: float | None = None) -> list[Path]:
     """Import every (source, store) pair of :func:`plan_import`: all or nothing.
 
     ``depth_wrapped``: whether the files' depths are each frequency's wrapped depth (a phase's, the default)
     or one range the scanner unwrapped already; the stores record it (:attr:`Scan.depth_wrapped`).
+    ``speed_of_light_m_per_s``: the speed of light the scanner converted phase to range with [m/s], where the
+    files do not say (else the physical 299,792,458 m/s); a wrapped depth beyond its frequency's wrap period
+    c / 2f refuses the import (:func:`~mpi_lidar.scans.scan.check_wrap_periods`).
 
     Every file is read and validated before the first store is written, so one bad file refuses the whole
     import with its error and nothing is written. Scans that fit :data:`MAX_SCAN_BYTES` together are kept
@@ -138,8 +142,14 @@ def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float,
     """
     loaded: list[Scan | None] = []
     held = 0
+    def load(source: Path) -> Scan:
+        scan = replace(load_scan_file(source, frequencies_hz, variables, speed_of_light_m_per_s),
+                       depth_wrapped=depth_wrapped)
+        check_wrap_periods(scan, str(source))
+        return scan
+
     for source, _ in plan:
-        scan = load_scan_file(source, frequencies_hz, variables)
+        scan = load(source)
         size = scan.depth.nbytes + scan.amplitude.nbytes + (0 if scan.taps is None else scan.taps.nbytes)
         keep = held + size <= MAX_SCAN_BYTES
         held += size if keep else 0
@@ -152,11 +162,11 @@ def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float,
     published: list[Path] = []
     try:
         for (source, target), kept in zip(plan, loaded, strict=True):
-            scan = kept if kept is not None else load_scan_file(source, frequencies_hz, variables)
+            scan = kept if kept is not None else load(source)
             staging = target.parent / f".{target.name}.writing-{uuid.uuid4().hex[:8]}"
             staged.append((staging, target))
             try:
-                write_scan(replace(scan, depth_wrapped=depth_wrapped), staging)
+                write_scan(scan, staging)
             except ScanError as exc:  # name the store the user asked for, not its staging name
                 raise ScanError(str(exc).replace(str(staging), str(target))) from None
         for staging, target in staged:

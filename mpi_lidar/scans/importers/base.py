@@ -16,12 +16,26 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
-from mpi_lidar.scans.scan import OPTIONAL_ARRAYS, Scan, ScanError, from_taps, scan_extras, validate
+from mpi_lidar.constants import SPEED_OF_LIGHT_M_PER_S
+from mpi_lidar.scans.scan import (
+    OPTIONAL_ARRAYS,
+    Scan,
+    ScanError,
+    check_speed_of_light,
+    from_taps,
+    scan_extras,
+    validate,
+)
 from mpi_lidar.scans.store import MAX_SCAN_BYTES
 
+# What sets a scan's wrap periods in a file: its speed of light [m/s] (a scalar), or the wrap period c / 2f of
+# each frequency [m] (F,).
+WRAP_VARIABLES = ("speed_of_light_m_per_s", "wrap_period_m")
 # The names a file's variables can be mapped to (``--var NAME=VARIABLE``): the scan store's own.
-SCAN_VARIABLES = ("depth", "amplitude", *OPTIONAL_ARRAYS, "frequencies_hz")
+SCAN_VARIABLES = ("depth", "amplitude", *OPTIONAL_ARRAYS, "frequencies_hz", *WRAP_VARIABLES)
+# How far the speeds of light of a file's wrap periods (c = 2 f L per frequency), or of a file and an option,
+# may differ and still be one speed of light [1]: float rounding of the periods, not another c.
+SPEED_OF_LIGHT_AGREEMENT = 1e-6
 # Other names of the same arrays, picked up in a file and accepted by ``--var``: the plain angle names (in
 # radians, or in the unit a NetCDF ``units`` attribute declares) and the store's frequency coordinate.
 ALIASES: dict[str, str] = {"azimuth": "azimuth_rad", "elevation": "elevation_rad", "frequency_hz": "frequencies_hz"}
@@ -63,17 +77,19 @@ class ScanImporter(ABC):
 
     @abstractmethod
     def load(self, path: Path, frequencies_hz: tuple[float, ...] | None = None,
-             variables: Mapping[str, str] | None = None) -> Scan:
+             variables: Mapping[str, str] | None = None, speed_of_light_m_per_s: float | None = None) -> Scan:
         """The scan in the file at ``path`` (see the class's contract)."""
 
 
 def import_arrays(
-    name: str, frequencies_hz: tuple[float, ...], arrays: dict[str, NDArray], c: float = TABLE_SPEED_OF_LIGHT_M_PER_S,
+    name: str, frequencies_hz: tuple[float, ...], arrays: dict[str, NDArray], c: float = SPEED_OF_LIGHT_M_PER_S,
     source: str | None = None,
 ) -> Scan:
     """A scan from plain arrays (e.g. an ``.npz`` from another tool): depth+amplitude or taps, plus extras.
 
-    ``source`` (default ``name``) names where the arrays come from in the error messages, e.g. the file.
+    ``c`` is the speed of light the scanner converted phase to range with [m/s] (the scan's, and what taps are
+    demodulated with); ``source`` (default ``name``) names where the arrays come from in the error messages, e.g.
+    the file.
     """
     source = source or name
     check_frequencies_in_hz(frequencies_hz, source)
@@ -86,7 +102,8 @@ def import_arrays(
         optional["reference_mask"] = _boolean_mask(source, optional["reference_mask"])
     if "depth" in arrays and "amplitude" in arrays:
         scan = Scan(name=name, frequencies_hz=tuple(frequencies_hz), depth=np.asarray(arrays["depth"]),
-                    amplitude=np.asarray(arrays["amplitude"]), taps=arrays.get("taps"), **scan_extras(optional))
+                    amplitude=np.asarray(arrays["amplitude"]), taps=arrays.get("taps"),
+                    speed_of_light_m_per_s=check_speed_of_light(c, source), **scan_extras(optional))
     elif "taps" in arrays:
         try:
             scan = from_taps(name, tuple(frequencies_hz), np.asarray(arrays["taps"]), c, **scan_extras(optional))
@@ -113,6 +130,46 @@ def check_frequencies_in_hz(frequencies_hz: Sequence[float], source: str) -> Non
         if f < MIN_MODULATION_HZ:
             raise ScanError(f"{source}: frequency {f:g} Hz is below {MIN_MODULATION_HZ:g} Hz; frequencies are in Hz "
                             f"({f:g} MHz is {f * 1e6:g})")
+
+
+def speed_of_light_of(source: str, frequencies_hz: Sequence[float], stored: NDArray | None = None,
+                      wrap_periods_m: NDArray | None = None, given: float | None = None) -> float:
+    """The speed of light a file's scan was converted with [m/s]: the file's ``speed_of_light_m_per_s``
+    (``stored``), or the one its per-frequency wrap periods c / 2f give (``wrap_periods_m``, c = 2 f L, the same
+    for every frequency), or ``given`` (``--speed-of-light``), or else the physical 299,792,458 m/s. Values that
+    disagree (beyond :data:`SPEED_OF_LIGHT_AGREEMENT`) are refused with one line."""
+    found: dict[str, float] = {}
+    if stored is not None:
+        values = np.asarray(stored)
+        if values.size != 1 or not np.issubdtype(values.dtype, np.number):
+            raise ScanError(f"{source}: speed_of_light_m_per_s must be one number in m/s, got {values.dtype}"
+                            f"{values.shape}")
+        found["its speed_of_light_m_per_s"] = check_speed_of_light(float(values.reshape(-1)[0]), source)
+    if wrap_periods_m is not None:
+        found["its wrap_period_m"] = _speed_of_periods(source, frequencies_hz, np.asarray(wrap_periods_m))
+    if given is not None:
+        found["--speed-of-light"] = check_speed_of_light(given, "--speed-of-light")
+    if not found:
+        return SPEED_OF_LIGHT_M_PER_S
+    (first, c), *others = found.items()
+    for what, other in others:
+        if abs(other - c) > SPEED_OF_LIGHT_AGREEMENT * c:
+            raise ScanError(f"{source}: {first} gives c = {c:.9g} m/s but {what} {other:.9g} m/s; give one (leave "
+                            "the file's out with --var ignore=VARIABLE)")
+    return c
+
+
+def _speed_of_periods(source: str, frequencies_hz: Sequence[float], periods: NDArray) -> float:
+    """The speed of light 2 f L of per-frequency wrap periods L [m], the same at every frequency [m/s]."""
+    if periods.shape != (len(frequencies_hz),) or not np.issubdtype(periods.dtype, np.number):
+        raise ScanError(f"{source}: wrap_period_m must hold one period in m per frequency ({len(frequencies_hz)}), "
+                        f"got {periods.dtype}{periods.shape}")
+    speeds = 2 * np.asarray(frequencies_hz, dtype=np.float64) * periods.astype(np.float64)
+    if not np.isfinite(speeds).all() or np.ptp(speeds) > SPEED_OF_LIGHT_AGREEMENT * abs(float(speeds.mean())):
+        listed = ", ".join(f"{c:.9g}" for c in speeds)
+        raise ScanError(f"{source}: wrap_period_m gives other speeds of light (2 f L) at its frequencies ({listed} "
+                        "m/s); each frequency's period is c / 2f of one c: check the periods and frequencies")
+    return check_speed_of_light(float(speeds.mean()), f"{source}: wrap_period_m")
 
 
 def _boolean_mask(name: str, mask: NDArray) -> NDArray[np.bool_]:

@@ -15,6 +15,7 @@ from mpi_lidar.scans.importers.base import (
     check_variables,
     import_arrays,
     select_variables,
+    speed_of_light_of,
     stored_frequencies,
 )
 from mpi_lidar.scans.scan import Scan, ScanError
@@ -29,8 +30,10 @@ _METRES = {"m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "
 _RADIANS = {"rad": 1.0, "radian": 1.0, "radians": 1.0, "deg": np.pi / 180, "degree": np.pi / 180,
             "degrees": np.pi / 180}
 _HERTZ = {"hz": 1.0, "khz": 1e3, "mhz": 1e6, "ghz": 1e9}
+_METRES_PER_SECOND = {"m/s": 1.0, "m s-1": 1.0, "m.s-1": 1.0, "m s^-1": 1.0, "km/s": 1e3, "km s-1": 1e3}
 UNITS = {"depth": ("m", _METRES), "reference_depth": ("m", _METRES), "azimuth_rad": ("rad", _RADIANS),
-         "elevation_rad": ("rad", _RADIANS), "frequencies_hz": ("Hz", _HERTZ)}
+         "elevation_rad": ("rad", _RADIANS), "frequencies_hz": ("Hz", _HERTZ), "wrap_period_m": ("m", _METRES),
+         "speed_of_light_m_per_s": ("m/s", _METRES_PER_SECOND)}
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _NETCDF3_MAGIC = b"CDF"
 
@@ -41,12 +44,12 @@ class NetcdfImporter(ScanImporter):
     suffixes: ClassVar[tuple[str, ...]] = (".nc", ".h5", ".hdf5")
 
     def load(self, path: Path, frequencies_hz: tuple[float, ...] | None = None,
-             variables: Mapping[str, str] | None = None) -> Scan:
-        return load_netcdf(path, frequencies_hz, variables)
+             variables: Mapping[str, str] | None = None, speed_of_light_m_per_s: float | None = None) -> Scan:
+        return load_netcdf(path, frequencies_hz, variables, speed_of_light_m_per_s)
 
 
 def load_netcdf(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
-                variables: Mapping[str, str] | None = None) -> Scan:
+                variables: Mapping[str, str] | None = None, speed_of_light_m_per_s: float | None = None) -> Scan:
     """Import a NetCDF (3 or 4) or HDF5 file through xarray: its variables named as in the scan store (or an
     alias: ``azimuth``, ``elevation``, ``azimuth_deg``, ``elevation_deg``, ``frequency_hz``), or mapped by
     ``variables`` (``{"depth": "range_m", "amplitude": "intensity", "azimuth_deg": "az"}``).
@@ -58,7 +61,10 @@ def load_netcdf(path: str | Path, frequencies_hz: tuple[float, ...] | None = Non
     ``frequencies_hz``; either way they are checked to be Hz (not MHz). CF decoding applies (``_FillValue``
     becomes NaN, ``scale_factor``), and a ``units`` attribute is converted (mm, cm or km to m, degrees to rad,
     kHz, MHz or GHz to Hz; other units are refused); a ``_deg`` name without ``units`` holds degrees. Each
-    variable's dtype and declared size are checked against the memory budget before anything is read.
+    variable's dtype and declared size are checked against the memory budget before anything is read. The speed
+    of light the depths were converted with [m/s] is the variable or global attribute ``speed_of_light_m_per_s``,
+    or that of ``wrap_period_m`` (each frequency's c / 2f [m], a variable or attribute), or
+    ``speed_of_light_m_per_s`` given, else 299,792,458 m/s (:func:`~mpi_lidar.scans.importers.base.speed_of_light_of`).
     """
     import xarray as xr
 
@@ -91,13 +97,20 @@ def load_netcdf(path: str | Path, frequencies_hz: tuple[float, ...] | None = Non
         stored = arrays.pop("frequencies_hz", None)
         if stored is None and "frequencies_hz" in ds.attrs:
             stored = np.atleast_1d(np.asarray(ds.attrs["frequencies_hz"]))
+        wrap = {name: arrays.pop(name, None) for name in ("speed_of_light_m_per_s", "wrap_period_m")}
+        for name, value in wrap.items():
+            if value is None and name in ds.attrs:
+                wrap[name] = np.atleast_1d(np.asarray(ds.attrs[name]))
     if frequencies_hz is not None:
         freqs: tuple[float, ...] | NDArray = frequencies_hz
     elif stored is not None:
         freqs = stored_frequencies(path, stored)
     else:
         raise ScanError(f"{path} holds no frequencies_hz variable or attribute; pass --frequencies")
-    return import_arrays(path.stem, tuple(float(f) for f in freqs), arrays, source=str(path))
+    frequencies = tuple(float(f) for f in freqs)
+    c = speed_of_light_of(str(path), frequencies, wrap["speed_of_light_m_per_s"], wrap["wrap_period_m"],
+                          speed_of_light_m_per_s)
+    return import_arrays(path.stem, frequencies, arrays, c, source=str(path))
 
 
 def _reason(exc: Exception) -> str:

@@ -16,6 +16,7 @@ from mpi_lidar.scans.importers.base import (
     check_variables,
     import_arrays,
     select_variables,
+    speed_of_light_of,
     stored_frequencies,
 )
 from mpi_lidar.scans.scan import Scan, ScanError
@@ -28,13 +29,17 @@ class NpzImporter(ScanImporter):
     suffixes: ClassVar[tuple[str, ...]] = (".npz",)
 
     def load(self, path: Path, frequencies_hz: tuple[float, ...] | None = None,
-             variables: Mapping[str, str] | None = None) -> Scan:
-        return load_npz(path, frequencies_hz, variables)
+             variables: Mapping[str, str] | None = None, speed_of_light_m_per_s: float | None = None) -> Scan:
+        return load_npz(path, frequencies_hz, variables, speed_of_light_m_per_s)
 
 
 def load_npz(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
-             variables: Mapping[str, str] | None = None) -> Scan:
+             variables: Mapping[str, str] | None = None, speed_of_light_m_per_s: float | None = None) -> Scan:
     """Import an ``.npz`` archive (arrays named as in the scan store; frequencies_hz inside or given).
+
+    The speed of light the depths were converted with [m/s] is the member ``speed_of_light_m_per_s`` (a scalar),
+    or that of the member ``wrap_period_m`` (each frequency's c / 2f [m]), or ``speed_of_light_m_per_s`` given,
+    else 299,792,458 m/s (:func:`~mpi_lidar.scans.importers.base.speed_of_light_of`).
 
     ``variables`` maps scan array names to the archive's member names (``{"depth": "range_m"}``,
     ``{"azimuth_deg": "az"}`` for degrees, ``{"ignore": "notes"}`` to leave members out); members it does not
@@ -66,7 +71,10 @@ def load_npz(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
         freqs = stored_frequencies(path, stored)
     else:
         raise ScanError(f"{path} holds no frequencies_hz array; pass --frequencies")
-    return import_arrays(path.name.removesuffix(".npz"), tuple(float(f) for f in freqs), arrays, source=str(path))
+    frequencies = tuple(float(f) for f in freqs)
+    c = speed_of_light_of(str(path), frequencies, arrays.pop("speed_of_light_m_per_s", None),
+                          arrays.pop("wrap_period_m", None), speed_of_light_m_per_s)
+    return import_arrays(path.name.removesuffix(".npz"), frequencies, arrays, c, source=str(path))
 
 
 def _check_npz_headers(path: Path) -> None:

@@ -27,7 +27,8 @@ def scan_from_phasors(name: str, gamma_phasor: NDArray, config: Config, rng: np.
     dc = np.abs(phasor) if dc_gamma is None else np.asarray(dc_gamma, dtype=np.float64)
     depth, amplitude = sense(phasor.reshape(f, -1).T, dc.reshape(f, -1).T, config, rng)
     return Scan(name=name, frequencies_hz=config.frequencies_hz, depth=depth.reshape(f, h, w).astype(np.float32),
-                amplitude=amplitude.reshape(f, h, w).astype(np.float32), **optional)
+                amplitude=amplitude.reshape(f, h, w).astype(np.float32),
+                speed_of_light_m_per_s=config.sensor.speed_of_light_m_per_s, **optional)
 
 
 def scan_from_transient(name: str, histogram: NDArray, bin_s: float, config: Config, rng: np.random.Generator,

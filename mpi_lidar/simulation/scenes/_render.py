@@ -37,6 +37,7 @@ def render(scene: Scene, config: Config, rng: np.random.Generator, *,
         depth=depth.reshape(-1, h, w).astype(np.float32), amplitude=amplitude.reshape(-1, h, w).astype(np.float32),
         azimuth_rad=scene.azimuth_rad, elevation_rad=scene.elevation_rad,
         reference_depth=reference.astype(np.float32), reference_mask=simple_region_mask(scene, which.reshape(h, w)),
+        speed_of_light_m_per_s=config.sensor.speed_of_light_m_per_s,
         scene={"scene": scene.name, "surfaces": len(scene.surfaces), "footprint_radius_m": footprint_radius_m,
                "coupling_gain": coupling_gain, **scene.notes, "patch_spacing_m": patch_spacing_m},
     )

@@ -373,7 +373,7 @@ def test_calibrate__refuses_scans_without_facing_surfaces(tmp_path, monkeypatch,
     write_scan(rendered(flat_wall(0.0), 0.041), tmp_path / "wall.scan.zarr")
     code, _, stderr = call_main(monkeypatch, capsys, "calibrate", str(tmp_path / "wall.scan.zarr"), "--out",
                                 str(tmp_path / "sensor.toml"), "--no-reference")
-    assert code == 2 and "no significant footprint" in stderr
+    assert code == 2 and "the scan gives no significant footprint" in stderr, "one scan, in the singular"
     assert_one_error_line(stderr)
     assert not (tmp_path / "sensor.toml").exists()
 
@@ -527,34 +527,30 @@ def test_calibrate__scans_in_counts_give_their_unit_and_correct_as_in_v2(tmp_pat
 
 
 @pytest.mark.unit
-def test_correct_scan__amplitude_unit_auto_measures_each_scans_own(tiny_geometric_model_dir):
+def test_correct_scan__a_unit_is_never_read_from_the_scatter_and_never_wrongly_applied(tiny_geometric_model_dir):
     from dataclasses import replace
 
     from mpi_lidar.correction import correct_scan
+    from mpi_lidar.correction.options import Estimate, UnservedReason
     from mpi_lidar.learning.model import load_model
 
     model = load_model(tiny_geometric_model_dir)
-    scan = rendered(room_corner(height=64, width=86), 0.02, seed=1)
-    # The raw baseline isolates the unit: the fused baseline also takes the noise and offsets the scan measured.
-    in_v2 = correct_scan(scan, model, CorrectionOptions(footprint_area_m2=0.02, baseline="raw"))
-    counts = replace(scan, amplitude=(scan.amplitude * 4000).astype(np.float32))
-    auto = correct_scan(counts, model, CorrectionOptions(footprint_area_m2=0.02, amplitude_scale="auto",
-                                                         baseline="raw"))
-    assert auto.unserved is None and correction_notes(auto)[0].startswith("amplitude unit auto: ")
-    assert 3600 < float(correction_notes(auto)[0].split()[3]) < 4400  # the unit, within 10 %
-    difference = np.abs(auto.depth - in_v2.depth)
-    assert np.nanmean(difference) < 0.05e-3 and auto.counts()["corrected"] > 0
-    # a corner alone has no flat surface away from its edge, but its frequencies' scatter reads its unit all the
-    # same: in V^2, in counts and x 0.01 it corrects to the same depths
     corner_scan = rendered(corner(90.0, 2.0, 0.8), 0.02)
-    runs = [correct_scan(replace(corner_scan, amplitude=(corner_scan.amplitude * unit).astype(np.float32)), model)
-            for unit in (1.0, 4000.0, 0.01)]
-    assert all(run.unserved is None and run.counts()["corrected"] > 0 for run in runs)
-    assert "read as V^2" in correction_notes(runs[0])[0] and "divided by it" in correction_notes(runs[1])[0]
-    error = [np.nanmean(np.abs(run.depth - corner_scan.reference_depth)) for run in runs]
-    # the reading scales with the unit: up to float32 rounding of the amplitudes, the same depths
-    np.testing.assert_allclose(runs[2].depth, runs[1].depth, rtol=0, atol=1e-5)
-    # in counts the unit read (within 2 %) divides the amplitudes; in V^2 it is read as V^2: a few corrected
-    # pixels move, the scan's error does not
-    assert np.nanmean(np.abs(runs[1].depth - runs[0].depth)) < 0.1e-3
-    assert abs(error[1] - error[0]) < 0.05e-3
+    scaled = {unit: replace(corner_scan, amplitude=(corner_scan.amplitude * unit).astype(np.float32))
+              for unit in (1.0, 4000.0, 0.01)}
+    # Without the unit: V^2 is corrected; counts and x 0.01 contradict V^2 (surfaces far too bright, far too dark)
+    # and are not corrected, their fused depths the same as in V^2.
+    runs = {unit: correct_scan(scan, model) for unit, scan in scaled.items()}
+    assert runs[1.0].unserved is None and runs[1.0].counts()["corrected"] > 0
+    for unit in (4000.0, 0.01):
+        assert runs[unit].unserved is not None and runs[unit].unserved.reason == UnservedReason.AMPLITUDE_UNITS
+        assert runs[unit].counts()["corrected"] == 0
+        fused = (runs[unit].estimate == Estimate.FUSED) & (runs[1.0].estimate == Estimate.FUSED)
+        assert fused.sum() > 1000
+        np.testing.assert_allclose(runs[unit].depth[fused], runs[1.0].depth[fused], rtol=0, atol=0.05e-3)
+    # With the unit given: the same correction as in V^2.
+    for unit in (4000.0, 0.01):
+        given = correct_scan(scaled[unit], model, CorrectionOptions(amplitude_scale=unit))
+        assert given.unserved is None
+        np.testing.assert_array_equal(given.flags, runs[1.0].flags)
+        np.testing.assert_allclose(given.depth, runs[1.0].depth, rtol=0, atol=0.05e-3)

@@ -46,10 +46,11 @@ def test_load_netcdf__plain_hdf5_with_store_names(tmp_path):
 
 
 def test_load_netcdf__a_scan_exported_from_xarray_comes_back(tmp_path):
-    """A scan store opened in xarray and saved as NetCDF imports again (frequency_hz coordinate)."""
+    """A scan store opened in xarray and saved as NetCDF imports again (frequency_hz coordinate, and the speed of
+    light its depths were converted with, an attribute of both)."""
     scan = replace(two_path_scan("round", height=6, width=5), reference_depth=None, reference_mask=None)
     ds = xr.open_zarr(write_scan(scan, tmp_path / "round.scan.zarr"))
-    ds.attrs = {}
+    ds.attrs = {"speed_of_light_m_per_s": ds.attrs["speed_of_light_m_per_s"]}
     ds.to_netcdf(tmp_path / "round.nc", engine="h5netcdf")
     back = load_scan_file(tmp_path / "round.nc")
     assert back.content_sha256() == scan.content_sha256()

@@ -88,7 +88,7 @@ def test_import_scan_cli__single_store_and_user_errors(tmp_path, monkeypatch, ca
     save_npz(tmp_path / "one.npz", "one")
     code, out, _ = call_main(monkeypatch, capsys, "import-scan", tmp_path / "one.npz", "--out",
                              tmp_path / "x.scan.zarr")
-    assert code == 0 and out.startswith("scan one: 6 x 5 pixels at 4 frequencies written to")
+    assert code == 0 and out.startswith("scan one: 6 x 5 pixels at 4 frequencies (c = 299792458 m/s) written to")
     assert read_scan(tmp_path / "x.scan.zarr").name == "one"
     save_npz(tmp_path / "two.npz", "two")
     for args, fragment in [

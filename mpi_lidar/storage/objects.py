@@ -1,0 +1,365 @@
+"""Object stores (S3 and its compatibles; read-only ``gs://`` and ``az://``): opening, listing, reading, and
+publishing a directory of outputs without a rename.
+
+Stores are reached through fsspec (``s3fs`` for S3), zarr arrays through zarr's own
+:class:`zarr.storage.FsspecStore`; every process (each Dask worker too) opens its own. Credentials and the
+endpoint come only from the store library's standard chains (for S3 the environment: ``AWS_ACCESS_KEY_ID``,
+``AWS_SECRET_ACCESS_KEY``, ``AWS_SESSION_TOKEN``, ``AWS_PROFILE``, ``AWS_ENDPOINT_URL``, ``AWS_DEFAULT_REGION``,
+the shared config files, an instance role): nothing here takes, stores or prints one.
+
+Guarantees of :func:`publish_directory` (one scan's outputs under ``<out>/<scan>/``), on S3:
+
+- Each object appears whole or not at all (one PUT each; S3 never shows a partial object).
+- The outputs are published by their manifest (:data:`~mpi_lidar.storage.manifest.MANIFEST_FILE`, the size and
+  SHA-256 of every file), written last with a conditional create (``If-None-Match: *``): the folder's outputs
+  exist, for every reader of this package (the re-run's skip, ``mpi-lidar verify``, the summary), only once
+  the manifest does, and then every object it lists must have its size (the skip) and digest (``verify``).
+  Objects under a folder with no manifest are never outputs: a killed batch leaves at most such objects,
+  and the next run deletes them before it writes the folder again.
+- Replacing published outputs first deletes the manifest (the folder is then unpublished), then the old
+  objects, then uploads and publishes the new ones; a reader that read the old manifest before sees a digest
+  that differs, never a mix passed off as whole.
+- Two writers cannot both publish one folder: the second conditional create is refused (one error line).
+  One batch at a time holds the output location (:class:`ObjectOutputLock`).
+
+Not guaranteed: durability beyond the store's own, a reader that reads the objects without their manifest,
+and publication on ``gs://`` or ``az://`` (writing there is refused).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager, suppress
+from pathlib import Path, PurePosixPath
+from typing import TYPE_CHECKING
+
+from mpi_lidar.errors import MpiLidarError, StoreError
+from mpi_lidar.locations import Location
+from mpi_lidar.storage.integrity import MAX_METADATA_BYTES, IntegrityError
+from mpi_lidar.storage.manifest import MANIFEST_FILE, manifest_entries
+from mpi_lidar.storage.publication import LOCK_FILE, OutputLock
+
+if TYPE_CHECKING:
+    from fsspec import AbstractFileSystem
+    from zarr.storage import FsspecStore
+
+WRITABLE_SCHEMES = ("s3",)
+# A lock whose holder has not renewed it for this long is taken over (a holder on this host that is gone at once).
+LOCK_LEASE_S = 60.0
+_RENEW_EVERY_S = LOCK_LEASE_S / 4
+
+
+def filesystem(where: Location) -> AbstractFileSystem:
+    """The fsspec file system of an object-store location (one per process and options, fsspec's cache);
+    listings are not cached, so every listing sees what other processes published."""
+    import fsspec
+
+    try:
+        return fsspec.filesystem(where.scheme, use_listings_cache=False)
+    except ImportError as exc:
+        raise MpiLidarError(f"{where}: the {where.scheme}:// store needs a library that is not installed "
+                            f"({exc.name}); install it (s3fs, gcsfs or adlfs)") from None
+
+
+def zarr_store(where: Location, read_only: bool = True) -> str | FsspecStore:
+    """What ``zarr.open_group(store=...)`` takes for ``where``: the path, or zarr's FsspecStore on it."""
+    if where.is_local:
+        return where.path
+    from zarr.storage import FsspecStore
+
+    return FsspecStore.from_url(where.url, storage_options={"use_listings_cache": False}, read_only=read_only)
+
+
+def store_error(where: Location, exc: BaseException, doing: str) -> MpiLidarError:
+    """One line for a failed store operation, naming the location, never the request (no credential)."""
+    reason = type(exc).__name__ if isinstance(exc, FileNotFoundError | PermissionError) else (
+        str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__)
+    return StoreError(f"cannot {doing} {where} ({reason}); check the URL, the endpoint (AWS_ENDPOINT_URL) and "
+                      "the credentials in the environment")
+
+
+def list_files(where: Location) -> dict[str, int]:
+    """Every object below ``where`` (relative POSIX path -> size), one listing; metadata objects over
+    :data:`~mpi_lidar.storage.integrity.MAX_METADATA_BYTES` are refused like a local store's."""
+    fs = filesystem(where)
+    try:
+        found = fs.find(where.path, detail=True)
+    except Exception as exc:  # botocore raises many types
+        raise store_error(where, exc, "list") from None
+    files: dict[str, int] = {}
+    prefix = where.path.rstrip("/") + "/"
+    for key, info in found.items():
+        key = key.removeprefix(f"{where.scheme}://")
+        if not key.startswith(prefix) or info.get("type") == "directory":
+            continue
+        relative, size = key[len(prefix):], int(info.get("size") or 0)
+        if PurePosixPath(relative).name == "zarr.json" and size > MAX_METADATA_BYTES:
+            raise IntegrityError(f"{where}: {relative} takes {size:,} bytes, more than the {MAX_METADATA_BYTES:,} a "
+                                 "store's metadata may; the store is damaged: restore or regenerate it")
+        files[relative] = size
+    return files
+
+
+def exists(where: Location) -> bool:
+    """Whether an object (or a prefix holding objects) is at ``where``."""
+    try:
+        return bool(filesystem(where).exists(where.path))
+    except Exception as exc:
+        raise store_error(where, exc, "reach") from None
+
+
+def read_bytes(where: Location, max_bytes: int = MAX_METADATA_BYTES) -> bytes | None:
+    """An object's bytes (at most ``max_bytes``, else refused); None if it does not exist."""
+    fs = filesystem(where)
+    try:
+        if fs.size(where.path) > max_bytes:
+            raise IntegrityError(f"{where} takes more than {max_bytes:,} bytes; it is not ours")
+        return bytes(fs.cat_file(where.path))
+    except FileNotFoundError:
+        return None
+    except StoreError:
+        raise
+    except Exception as exc:
+        raise store_error(where, exc, "read") from None
+
+
+def _writable(where: Location) -> None:
+    if where.scheme not in WRITABLE_SCHEMES:
+        raise MpiLidarError(f"{where}: writing to {where.scheme}:// is not supported yet (only "
+                            f"{', '.join(s + '://' for s in WRITABLE_SCHEMES)}); write the outputs to s3:// or a path")
+
+
+def write_object(where: Location, data: bytes, *, create: bool = False, if_match: str | None = None) -> str:
+    """Put one object (whole or not at all); ``create``: only if none is there (``If-None-Match: *``);
+    ``if_match``: only over the object of that ETag. A refused condition is :class:`FileExistsError`.
+    Returns the new object's ETag."""
+    _writable(where)
+    fs = filesystem(where)
+    kwargs: dict[str, object] = {"mode": "create"} if create else {}
+    if if_match is not None:
+        kwargs["IfMatch"] = if_match
+    try:
+        response = fs.pipe_file(where.path, data, **kwargs)
+    except Exception as exc:
+        if _precondition_failed(exc):
+            raise FileExistsError(str(where)) from None
+        raise store_error(where, exc, "write") from None
+    return str((response or {}).get("ETag", ""))
+
+
+def _precondition_failed(exc: BaseException) -> bool:
+    """Whether a store refused a conditional write (S3: 412 Precondition Failed, or 409 for a concurrent one)."""
+    text = f"{type(exc).__name__} {exc}"
+    return isinstance(exc, FileExistsError) or "PreconditionFailed" in text or "ConditionalRequestConflict" in text \
+        or "412" in text
+
+
+def remove_prefix(where: Location) -> None:
+    """Delete every object below ``where``, the manifest first (so the folder is unpublished before anything
+    it lists goes)."""
+    _writable(where)
+    fs = filesystem(where)
+    try:
+        fs.rm_file(f"{where.path}/{MANIFEST_FILE}")
+    except FileNotFoundError:
+        pass
+    except Exception as exc:
+        raise store_error(where, exc, "unpublish") from None
+    keys = [f"{where.path}/{name}" for name in list_files(where)]
+    if keys:
+        try:
+            fs.rm(keys)
+        except Exception as exc:
+            raise store_error(where, exc, "clear") from None
+
+
+def upload_files(local_dir: Path, where: Location, skip: tuple[str, ...] = ()) -> list[str]:
+    """Put every file under ``local_dir`` (but ``skip``) below ``where``, each a whole object; their names."""
+    _writable(where)
+    fs = filesystem(where)
+    names = sorted(p.relative_to(local_dir).as_posix() for p in local_dir.rglob("*") if p.is_file())
+    names = [n for n in names if n not in skip]
+    try:
+        fs.put([str(local_dir / n) for n in names], [f"{where.path}/{n}" for n in names])
+    except Exception as exc:
+        raise store_error(where, exc, "upload to") from None
+    return names
+
+
+def publish_directory(local_dir: Path, where: Location) -> list[str]:
+    """Publish the outputs built in ``local_dir`` (sealed: its manifest written) at ``where``, manifest last by
+    a conditional create (see the module docstring); the names uploaded. Refused with one line if another
+    writer published there meanwhile."""
+    manifest = local_dir / MANIFEST_FILE
+    remove_prefix(where)
+    names = upload_files(local_dir, where, skip=(MANIFEST_FILE,))
+    if manifest.is_file():
+        try:
+            write_object(where.joinpath(MANIFEST_FILE), manifest.read_bytes(), create=True)
+        except FileExistsError:
+            raise MpiLidarError(f"{where} was published by another writer while this one wrote it; its outputs are "
+                                "that writer's: run one batch per output location") from None
+        names.append(MANIFEST_FILE)
+    return names
+
+
+def published_damage(where: Location) -> str | None:
+    """None where ``where`` is published (its manifest there) and every object it lists is there with its size
+    (one listing and one read: a resume checks manifests, not bytes); else why not."""
+    try:
+        text = read_bytes(where.joinpath(MANIFEST_FILE))
+        if text is None:
+            return f"{where}: not published (no manifest {MANIFEST_FILE})"
+        listed = manifest_entries(text, str(where))
+        present = list_files(where)
+    except StoreError as exc:
+        return str(exc).splitlines()[0]
+    for name, entry in sorted(listed.items()):
+        if present.get(name) != entry["bytes"]:
+            return f"{where}: {name} is missing or not of the {entry['bytes']:,} bytes written"
+    return None
+
+
+def verify_published(where: Location) -> list[str]:
+    """Every object the manifest at ``where`` lists, present with its size and SHA-256 (each read once); the
+    names. A missing manifest or a differing object is an :class:`IntegrityError` naming it."""
+    import hashlib
+
+    damage = published_damage(where)
+    if damage is not None:
+        raise IntegrityError(f"{damage}; correct the scan again")
+    text = read_bytes(where.joinpath(MANIFEST_FILE)) or b""
+    listed = manifest_entries(text, str(where))
+    fs = filesystem(where)
+    for name, entry in sorted(listed.items()):
+        digest = hashlib.sha256()
+        try:
+            with fs.open(f"{where.path}/{name}", "rb") as file:
+                while block := file.read(2**22):
+                    digest.update(block)
+        except Exception as exc:
+            raise store_error(where.joinpath(name), exc, "read") from None
+        if digest.hexdigest() != entry["sha256"]:
+            raise IntegrityError(f"{where}: {name} is not the object written there (edited or replaced); correct "
+                                 "the scan again to restore it")
+    return sorted(listed)
+
+
+class ObjectOutputLock(OutputLock):
+    """An output prefix in an object store, held by the object ``<out>/`` :data:`LOCK_FILE`.
+
+    Taken by a conditional create (``If-None-Match: *``); the object names its holder (process, host, start)
+    and the time it was last renewed, which a thread of the holder does every :data:`LOCK_LEASE_S` / 4
+    seconds. A lock not renewed for :data:`LOCK_LEASE_S`, or whose holder on this host is no longer running,
+    is stale: it is taken over by a conditional overwrite of that very object (``If-Match`` its ETag), so of
+    two batches taking it over at once only one succeeds. Released by deleting it. Nested holds in one thread
+    are one hold. There is nothing to clean up in a folder (:meth:`remove_interrupted`): objects a killed batch
+    left unpublished are replaced where their scan is written again.
+    """
+
+    def __init__(self, out: Location):
+        self.out = out
+        self.lock = out.joinpath(LOCK_FILE)
+
+    def hold(self) -> AbstractContextManager[None]:
+        return self._hold()
+
+    def remove_interrupted(self, folder: PurePosixPath) -> None:
+        return None
+
+    @contextmanager
+    def _hold(self) -> Iterator[None]:
+        key = (self.lock.url, threading.get_ident())
+        with _held_lock:
+            nested = key in _held
+            _held[key] = _held.get(key, 0) + 1
+        if nested:
+            try:
+                yield
+            finally:
+                with _held_lock:
+                    _held[key] -= 1
+            return
+        try:
+            etag = self._take()
+            stop = threading.Event()
+            renewer = threading.Thread(target=self._renew, args=(etag, stop), daemon=True)
+            renewer.start()
+            try:
+                yield
+            finally:
+                stop.set()
+                renewer.join()
+                self._release()
+        finally:
+            with _held_lock:
+                del _held[key]
+
+    def _record(self) -> bytes:
+        started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
+        return json.dumps({"holder": f"pid {os.getpid()} on {socket.gethostname()}, started {started}",
+                           "pid": os.getpid(), "host": socket.gethostname(), "renewed": time.time()}).encode()
+
+    def _take(self) -> str:
+        for _ in range(5):
+            try:
+                return write_object(self.lock, self._record(), create=True)
+            except FileExistsError:
+                pass
+            info, etag = self._current()
+            if info is None:
+                continue  # released meanwhile: try again
+            if not _stale(info):
+                raise MpiLidarError(f"output location {self.out} is being written by another correct run "
+                                    f"({info.get('holder', 'unnamed')}); wait for it to finish or choose another --out")
+            try:
+                return write_object(self.lock, self._record(), if_match=etag)
+            except FileExistsError:
+                continue  # another batch took it over first
+        raise MpiLidarError(f"cannot lock output location {self.out}: its lock keeps changing; choose another --out")
+
+    def _current(self) -> tuple[dict[str, object] | None, str]:
+        fs = filesystem(self.lock)
+        try:
+            etag = str(fs.info(self.lock.path).get("ETag", ""))
+            data = json.loads(fs.cat_file(self.lock.path))
+        except FileNotFoundError:
+            return None, ""
+        except ValueError:
+            return {"renewed": 0.0}, etag  # not a lock we wrote whole: stale
+        return (data if isinstance(data, dict) else {"renewed": 0.0}), etag
+
+    def _renew(self, etag: str, stop: threading.Event) -> None:
+        while not stop.wait(_RENEW_EVERY_S):
+            try:
+                etag = write_object(self.lock, self._record(), if_match=etag)
+            except (FileExistsError, MpiLidarError):
+                return  # taken over or unreachable: the batch's own writes will say so
+
+    def _release(self) -> None:
+        with suppress(Exception):  # gone already, or unreachable: it goes stale
+            filesystem(self.lock).rm_file(self.lock.path)
+
+
+def _stale(info: dict[str, object]) -> bool:
+    renewed = info.get("renewed")
+    if not isinstance(renewed, int | float) or time.time() - renewed > LOCK_LEASE_S:
+        return True
+    pid = info.get("pid")
+    if info.get("host") == socket.gethostname() and isinstance(pid, int):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        except OSError:
+            return False
+    return False
+
+
+_held: dict[tuple[str, int], int] = {}
+_held_lock = threading.Lock()
