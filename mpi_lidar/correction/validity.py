@@ -77,7 +77,7 @@ def _no_return(amplitude: NDArray, options: CorrectionOptions, noise: NoiseModel
         return np.zeros(amplitude.shape[0], bool)
     floor = options.min_amplitude_sigmas * noise.floor_v2
     with np.errstate(invalid="ignore"):
-        return ((amplitude < floor[None, :]) | ~(amplitude > 0)).any(axis=1)
+        return np.asarray(((amplitude < floor[None, :]) | ~(amplitude > 0)).any(axis=1))
 
 
 def _inconsistent(raw: NDArray, options: CorrectionOptions, noise: NoiseModel) -> NDArray[np.bool_]:
