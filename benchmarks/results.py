@@ -35,6 +35,7 @@ PAGES = {
     "generation": "benchmarks.generation",
     "geometry": "benchmarks.scenes",
     "limits": "benchmarks.limits",
+    "mixed-pixels": "benchmarks.mixed_pixels",
     "model-range": "benchmarks.model_range",
     "noise-limit": "benchmarks.noise_limit",
     "point-clouds": "benchmarks.point_clouds",

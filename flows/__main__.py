@@ -7,8 +7,9 @@ schema, so they, their choices, defaults and help are the flow's, which are ``mp
 (:data:`CLI_SPELLINGS` adds the CLI's spelling where a parameter is named otherwise). A flow of
 :data:`CHECKS` has its parameters checked as the command line checks its options before the flow runs. At the
 end the flow run's id, final state and result are printed as one JSON object on stdout; a flow run that fails
-prints one ``error:`` line (:func:`failure_line`) and exits 1; a bad option prints one ``error:`` line (or
-argparse's usage) and exits 2, before any flow run starts.
+prints it too (its ``result`` what the failure carries, e.g. the statuses of a batch's scans, else null, and its
+``error``), then one ``error:`` line on stderr (:func:`failure_line`), and exits 1; an unknown flow, an unknown
+option, a bad choice or a value out of its bounds prints one ``error:`` line and exits 2, before any flow run starts.
 
 Without ``PREFECT_API_URL`` the run reports to a temporary Prefect server of its own, started while the
 flow's modules import. The console shows warnings and errors only (the flow and task runs' INFO lines still
@@ -69,7 +70,36 @@ SUMMARIES = {
 CLI_SPELLINGS = {"point_clouds": ["--point-cloud"], "report": ["--out"]}
 # What checks a flow's parameters, as the command line checks its options, before a run starts: a callable
 # that takes the parameters by name and raises MpiLidarError for a bad one.
-CHECKS = {"correct-archive": "mpi_lidar.workflows.batch_options:batch_options"}
+CHECKS: dict[str, str | Callable[[dict[str, object]], object]] = {
+    "correct-archive": "mpi_lidar.workflows.batch_options:batch_options",
+}
+
+
+def check_configuration(args: dict[str, object]) -> object:
+    """The configuration a dataset flow's preset, file and options make (and its sensor profile's), checked as
+    ``mpi-lidar simulate`` checks them: MpiLidarError with one line for a bad one."""
+    from mpi_lidar.calibration.profile import read_profile
+    from mpi_lidar.config import resolve_config, validate_overrides
+
+    given = {key: args.get(key) for key in ("samples", "chunk_rows", "seed", "fidelity") if key in args}
+    config_file = args.get("config_file")
+    config = resolve_config(str(config_file) if config_file else None, str(args.get("preset") or "quick"),
+                            **given)  # type: ignore[arg-type]
+    sensor = args.get("sensor")
+    if sensor:
+        config = validate_overrides(read_profile(str(sensor)).simulation(), config, source=f"sensor profile {sensor}")
+    return config
+
+
+CHECKS.update({"generate-dataset": check_configuration, "regenerate-dataset": check_configuration})
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, whose errors are one ``error:`` line naming the ``--help`` that lists the options (exit 2)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        print(f"error: {message} ({self.prog} --help lists the options)", file=sys.stderr)
+        raise SystemExit(2)
 
 
 def quiet_environment() -> None:
@@ -141,7 +171,7 @@ def build_parser(name: str, flow: Any) -> argparse.ArgumentParser:
     from flows.parameters import description
 
     fn = flow.fn
-    parser = argparse.ArgumentParser(prog=f"python -m flows {name}",
+    parser = OneLineParser(prog=f"python -m flows {name}",
                                      description=description(inspect.getdoc(fn)) or SUMMARIES[name],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     hints = typing.get_type_hints(fn, include_extras=True)  # Annotated kept: its schema may narrow the choices
@@ -231,6 +261,16 @@ def failure_line(state: Any) -> str:
     return state.message or state.name
 
 
+def carried_result(state: Any) -> object:
+    """What a failed flow run's error carries as its result (its ``result`` attribute: the correction flow's
+    statuses of the scans that were corrected), else None."""
+    try:
+        raised = state.result(raise_on_failure=False)
+    except Exception:  # the result cannot be read back
+        return None
+    return getattr(raised, "result", None) if isinstance(raised, BaseException) else None
+
+
 def _usage() -> str:
     width = max(map(len, FLOWS))
     lines = [f"  {name:<{width}}  {SUMMARIES[name]}" for name in FLOWS]
@@ -245,8 +285,9 @@ def _refused(name: str, args: dict[str, object]) -> str | None:
 
     if name not in CHECKS:
         return None
+    check = CHECKS[name]
     try:
-        _load(CHECKS[name])(args)
+        (check if callable(check) else _load(check))(args)
     except MpiLidarError as exc:
         return redact(str(exc))
     return None
@@ -260,7 +301,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0 if argv else 2
     name, options = argv[0], argv[1:]
     if name not in FLOWS:
-        print(f"{_usage()}\n\nerror: unknown flow {name!r}", file=sys.stderr)
+        print(f"error: unknown flow {name!r}; one of {', '.join(FLOWS)} (python -m flows --help lists them)",
+              file=sys.stderr)
         return 2
     quiet_environment()
     asks_help = any(o in ("-h", "--help") for o in options)
@@ -287,11 +329,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         server.result()  # raises what the start raised
     with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON alone; prints of libraries go beside logs
         state = flow(**args, return_state=True)
-    if state.is_failed() or state.is_crashed():
-        print(f"error: {failure_line(state)}", file=sys.stderr)
+    failed = state.is_failed() or state.is_crashed()
+    line = failure_line(state) if failed else None
+    printed = {"flow": name, "flow_run_id": str(state.state_details.flow_run_id), "state": state.name,
+               "result": carried_result(state) if failed else state.result()}
+    print(json.dumps(printed | ({"error": line} if failed else {}), indent=2, default=str))
+    if failed:
+        print(f"error: {line}", file=sys.stderr)
         return 1
-    print(json.dumps({"flow": name, "flow_run_id": str(state.state_details.flow_run_id), "state": state.name,
-                      "result": state.result()}, indent=2, default=str))
     return 0
 
 

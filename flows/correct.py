@@ -33,7 +33,7 @@ from mpi_lidar.correction.options import USER_OPTIONS, Baseline
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.batch_report import batch_report, write_batch_report
 from mpi_lidar.reporting.output_levels import OutputLevel
-from mpi_lidar.scans.pointcloud import PointCloudFormat
+from mpi_lidar.scans.pointcloud import PointCloudFormat, PointCloudFrame
 from mpi_lidar.workflows.batch_options import BATCH_OPTIONS, BatchOptions, FailOn, batch_options
 from mpi_lidar.workflows.correct_archive import batch_failure, correct_archive, process_scan
 
@@ -121,24 +121,41 @@ def batch_rows(outcomes: list[ScanOutcome]) -> list[dict[str, object]]:
 
 def correct_and_publish(scans: list[str], model: str, out: str, options: CorrectionOptions, workers: int,
                         scheduler: str | None, outputs: str = "light",
-                        point_clouds: tuple[str, ...] | None = None) -> tuple[list[ScanOutcome], float]:
+                        point_clouds: tuple[str, ...] | None = None,
+                        batch: BatchOptions | None = None) -> tuple[list[ScanOutcome], float]:
     """Inside a flow: correct the scans, publish each outcome and write and publish the batch summary.
 
     ``workers`` processes of a LocalCluster, or the Dask cluster at ``scheduler``, run the scans; with
     neither (``workers=0``) they run in the flow's process, as ``mpi-lidar correct --workers 0``. Returns
     the outcomes, by source, and the seconds the batch took. ``outputs``: each scan's output level;
     ``point_clouds``: the point-cloud formats each scan writes (None: the level's, laz at light, ply and laz at
-    full, none at data).
+    full, none at data); ``batch`` the rest of the batch's options (the point clouds' frame and no-return range,
+    ``replace_options``). The summary counts every scan of ``out``, those earlier batches left there too.
     """
+    batch = batch or BatchOptions()
     runner = dask_task_runner(workers, scheduler) if workers > 0 or scheduler else None
     started = time.perf_counter()
+    summarised: list[ScanOutcome] = []
     with shared_api(), PrefectExecutor(runner, [correct_scan_task]) as executor:
         outcomes = correct_archive(scans, model, out, options, executor, outputs=outputs,
-                                   point_clouds=point_clouds)
+                                   point_clouds=point_clouds, on_done=summarised.extend,
+                                   **batch.point_cloud_placement(), replace_options=batch.replace_options)
     wall_s = time.perf_counter() - started
     publish_scans_task(outcomes)
-    summary_task(outcomes, wall_s, out)
+    summary_task(summarised or outcomes, wall_s, out)
     return outcomes, wall_s
+
+
+class BatchFailedError(MpiLidarError):
+    """A batch that fails (a scan failed, is unserved, or has a status of ``fail_on``), carrying the flow's result
+    (:attr:`result`: each scan's status), so ``python -m flows`` still prints it."""
+
+    def __init__(self, message: str, result: dict[str, object]) -> None:
+        super().__init__(message)
+        self.result = result
+
+    def __reduce__(self) -> tuple[type[BatchFailedError], tuple[str, dict[str, object]]]:
+        return (type(self), (str(self), self.result))
 
 
 @flow(name="correct-archive")
@@ -149,7 +166,9 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: GateName 
                          max_invalid_share: float | None = None, sensor: str | None = None,
                          fail_on: list[FailOn] | None = None, allow_unserved: bool = False,
                          outputs: OutputLevel = OutputLevel.LIGHT,
-                         point_clouds: list[PointCloudFormat] | None = None, workers: int = 0,
+                         point_clouds: list[PointCloudFormat] | None = None,
+                         point_cloud_frame: PointCloudFrame = PointCloudFrame.SCANNER,
+                         no_return_range: float | None = None, replace_options: bool = False, workers: int = 0,
                          scheduler: str | None = None) -> dict[str, object]:
     """Correct every scan of ``scans`` with ``model`` into ``out``, as ``mpi-lidar correct`` does.
 
@@ -157,7 +176,9 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: GateName 
     the default, or the sensor profile's), checked as it checks them before any scan runs. With ``workers=0``
     the scans run in the flow's process, every core on each, and no Dask cluster is started. The flow ends
     Failed, after the summary is written, when a scan failed, is unserved (unless ``allow_unserved``) or has a
-    status of ``fail_on``. Returns the flow run's id, the wall time and each source's status.
+    status of ``fail_on`` (its error, a :class:`BatchFailedError`, carries the result). Returns the flow run's id, the
+    wall time and each source's status. Point clouds: laz at light, ply and laz at full, none at data, unless
+    ``point_clouds`` names the formats.
 
     Args:
         scans: Scan stores, directories or globs.
@@ -166,10 +187,10 @@ def correct_archive_flow(scans: list[str], model: str, out: str, gate: GateName 
     """
     options, batch = batch_options(locals())  # the parameters, by name
     outcomes, wall_s = correct_and_publish(scans, model, out, options, batch.workers, batch.scheduler,
-                                           batch.outputs.value, batch.point_cloud_formats())
-    result = {"flow_run_id": str(flow_run.id), "wall_s": wall_s,
-              "statuses": {o.source: o.status for o in outcomes}}
+                                           batch.outputs.value, batch.point_cloud_formats(), batch)
+    result: dict[str, object] = {"flow_run_id": str(flow_run.id), "wall_s": wall_s,
+                                 "statuses": {o.source: str(o.status) for o in outcomes}}
     failure = batch_failure(outcomes, batch.fail_on, batch.allow_unserved)
     if failure:
-        raise MpiLidarError(failure)
+        raise BatchFailedError(failure, result)
     return result

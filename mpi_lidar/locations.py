@@ -7,7 +7,8 @@ credential: one with a user part (``s3://key:secret@bucket/...``) is refused wit
 masked. Credentials come only from the standard chains of the store's library (for S3: the environment's
 ``AWS_ACCESS_KEY_ID``/``AWS_SECRET_ACCESS_KEY``/``AWS_SESSION_TOKEN``, ``AWS_PROFILE`` and the shared files,
 an instance role; the endpoint from ``AWS_ENDPOINT_URL``), so no URL the tool stores or prints holds one.
-:func:`display_url` shows any other URL the tool takes (a scheduler's, a database's) with its password masked.
+:func:`display_url` shows any other URL the tool takes (a scheduler's, a database's) with its password masked;
+:func:`driver_url` percent-encodes what cannot stand unencoded in a URL's user part before a driver parses it.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import posixpath
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import quote, unquote
 
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.redact import redact, split_user_part
@@ -110,3 +112,19 @@ def display_url(url: str) -> str:
     """Any URL the tool takes (a store, a scheduler, a database) as messages, logs and reports show it:
     passwords masked (:func:`mpi_lidar.redact.redact`)."""
     return redact(url)
+
+
+def driver_url(url: str) -> str:
+    """A URL (a database's) as a driver's parser must read it: its user name and password percent-encoded.
+
+    A password may hold ``@``, ``:``, ``/``, ``?`` or ``#`` as the user typed it; a driver's parser splits the URL
+    at the first ``@`` and would take the password's tail for the host (and print it). The user part ends at the
+    last ``@`` that a host follows (:func:`mpi_lidar.redact.split_user_part`, as :func:`display_url` masks it);
+    what was percent-encoded already stays as it was.
+    """
+    scheme_sep, user, rest = split_user_part(url)
+    if not scheme_sep or not user:
+        return url
+    name, colon, password = user.partition(":")
+    encoded = quote(unquote(name), safe="") + (colon and ":" + quote(unquote(password), safe=""))
+    return f"{scheme_sep}{encoded}@{rest}"

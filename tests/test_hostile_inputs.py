@@ -9,8 +9,10 @@ the number of readers, give the count docs/how-to/dask-cluster.md quotes.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -21,10 +23,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mpi_lidar.calibration.profile import read_profile
+from mpi_lidar.cli import path_fault
 from mpi_lidar.config import Config, load_config
 from mpi_lidar.correction.options import MAX_FOOTPRINT_AREA_M2
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, load_model
+from mpi_lidar.locations import driver_url
 from mpi_lidar.scans.importers import load_npz
 from mpi_lidar.scans.store import read_scan, write_scan
 from mpi_lidar.simulation import dataset
@@ -314,3 +318,62 @@ def test_card_reader__hostile_cards(tmp_path_factory, monkeypatch, capsys, model
         assert code == 2
         assert_one_error_line(stderr)
         assert not report.exists()
+
+
+# --- errors that are the user's: one line, no secret ----------------------------------------------------------
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("url", ["postgresql://bob:s@cretD@127.0.0.1:1/db", "postgresql://bob:s%40cretD@127.0.0.1:1/db",
+                                 "postgresql://bob:pa:ss/w?rd#@127.0.0.1:1/db"])
+def test_driver_url__a_password_is_encoded_before_the_driver_parses_it(url):
+    from sqlalchemy.engine import make_url
+
+    parsed = make_url(driver_url(url))
+    assert parsed.host == "127.0.0.1" and parsed.port == 1 and parsed.username == "bob"
+    assert parsed.password in ("s@cretD", "pa:ss/w?rd#")
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(("url", "secret"), [("postgresql://bob:s@cretD@127.0.0.1:1/db", "cretD"),
+                                             ("postgresql://bob@127.0.0.1:1/db?PASSWORD=hunter22", "hunter22")])
+def test_tune__a_storage_url_fails_in_one_line_showing_no_part_of_the_password(tmp_path, monkeypatch, capsys,
+                                                                             small_dataset, url, secret):
+    code, _, stderr = call_main(monkeypatch, capsys, "tune", "--data", small_dataset, "--storage", url,
+                                "--trials", 1)
+    assert code == 2
+    assert_one_error_line(stderr, "Optuna storage")
+    assert secret not in stderr and "unexpected" not in stderr
+
+
+@pytest.mark.unit
+def test_path_fault__a_path_past_the_limit_is_one_short_line(tmp_path, monkeypatch, capsys):
+    long = tmp_path / ("d" * 300) / "a.scan.zarr"
+    code, _, stderr = call_main(monkeypatch, capsys, "verify", long)
+    assert code == 2
+    assert_one_error_line(stderr)
+    assert len(stderr) < 400 and "unexpected" not in stderr
+    fault = path_fault(OSError(errno.ENAMETOOLONG, "File name too long", "/x" * 4000))
+    assert fault is not None and "8,000 characters" in str(fault) and len(str(fault)) < 300
+
+
+# --- flows fail like the command line --------------------------------------------------------------------------
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(("args", "fragment"), [
+    (["nope"], "unknown flow 'nope'"),
+    (["correct-archive", "--scans", "a", "--model", "m", "--out", "o", "--gate", "nope"], "invalid choice: 'nope'"),
+    (["correct-archive", "--scans", "a", "--model", "m", "--out", "o", "--bogus", "1"], "unrecognized arguments"),
+    (["correct-archive", "--scans", "a", "--model", "m", "--out", "o", "--amplitude-scale", "0"], "amplitude_scale"),
+    (["generate-dataset", "--out", "d.zarr", "--samples", "-5"], "dataset.samples"),
+])
+def test_flows__bad_options_are_one_error_line_exit_2_before_a_run(tmp_path, args, fragment):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "flows", *args], capture_output=True, text=True, cwd=Path.cwd(),
+                          timeout=300, env={**os.environ, "PREFECT_API_URL": "http://127.0.0.1:9/api"})
+    assert done.returncode == 2, done.stderr
+    assert_one_error_line(done.stderr, fragment)
+    assert done.stdout == ""

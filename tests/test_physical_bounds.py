@@ -6,13 +6,17 @@ line naming the field and its bound (docs/reference/configuration.md, "Physical 
 from __future__ import annotations
 
 import math
+import re
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
+import zarr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mpi_lidar.calibration.profile import FREQUENCY_BOUNDS_HZ, MAX_OFFSET_M, read_profile
+from mpi_lidar.calibration.profile import FREQUENCY_BOUNDS_HZ, MAX_OFFSET_M, check_profile_frequencies, read_profile
 from mpi_lidar.correction.options import (
     AMPLITUDE_SCALE_BOUNDS,
     MAX_AMPLITUDE_V2,
@@ -22,10 +26,19 @@ from mpi_lidar.correction.options import (
     MAX_FOOTPRINT_AREA_M2,
     MAX_SIGMAS,
     NO_SATURATION_V2,
+    NOISE_SCALE_BOUNDS,
     CorrectionOptions,
+    Flag,
+    ScanStatus,
+    UnservedReason,
 )
+from mpi_lidar.correction.outcome import Unserved, degraded_reason, first_cause, scan_status, status_reason
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.scans.scan import ScanError, validate
+from mpi_lidar.scans.store import read_scan, store_fingerprints, write_scan
 from tests.cli_runner import assert_one_error_line, call_main
+from tests.model_factory import tiny_model
+from tests.scan_factory import two_path_scan
 
 # field: (lowest allowed, highest allowed, whether the lowest itself is allowed), of CorrectionOptions.
 OPTION_BOUNDS = {
@@ -181,3 +194,107 @@ def test_correct__profile_with_a_boolean_footprint_is_one_line(tmp_path: Path, m
     assert code == 2
     assert_one_error_line(stderr, "footprint_area_m2")
     assert not (tmp_path / "corrected").exists()
+
+
+# --- a scan's own values, where they are read ----------------------------------------------------------------
+
+SCAN = two_path_scan("bounds", height=6, width=8)
+AZIMUTH, ELEVATION = np.linspace(-0.2, 0.2, 8), np.linspace(-0.15, 0.15, 6)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(("change", "fragment"), [
+    ({"depth": np.asarray(SCAN.depth) - 13.0}, "a phase's depth is never negative"),
+    ({"depth": np.asarray(SCAN.depth) - 13.0, "depth_wrapped": False}, "never by more than 1 m"),
+    ({"amplitude": np.full_like(SCAN.amplitude, 1e30)}, "every finite amplitude is 1e+30"),
+    ({"amplitude": np.full_like(SCAN.amplitude, 1e-12)}, "every finite amplitude is 1e-12"),
+    ({"azimuth_rad": np.where(np.arange(8) == 3, np.nan, AZIMUTH)}, "azimuth_rad has values that are not"),
+    ({"elevation_rad": np.where(np.arange(6) == 2, np.inf, ELEVATION)}, "elevation_rad has values that"),
+    ({"elevation_rad": np.linspace(-1e5, 1e5, 6)}, "elevation_rad reaches 100000"),
+])
+def test_scan_store__values_past_their_physical_bounds_are_refused_where_read(tmp_path, change, fragment):
+    """Written or read back (as another tool may write the store), each is one line naming what is wrong."""
+    scan = replace(SCAN, **change)
+    with pytest.raises(ScanError, match=re.escape(fragment)) as refused:
+        write_scan(scan, tmp_path / "w.scan.zarr")
+    assert "\n" not in str(refused.value)
+    assert not (tmp_path / "w.scan.zarr").exists()
+    path = write_scan(SCAN, tmp_path / "r.scan.zarr")
+    group = zarr.open_group(str(path), mode="r+")
+    for name, value in change.items():
+        if name == "depth_wrapped":
+            continue
+        group[name][...] = value
+    group.attrs["chunk_sha256"] = store_fingerprints(group)  # as a tool that writes such values records them
+    if "depth_wrapped" in change:
+        group.attrs["depth_wrapped"] = False
+    with pytest.raises(ScanError, match=re.escape(fragment)):
+        read_scan(path)
+
+
+@pytest.mark.unit
+def test_validate__amplitudes_all_zero_are_a_scan_without_a_return_not_refused():
+    assert validate(replace(SCAN, amplitude=np.zeros_like(SCAN.amplitude)), "zero").shape == SCAN.shape
+
+
+# --- one place decides a scan's status and its reason ----------------------------------------------------------
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("flag", ["inconsistent", "not_finite", "no_return"])
+def test_scan_status__invalid_data_first_never_the_amplitude_units(flag):
+    counts = {flag: 90, "uncalibrated": 10}
+    status = scan_status(counts, 0.5, UnservedReason.AMPLITUDE_UNITS)
+    assert status == ScanStatus.DEGRADED
+    reason = status_reason(status, counts, Unserved(UnservedReason.AMPLITUDE_UNITS, "give --amplitude-scale"))
+    assert reason.startswith(f"90.0 % of its pixels are invalid, first {flag} (90.0 %")
+    assert "amplitude-scale" not in reason
+
+
+@pytest.mark.unit
+def test_scan_status__saturation_nearly_everywhere_is_the_units():
+    counts = {"saturated": 95, "inconsistent": 3, "not_needed": 2}
+    assert scan_status(counts, 0.5, UnservedReason.AMPLITUDE_UNITS) == ScanStatus.UNSERVED
+    assert scan_status(counts, 0.5) == ScanStatus.DEGRADED
+    assert first_cause(counts) == Flag.SATURATED
+    assert degraded_reason(counts).endswith("then inconsistent 3.0 %")
+    assert scan_status({"not_needed": 10}, 0.5) == ScanStatus.UNCHANGED and first_cause({"not_needed": 1}) is None
+
+
+# --- noise scale, profile frequencies --------------------------------------------------------------------------
+
+
+@pytest.mark.unit
+def test_noise_scale__a_lower_bound_keeps_every_uncertainty(tmp_path):
+    sensor = tmp_path / "sensor.toml"
+    sensor.write_text(PROFILE + "noise_scale = 1e-300\n")
+    with pytest.raises(MpiLidarError, match="noise_scale"):
+        read_profile(sensor)
+    with pytest.raises(MpiLidarError, match="noise_scale"):
+        CorrectionOptions.from_cli(sensor_profile={"noise_scale": 1e-300})
+    assert CorrectionOptions(noise_scale=NOISE_SCALE_BOUNDS[0]).noise_scale == NOISE_SCALE_BOUNDS[0]
+
+
+@pytest.fixture(scope="module")
+def raw_model(tmp_path_factory) -> Path:
+    return tiny_model(tmp_path_factory.mktemp("model") / "model", geometric=False, feature_set="raw", rounds=5)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(("lines", "fragment"), [
+    ("frequency_offsets_m = [0.001, 0.0]\n", "gives 2 frequency_offsets_m for the 4 frequencies"),
+    ("frequencies_hz = [1e7, 1.5e7, 2e7, 3e7]\n", "calibrated at 10, 15, 20, 30 MHz"),
+])
+def test_correct__profile_of_other_frequencies_is_one_line_exit_2(tmp_path, monkeypatch, capsys, raw_model,
+                                                                   lines, fragment):
+    sensor = tmp_path / "sensor.toml"
+    sensor.write_text(PROFILE + lines)
+    scan = write_scan(SCAN, tmp_path / "a.scan.zarr")
+    out = tmp_path / "corrected"
+    code, _, stderr = call_main(monkeypatch, capsys, "correct", scan, "--model", raw_model, "--out", out,
+                                "--sensor", sensor)
+    assert code == 2
+    assert_one_error_line(stderr, fragment)
+    assert not out.exists()
+    with pytest.raises(MpiLidarError, match=fragment):
+        check_profile_frequencies(read_profile(sensor), (12.5e6, 18.75e6, 25e6, 31.25e6), "the scan", sensor)

@@ -40,9 +40,11 @@ from mpi_lidar.correction.options import (
     MAX_DEPTH_M,
     MAX_FOOTPRINT_AREA_M2,
     MAX_SIGMAS,
+    NOISE_SCALE_BOUNDS,
     CorrectionOptions,
 )
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.learning.model import CARD_FILE, read_card
 from mpi_lidar.safe_files import read_small_text
 from mpi_lidar.scans.scan import SPEED_OF_LIGHT_BOUNDS_M_PER_S
 from mpi_lidar.storage.atomic import atomic_path
@@ -83,7 +85,7 @@ class SensorProfile(BaseModel):
     # the scan's): calibrate records it where its scans agree. None: not recorded.
     speed_of_light_m_per_s: Annotated[float, Field(ge=SPEED_OF_LIGHT_BOUNDS_M_PER_S[0],
                                                    le=SPEED_OF_LIGHT_BOUNDS_M_PER_S[1], strict=True)] | None = None
-    noise_scale: Annotated[float, Field(gt=0, le=100, strict=True)] | None = None
+    noise_scale: Annotated[float, Field(ge=NOISE_SCALE_BOUNDS[0], le=NOISE_SCALE_BOUNDS[1], strict=True)] | None = None
     range_m: tuple[Depth, Depth] | None = None
     frequency_offsets_m: Annotated[tuple[Offset, ...], Field(max_length=MAX_FREQUENCIES)] | None = None
     # Whether the offsets are those left once the integration window's leakage is removed from each frequency's
@@ -200,13 +202,34 @@ class ProfileOptions(TypedDict, total=False):
     sensor_profile: dict[str, object]
 
 
-def profile_options(path: str | Path | None) -> ProfileOptions:
+def check_profile_frequencies(profile: SensorProfile, frequencies_hz: tuple[float, ...], where: str,
+                              path: str | Path) -> None:
+    """Refuse a profile measured at other frequencies than ``frequencies_hz`` [Hz] (those of ``where``: a model,
+    whose scans share them), or whose ``frequency_offsets_m`` are not one per frequency, with one line."""
+    mhz = ", ".join(f"{f / 1e6:g}" for f in frequencies_hz) + " MHz"
+    if profile.frequencies_hz is not None and tuple(float(f) for f in profile.frequencies_hz) != tuple(
+            float(f) for f in frequencies_hz):
+        given = ", ".join(f"{f / 1e6:g}" for f in profile.frequencies_hz) + " MHz"
+        raise MpiLidarError(f"sensor profile {path} was calibrated at {given}, but {where} is at {mhz}; calibrate "
+                            "the sensor at the scans' frequencies (mpi-lidar calibrate)")
+    offsets = profile.frequency_offsets_m
+    if offsets is not None and len(offsets) != len(frequencies_hz):
+        raise MpiLidarError(f"sensor profile {path} gives {len(offsets)} frequency_offsets_m for the "
+                            f"{len(frequencies_hz)} frequencies of {where} ({mhz}); give one per frequency, or "
+                            "calibrate the sensor again")
+
+
+def profile_options(path: str | Path | None, model_dir: str | Path | None = None) -> ProfileOptions:
     """The :meth:`CorrectionOptions.from_cli` arguments of a sensor profile.
 
     Parameters
     ----------
     path : str | Path | None
         The profile (:func:`read_profile`); None: no profile.
+    model_dir : str | Path | None
+        The model it corrects with: the profile's frequencies and offsets must be the model's (whose scans share
+        its frequencies; :func:`check_profile_frequencies`). None, or a model without a readable card: not checked
+        here (loading the model says what is wrong with it).
 
     Returns
     -------
@@ -217,6 +240,13 @@ def profile_options(path: str | Path | None) -> ProfileOptions:
     if path is None:
         return {}
     profile = read_profile(path)
+    if model_dir is not None:
+        try:
+            card = read_card(Path(model_dir) / CARD_FILE)
+        except MpiLidarError:
+            card = None
+        if card is not None:
+            check_profile_frequencies(profile, card.frequencies_hz, f"the model {model_dir}", path)
     return {"sensor_profile": {**profile.options(), **profile.noise_options(),
                                "sensor_profile_sha256": str(profile.record()["sha256"])}}
 

@@ -6,6 +6,7 @@ the library's models are built when that command's options are first asked for (
 
 from __future__ import annotations
 
+import errno
 import os
 import sys
 import traceback
@@ -87,7 +88,8 @@ def _run(debug: bool) -> None:
             traceback.print_exc()
         sys.exit(EXIT_USER_ERROR)
     except Exception as exc:  # a bug or an environment problem: one line, the traceback in a file
-        fault = environment_fault(exc)  # a full disk, a quota, a read-only file system: the user's to fix
+        # a full disk, a quota, a read-only file system, a path too long: the user's to fix
+        fault = environment_fault(exc) or path_fault(exc)
         if fault is not None:
             click.echo(f"error: {redact(str(fault))}", err=True)
             if debug:
@@ -100,6 +102,26 @@ def _run(debug: bool) -> None:
         if debug:
             click.echo(redact(traceback.format_exc()), err=True)
         sys.exit(EXIT_FAILURE)
+
+
+# How much of an absurd path an error line shows at either end [characters].
+SHOWN_PATH_END = 48
+
+
+def shortened(path: str) -> str:
+    """A path as an error line shows it: whole if short, else its start and end around an ellipsis."""
+    return path if len(path) <= 2 * SHOWN_PATH_END + 3 else f"{path[:SHOWN_PATH_END]}...{path[-SHOWN_PATH_END:]}"
+
+
+def path_fault(exc: BaseException) -> MpiLidarError | None:
+    """A path the file system refuses as too long (``ENAMETOOLONG``) as the user's error, the path shortened;
+    None for any other exception."""
+    if not isinstance(exc, OSError) or exc.errno != errno.ENAMETOOLONG:
+        return None
+    name = exc.filename if isinstance(exc.filename, str) else os.fsdecode(exc.filename or b"")
+    where = f" ({len(name):,} characters: {shortened(name)})" if name else ""
+    return MpiLidarError(f"a path is too long for the file system{where}; give a shorter path (each name at most "
+                         "255 bytes, the whole path at most 4,096)")
 
 
 def _usage_line(exc: click.ClickException) -> str:

@@ -51,7 +51,7 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: str, **given: obje
     from mpi_lidar.workflows.executor import InProcess, dask_executor
     from mpi_lidar.workflows.remote_outputs import write_summary
 
-    options, batch = batch_options(given)
+    options, batch = batch_options({**given, "model": model_dir})
     started = time.perf_counter()
     here = not batch.scheduler and not batch.workers
     total = len(expand_archive(list(scans)))
@@ -65,7 +65,8 @@ def correct(scans: tuple[str, ...], model_dir: Path, out_dir: str, **given: obje
             outcomes = correct_archive(list(scans), model_dir, out_dir, options, executor,
                                        on_scan=lambda outcome: advance(f"{outcome.name}: {outcome.status}"),
                                        outputs=batch.outputs.value, point_clouds=batch.point_cloud_formats(),
-                                       on_done=lambda done: summaries.append(summarise(done)))
+                                       on_done=lambda done: summaries.append(summarise(done)),
+                                       **batch.point_cloud_placement(), replace_options=batch.replace_options)
     wall_s = time.perf_counter() - started
     print_batch(outcomes, wall_s, summaries[0])
     failing = failing_outcomes(outcomes, batch.fail_on, batch.allow_unserved)

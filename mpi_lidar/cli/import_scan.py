@@ -1,4 +1,4 @@
-"""mpi-lidar import-scan: scan stores from .npz archives and NetCDF/HDF5 files."""
+"""mpi-lidar import-scan: scan stores from .npz archives, NetCDF/HDF5 files and Zarr groups."""
 
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ from mpi_lidar.errors import MpiLidarError
 @click.option("--var", "variables", multiple=True, metavar="NAME=VARIABLE",
               help="Read the scan array NAME (depth, amplitude, taps, azimuth_rad, elevation_rad, azimuth_deg, "
                    "elevation_deg, reference_depth, frequencies_hz, ...) from the file's VARIABLE (array of an "
-                   ".npz); ignore=VAR1,VAR2 leaves variables out on purpose; repeatable. A variable neither known nor "
-                   "mapped is refused; only regular files of at most 2 GiB are read, and all stores are written or "
-                   "none.")
+                   ".npz or a Zarr group); ignore=VAR1,VAR2 leaves variables out on purpose; repeatable. A variable "
+                   "neither known nor mapped is refused; only regular files of at most 2 GiB are read, and all stores "
+                   "are written or none.")
 @click.option("--depths", type=click.Choice(["wrapped", "unwrapped"]), default="wrapped", show_default=True,
               help="wrapped: each frequency's depth lies in [0, c/2f), as its phase measures it (correction "
                    "unwraps them into one range, out to 24 m at 12.5-31.25 MHz); unwrapped: the scanner gives "
@@ -30,7 +30,8 @@ from mpi_lidar.errors import MpiLidarError
                    "A wrapped depth beyond its frequency's c/2f refuses the import.")
 def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, variables: tuple[str, ...],
                 depths: str, speed_of_light: float | None) -> None:
-    """Import scans from .npz archives or NetCDF/HDF5 files (.nc, .h5, .hdf5): files, directories or globs.
+    """Import scans from .npz archives, NetCDF/HDF5 files (.nc, .h5, .hdf5) or Zarr groups (.zarr): files,
+    directories or globs.
 
     \b
     Example:
@@ -38,10 +39,12 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
 
     Each file holds depth and amplitude (F, H, W), or taps (F, 4, H, W), plus optional geometry and reference,
     named as in a scan store or mapped with --var (e.g. --var depth=range_m --var amplitude=intensity).
-    Every file is read and checked before anything is written: one bad file (or an existing store) refuses
-    the whole import with one error line (exit 2), and nothing is written.
+    The file's attributes (instrument, serial, a scalar timestamp, ...) are kept in the scan's scene metadata.
+    Every file is read and checked before anything is written: one bad file refuses the whole import with one
+    error line (exit 2), and nothing is written. Files whose store is already in the --out directory are not
+    imported again (named on stderr); the others are added.
     """
-    from mpi_lidar.scans.importers import find_scan_files, import_files, plan_import
+    from mpi_lidar.scans.importers import find_scan_files, import_files, new_stores, plan_import
     from mpi_lidar.scans.importers.base import check_frequencies_in_hz
     from mpi_lidar.scans.scan import check_speed_of_light
 
@@ -55,7 +58,7 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
     if speed_of_light is not None:
         check_speed_of_light(speed_of_light, "--speed-of-light")  # before any file is read
     mapping = variable_mapping(variables)
-    plan = plan_import(find_scan_files(sources), out)
+    plan, existing = new_stores(plan_import(find_scan_files(sources), out))
 
     def echo(scan, target: Path) -> None:
         click.echo(f"scan {scan.name}: {scan.shape[0]} x {scan.shape[1]} pixels at {len(scan.frequencies_hz)} "
@@ -63,6 +66,10 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
 
     import_files(plan, freqs, mapping, on_scan=echo, depth_wrapped=depths == "wrapped",
                  speed_of_light_m_per_s=speed_of_light)
+    if existing:
+        names = ", ".join(f"{source.name} ({target.name})" for source, target in existing)
+        click.echo(f"import-scan: not imported, their stores already exist in {out}: {names}; remove a store to "
+                   "import its file again", err=True)
 
 
 def variable_mapping(variables: tuple[str, ...]) -> dict[str, str]:

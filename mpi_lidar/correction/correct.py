@@ -11,7 +11,9 @@ it has the pixels to measure one) is built once and handed to every stage that w
    sample and a pixel-wise gate's decision, in the first pass over the scan's tiles;
 3. scene geometry (:func:`~.scene.analyse_geometry` -> :class:`~.scene.SceneGeometry`): facing surfaces, the scan's
    own footprint, the expected multipath bias, a geometric model's inputs;
-4. gate (:func:`~.gating.decide` -> :class:`~.gating.GateDecision`): which valid pixels the model corrects;
+4. gate (:func:`~.gating.decide` -> :class:`~.gating.GateDecision`): which valid pixels the model corrects; then
+   mixed pixels (:func:`~.mixed.find_mixed` -> :class:`~.mixed.MixedPixels`): depth edges' flying pixels flagged,
+   or resolved into two returns;
 5. baseline offsets (:func:`~.baseline.frequency_offsets` -> :class:`~.baseline.FrequencyOffsets`);
 6. per-pixel estimate (:func:`~.estimates.estimate_pixels` -> :class:`~.estimates.PixelEstimates`): the model's
    depth, the fused baseline's and every pixel's uncertainty, in the second and last pass over the tiles;
@@ -33,6 +35,7 @@ from mpi_lidar.correction.baseline import frequency_offsets
 from mpi_lidar.correction.estimates import ScenePart, estimate_pixels
 from mpi_lidar.correction.gates import make_gate
 from mpi_lidar.correction.gating import GateDecision, decide
+from mpi_lidar.correction.mixed import find_mixed
 from mpi_lidar.correction.options import CorrectionOptions, Flag
 from mpi_lidar.correction.prediction import in_model_range
 from mpi_lidar.correction.result import Correction
@@ -89,6 +92,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
                                      with_model_inputs=model.geometric and reading.unit_trusted, noise=noise)
         decision = (decide(validity, gate, scene, model.card.dataset.prior.d_as_m, options, model.geometric)
                     if reading.unit_trusted else _model_not_applied(validity))
+        mixed = find_mixed(scan, tiles, validity, decision, noise)  # flying pixels at depth edges, after the gate
+        decision, validity = mixed.decision, mixed.validity
     gate_s = time.perf_counter() - gate_started
     part = ScenePart() if scene is None else ScenePart(scene.model_inputs, scene.bias_m, scene.footprint)
     offsets = frequency_offsets(validity.offsets, decision.flags, None if scene is None else scene.blocks, options)
@@ -106,7 +111,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
         amplitude_units_per_v2=reading.units_per_v2, reading=reading, offsets=offsets,
         scene_notes=() if scene is None else scene.notes, uncalibrated_pixels=decision.uncalibrated_pixels,
         beyond_prior_pixels=pixels.beyond_prior_pixels,
-        prior_reach=model.card.dataset.prior.multipath_reach() if decision.served else None)
+        prior_reach=model.card.dataset.prior.multipath_reach() if decision.served else None,
+        second_returns=mixed.second_returns)
 
 
 def _beyond_ambiguity(reading: SensorReading, sensor: SensorConfig) -> BeyondAmbiguity | None:

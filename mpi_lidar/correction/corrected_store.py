@@ -37,6 +37,8 @@ def write_corrected_store(path: Path, scan: Scan, correction: Correction, identi
         ("measured_depth", correction.measured_depth), ("unwrap_confidence", correction.unwrap_confidence),
         ("estimate", correction.estimate), ("depth_uncertainty", correction.uncertainty_m),
         ("multipath_bias_m", correction.multipath_bias_m),
+        *(() if (second := correction.second_returns) is None else
+          (("second_return_depth", second.depth_m), ("second_return_share", second.share))),
         ("azimuth_rad", scan.azimuth_rad), ("elevation_rad", scan.elevation_rad))
     arrays = {name: (np.asarray(values), CORRECTED[name].dims) for name, values in written if values is not None}
     # CF flag attributes; valid_range bounds the codes (a plot's discrete levels: docs/reference/stores.md).

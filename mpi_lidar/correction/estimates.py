@@ -70,7 +70,9 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
     reach = model.card.dataset.prior.multipath_reach()
     fuse = Baseline(options.baseline) == Baseline.FUSED
     bias = None if scene.bias_m is None else scene.bias_m.reshape(-1)
-    known = [int(flag) for flag in (*BASELINE_FLAGS, Flag.CORRECTED)]
+    # A pixel resolved into two returns keeps the stronger one's depth, with the measured depth's sd widened by its
+    # frequencies' disagreement (its Birge ratio): never fused, never without an uncertainty.
+    known = [int(flag) for flag in (*BASELINE_FLAGS, Flag.CORRECTED, Flag.TWO_RETURNS)]
     invalid = [int(flag) for flag in INVALID_FLAGS]
     beyond, inference_s, inputs_s = 0, 0.0, 0.0
     for pixels, raw in raw_tiles(scan, tiles):
@@ -98,7 +100,7 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
             expected = np.zeros(present.size) if bias is None else bias[index].astype(np.float64)
             sigma = np.array(measured_sigma)
             if fuse:
-                take = ~corrected & fused.consistent
+                take = ~corrected & fused.consistent & (tile_flags[present] != Flag.TWO_RETURNS)
                 depth[index[take]] = fused.depth_m[take]
                 sigma[take] = fused.sigma_m[take]
                 estimate[index[take]] = Estimate.FUSED

@@ -38,6 +38,11 @@ class Flag(IntEnum):
     AMBIGUOUS = 9
     # Past the frequencies' combined ambiguity: its amplitude is far too weak for the range its phases give.
     BEYOND_AMBIGUITY = 10
+    # A depth edge in the footprint: the frequencies disagree beyond their noise beside a neighbour far nearer or
+    # farther, so the one depth they give is no surface's (mpi_lidar.correction.mixed).
+    MIXED = 11
+    # The same, resolved into two returns: the depth is the stronger return's, the weaker is kept beside it.
+    TWO_RETURNS = 12
 
 
 class Estimate(IntEnum):
@@ -63,7 +68,8 @@ class Baseline(StrEnum):
     RAW = "raw"
 
 
-INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT, Flag.BEYOND_AMBIGUITY)
+INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT, Flag.BEYOND_AMBIGUITY,
+                 Flag.MIXED)
 
 class ScanStatus(StrEnum):
     """How one scan of a batch ended (:func:`mpi_lidar.correction.outcome.scan_status` decides the first three).
@@ -114,6 +120,9 @@ MAX_AMPLITUDE_V2 = 1e4  # a detector chain's amplitude [V^2]: volts squared, nev
 NO_SATURATION_V2 = 1e30  # the one larger saturation threshold: none (validity from the depths alone)
 AMPLITUDE_SCALE_BOUNDS = (1e-6, 1e9)  # a scanner's amplitude unit per V^2 that keeps float32 amplitudes finite
 MAX_SIGMAS = 100.0  # noise deviations
+# A sensor's depth noise over the noise model's [1]: a thousandth is a sensor far quieter than photons allow;
+# below it every depth's uncertainty would round to nothing.
+NOISE_SCALE_BOUNDS = (1e-3, 100.0)
 MAX_DEPTH_M = 1000.0  # depths, spreads and tolerances: beyond any AMCW LiDAR's range
 MAX_BIAS_M = 1.0  # a multipath bias: millimetres to centimetres; a metre is no threshold of one
 MAX_BLOCK_M = 10.0  # a geometry block's side
@@ -185,7 +194,7 @@ class CorrectionOptions(BaseModel):
         "consistency test need no unit: they use the noise law each scan measures."))
     # The sensor's depth noise over the noise model's and each frequency's depth offset relative to the highest
     # [m] (from a sensor profile): the fused depth's weights, sds and offsets. None: no offsets.
-    noise_scale: Annotated[float, Field(gt=0, le=100)] = 1.0
+    noise_scale: Annotated[float, Field(ge=NOISE_SCALE_BOUNDS[0], le=NOISE_SCALE_BOUNDS[1])] = 1.0
     frequency_offsets_m: tuple[Annotated[float, Field(ge=-1, le=1)], ...] | None = None
     # Whether those offsets are what is left once the integration window's leakage is removed (the profile's
     # window_leakage_removed); None: measured on the depths as they are.

@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.correction.baseline import FrequencyOffsets
 from mpi_lidar.correction.footprint import FootprintEstimate
+from mpi_lidar.correction.mixed import SecondReturns
 from mpi_lidar.correction.options import Estimate, Flag
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.sensor_reading import SensorReading
@@ -47,6 +48,7 @@ class Correction:
         the scan's own footprint estimate is not significant.
     beyond_prior_pixels : Corrected pixels whose geometric inputs lie beyond the model's training prior.
     prior_reach : The largest rho_ABA [1] and d_AB [m] of that prior (None: not known).
+    second_returns : The weaker return of each pixel resolved into two (flag two_returns; None: none was).
     """
 
     depth: NDArray[np.float32]
@@ -69,6 +71,7 @@ class Correction:
     uncalibrated_pixels: int = 0
     beyond_prior_pixels: int = 0
     prior_reach: tuple[float, float] | None = None
+    second_returns: SecondReturns | None = None
 
     @property
     def frequency_offsets_m(self) -> tuple[float, ...] | None:

@@ -87,14 +87,34 @@ class SceneGeometry:
         return self.blocks is not None
 
 
-def scene_blocks(scan: Scan, usable_depth: NDArray, options: CorrectionOptions) -> geometry.FacingBlocks | None:
+def scene_blocks(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, noise: NoiseModel | None = None
+                 ) -> geometry.FacingBlocks | None:
     """The scan's facing blocks from the highest-frequency depth of its usable pixels ``usable_depth`` (H*W,) [m]
-    (NaN elsewhere), in tiles of ``options.tile_pixels``; None for a scan without geometry."""
+    (NaN elsewhere), in tiles of ``options.tile_pixels``, their planes judged against that depth's noise under
+    ``noise`` (None: against their own residuals); None for a scan without geometry."""
     rays = scan.ray_rows()
     if rays is None:
         return None
+    sigma = None if noise is None else depth_sigma_map(scan, usable_depth, noise, options.tile_pixels)
     return geometry.facing_blocks(usable_depth.reshape(scan.shape), rays, block_m=options.geometry_block_m,
-                                  max_range_m=options.partner_range_m, band_pixels=options.tile_pixels)
+                                  max_range_m=options.partner_range_m, band_pixels=options.tile_pixels,
+                                  depth_sigma=sigma)
+
+
+def depth_sigma_map(scan: Scan, usable_depth: NDArray, noise: NoiseModel, tile_pixels: int) -> NDArray[np.float32]:
+    """The sd (H, W) [m] of the highest-frequency depth (the one ``usable_depth`` (H*W,) holds) at each pixel's
+    amplitude under ``noise``, NaN where the depth is not usable; a band of rows at a time."""
+    h, w = scan.shape
+    f = len(scan.frequencies_hz)
+    sigma = np.full((h, w), np.nan, dtype=np.float32)
+    usable = np.isfinite(usable_depth).reshape(h, w)
+    step = max(1, tile_pixels // max(w, 1))
+    for top in range(0, h, step):
+        rows = slice(top, min(top + step, h))
+        amplitude = np.asarray(scan.amplitude[:, rows], dtype=np.float64).reshape(f, -1).T
+        band = noise.depth_sigma_m(amplitude)[:, f - 1].reshape(-1, w)
+        sigma[rows] = np.where(usable[rows], band, np.nan)
+    return sigma
 
 
 def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, sensor: SensorConfig, *,
@@ -115,15 +135,16 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     with_model_inputs : bool
         Also work out a geometric model's per-pixel inputs (:attr:`SceneGeometry.model_inputs`).
     noise : NoiseModel | None
-        The scan's noise model, which weighs the footprint fit (None: the sensor's, scaled by
-        ``options.noise_scale``).
+        The scan's noise model, which sets how far noise can turn the block planes and weighs the footprint fit
+        (None: the sensor's, scaled by ``options.noise_scale``).
 
     Returns
     -------
     SceneGeometry
         What the scan's geometry says; for a scan without geometry, only its notes.
     """
-    blocks = scene_blocks(scan, usable_depth, options)
+    noise = noise or NoiseModel.for_sensor(sensor, scan.frequencies_hz, options.noise_scale)
+    blocks = scene_blocks(scan, usable_depth, options, noise)
     if blocks is None:
         if with_model_inputs:
             return SceneGeometry(notes=(NO_GEOMETRY_INPUTS_NOTE,))
@@ -137,7 +158,6 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         potential = blocks.block_potential(footprint_m2)
     else:
         measured_albedo = block_albedo(scan, blocks, sensor, options.tile_pixels)
-        noise = noise or NoiseModel.for_sensor(sensor, scan.frequencies_hz, options.noise_scale)
         estimate = estimate_footprint(scan, blocks, np.isfinite(usable_depth), sensor, noise=noise,
                                       measured_albedo=measured_albedo, surfaces=surfaces)
         if estimate.significant:

@@ -32,6 +32,7 @@ from sqlalchemy.engine import make_url
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.train import check_dataset_matches, training_geometry, xgb_params
+from mpi_lidar.locations import driver_url
 from mpi_lidar.redact import MASK, SECRET_KEYS, redact
 from mpi_lidar.simulation import dataset
 
@@ -92,7 +93,7 @@ def masked(url: str) -> str:
 
 
 def _storage(url: str) -> optuna.storages.RDBStorage:
-    url = normalise_storage_url(url)
+    url = driver_url(normalise_storage_url(url))  # a password's unencoded '@' is no host
     # Every study is opened here: optuna's one line per trial is noise at archive scale. Set where a study is
     # opened, not on import: importing this module changes no logging of the caller's.
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -100,7 +101,7 @@ def _storage(url: str) -> optuna.storages.RDBStorage:
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
     try:
         return optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_S, engine_kwargs={"pool_pre_ping": True})
-    except (sqlalchemy.exc.OperationalError, sqlalchemy.exc.ArgumentError, ImportError, ValueError) as exc:
+    except (sqlalchemy.exc.DBAPIError, sqlalchemy.exc.ArgumentError, ImportError, ValueError) as exc:
         reason = str(getattr(exc, "orig", exc)).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise MpiLidarError(f"cannot reach Optuna storage {masked(url)}: {_strip_password(reason, url)}; check "
                             "the host, port and database, and that the server runs") from None

@@ -75,12 +75,24 @@ FLAG_LEGEND: dict[Flag, FlagLegend] = {
                                       "1 % of a white surface's there) and plausible one combined ambiguity farther "
                                       "(24.0 m for 12.5-31.25 MHz): the surface lies past it; checked where the "
                                       "amplitudes' unit is trusted", "NaN", "#6c3483"),
+    Flag.MIXED: FlagLegend("X", "invalid: mixed pixel at a depth edge (two surfaces)",
+                           "the frequencies disagree beyond chi-square's 1 - 1e-3 quantile under the scan's noise law "
+                           "and a neighbour within one pixel lies more than 10 sigma and 5 cm nearer or farther: the "
+                           "footprint straddles a depth edge, and its one depth lies between the surfaces (a flying "
+                           "pixel); no two-return fit the data support", "NaN", "#48dbfb"),
+    Flag.TWO_RETURNS: FlagLegend("T", "valid, mixed pixel resolved into two returns; the stronger one's depth",
+                                 "a mixed pixel (as `mixed`) whose four equally spaced frequencies fit two returns "
+                                 "within their noise, at least 2 m apart, the weaker holding at least 20 % of the "
+                                 "light: the depth is the stronger return's, the weaker's range and share are "
+                                 "`second_return_depth` and `second_return_share` in corrected.zarr",
+                                 "the stronger return's", "#1dd1a1"),
 }
 
 ESTIMATE_LEGEND: dict[Estimate, str] = {
-    Estimate.NONE: "invalid (flags 2-5 and 10): NaN",
+    Estimate.NONE: "invalid (flags 2-5, 10 and 11): NaN",
     Estimate.MEASURED: "the highest frequency's depth (unwrapped): `--baseline raw`, frequencies that disagree, "
-                       "flag 9, or a scan whose amplitude unit could not be measured",
+                       "flag 9, or a scan whose amplitude unit could not be measured; for flag 12 the stronger "
+                       "return's range",
     Estimate.FUSED: "the frequencies' depths fused by inverse variance",
     Estimate.CORRECTED: "the model's (flag 0)",
 }

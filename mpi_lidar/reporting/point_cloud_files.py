@@ -94,6 +94,15 @@ def frame_record(frame: str = PointCloudFrame.SCANNER) -> dict[str, str]:
             "row": SCANNER_FRAME["row"], "column": SCANNER_FRAME["column"], "rays": SCANNER_FRAME["rays"]}
 
 
+def cloud_placement(frame: str = PointCloudFrame.SCANNER, no_return_range_m: float | None = None) -> str:
+    """Where a scan's point clouds put their points, in one line: recorded with its outputs (the
+    ``point_cloud_placement`` of its ``corrected.zarr``) and compared when a batch runs again into them."""
+    frame = PointCloudFrame(frame).value
+    if no_return_range_m is None:
+        return f"frame {frame}; pixels without a range left out"
+    return f"frame {frame}; pixels without a range withheld at {no_return_range_m:g} m"
+
+
 def point_cloud_metadata(frame: str = PointCloudFrame.SCANNER, no_return_range_m: float | None = None
                          ) -> dict[str, object]:
     """What the LAS/LAZ JSON record adds to the writer's own: the flag codes, the estimates and the frame, and where

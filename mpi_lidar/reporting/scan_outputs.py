@@ -37,7 +37,8 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
                        identity: dict[str, str], options: CorrectionOptions, outputs: str = "full",
                        cpu_s: dict[str, float] | None = None,
                        point_clouds: tuple[str, ...] | list[str] | None = None,
-                       bundle_dir: Path | None = None) -> list[str]:
+                       bundle_dir: Path | None = None, point_cloud_frame: str = "scanner",
+                       no_return_range_m: float | None = None) -> list[str]:
     """One scan's outputs at level ``outputs``, written into a staging directory and swapped in at the end.
 
     ``data``: ``corrected.zarr`` and ``metrics.json`` (counts, metrics, notes, the outputs written); ``light``:
@@ -50,7 +51,8 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
     ``corrected.ply``, ``las``/``laz`` ``corrected.las``/``.laz``, every file with the named fields of
     :func:`mpi_lidar.scans.pointcloud.correction_fields`, and the uncertainty where the correction has one;
     :func:`~mpi_lidar.reporting.point_cloud_files.write_point_clouds` says what each holds); None: ``ply`` and
-    ``laz`` at level full, ``laz`` at light, none at data. ``metrics`` are
+    ``laz`` at level full, ``laz`` at light, none at data; ``point_cloud_frame`` and ``no_return_range_m`` where
+    their points lie (:func:`~mpi_lidar.reporting.point_cloud_files.write_point_clouds`). ``metrics`` are
     :func:`~mpi_lidar.reporting.metrics.scan_metrics`, or a future of them (the store is written while they are
     worked out). Returns the notes for the batch summary;
     ``cpu_s``, if given, gets the CPU seconds of this process spent on ``write`` (store, point clouds, report, and a
@@ -103,7 +105,8 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
         if cloud_rays is not None:
             measured = measured_depth(scan, correction)
             with _cpu(cpu_s, "write"):
-                files += write_point_clouds(staging, formats, cloud_rays, scan, correction)
+                files += write_point_clouds(staging, formats, cloud_rays, scan, correction, frame=point_cloud_frame,
+                                            no_return_range_m=no_return_range_m)
             if level == OutputLevel.FULL and rays is not None:
                 with _cpu(cpu_s, "figures"):
                     raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), measured, np.nan), rays)

@@ -41,6 +41,14 @@ SPEED_OF_LIGHT_BOUNDS_M_PER_S = (2.9e8, 3.1e8)
 # How far a wrapped depth may pass its frequency's wrap period before the period is wrong: a relative share of
 # the period [1] plus an absolute margin [m] (float32 rounding and a phase of 2 pi read back as one of 0).
 WRAP_TOLERANCE = (1e-3, 1e-3)
+# The lowest depth a scan may hold [m], by how its depths were measured: a phase's depth is never negative (float32
+# rounding aside); a range the scanner unwrapped may pass zero by its noise, three deviations of the noisiest return
+# a scanner reports (decimetres at the lowest frequencies), never by more.
+MIN_DEPTH_M = {True: -WRAP_TOLERANCE[1], False: -1.0}
+# The scan grid's angles [rad]: an azimuth within one turn either way, an elevation within the poles.
+ANGLE_LIMITS_RAD = {"azimuth_rad": 2 * np.pi, "elevation_rad": np.pi / 2}
+# How far a ray direction's length may be from 1 (float32 rounding of a unit vector).
+RAY_NORM_TOLERANCE = 1e-3
 
 
 class ScanError(StoreError):
@@ -193,10 +201,7 @@ def validate(scan: Scan, source: str) -> Scan:
         raise ScanError(f"{source}: amplitude shape {amplitude.shape} differs from depth shape {depth.shape}")
     for name, array in (("depth", depth), ("amplitude", amplitude)):
         _check_dtype(source, name, array)
-    negative = sum(int((part < 0).sum()) for part in _parts(amplitude))
-    if negative:
-        raise ScanError(f"{source}: amplitude has negative values ({negative} pixels); an "
-                        "amplitude is a magnitude: check the importer or the tap order")
+    _check_amplitudes(amplitude, source)
     if not any(np.isfinite(part).any() for part in _parts(depth)):
         raise ScanError(f"{source}: no pixel has a finite depth")
     sizes = {"frequency": f, "y": depth.shape[1], "x": depth.shape[2], **FIXED_SIZES}
@@ -208,10 +213,60 @@ def validate(scan: Scan, source: str) -> Scan:
         value = getattr(scan, name)
         if value is not None:
             _check_dtype(source, name, value)
+    check_geometry_values({name: value for name in ("azimuth_rad", "elevation_rad", "ray_directions")
+                           if (value := getattr(scan, name)) is not None}, source)
     if not isinstance(depth, StoredMap) and not isinstance(amplitude, StoredMap):
         return replace(scan, depth=depth.astype(np.float32, copy=False),
                        amplitude=amplitude.astype(np.float32, copy=False))
     return scan
+
+
+def _check_amplitudes(amplitude: NDArray | StoredMap, source: str) -> None:
+    """Refuse negative amplitudes, and one positive amplitude over the whole scan: a magnitude that varies with
+    nothing is no measurement (a fill value, or a channel mapped wrong). NaN and infinite ones are flagged by
+    correction (not finite); amplitudes all 0 are a scan without a return (flagged no return)."""
+    negative, low, high = 0, np.inf, -np.inf
+    for part in _parts(amplitude):
+        negative += int((part < 0).sum())
+        finite = part[np.isfinite(part)]
+        if finite.size:
+            low, high = min(low, float(finite.min())), max(high, float(finite.max()))
+    if negative:
+        raise ScanError(f"{source}: amplitude has negative values ({negative} pixels); an "
+                        "amplitude is a magnitude: check the importer or the tap order")
+    if int(np.prod(amplitude.shape)) > 1 and low == high and low > 0:
+        raise ScanError(f"{source}: every finite amplitude is {low:g}: a constant is no measurement of a return's "
+                        "strength; import the scanner's amplitude (or intensity) channel")
+
+
+def check_geometry_values(arrays: Mapping[str, NDArray | StoredMap], source: str) -> None:
+    """Refuse scan-grid angles that are not finite radians within :data:`ANGLE_LIMITS_RAD` (azimuth within
+    +-2 pi, elevation within +-pi/2: beyond that they are degrees), and ray directions that are not finite unit
+    vectors (within :data:`RAY_NORM_TOLERANCE`)."""
+    for name, limit in ANGLE_LIMITS_RAD.items():
+        if name not in arrays:
+            continue
+        values = np.asarray(arrays[name], dtype=np.float64)
+        if not np.isfinite(values).all():
+            where = "column" if name == "azimuth_rad" else "row"
+            raise ScanError(f"{source}: {name} has values that are not finite ({int((~np.isfinite(values)).sum())} "
+                            f"pixel {where}s); every pixel {where} needs its angle")
+        largest = float(np.abs(values).max(initial=0.0))
+        if largest > limit * (1 + 1e-9):
+            degrees = name.replace("_rad", "_deg")
+            raise ScanError(f"{source}: {name} reaches {largest:g}, beyond the {limit:.4g} rad an angle of the scan "
+                            f"grid can be, so it is in degrees; import it with --var {degrees}=VARIABLE (or a "
+                            "NetCDF units attribute 'degrees')")
+    if "ray_directions" in arrays:
+        for part in _parts(arrays["ray_directions"]):
+            rays = np.asarray(part, dtype=np.float64)
+            if not np.isfinite(rays).all():
+                raise ScanError(f"{source}: ray_directions has values that are not finite; every pixel needs its "
+                                "ray")
+            off = float(np.abs(np.sqrt((rays**2).sum(axis=-1)) - 1).max(initial=0.0))
+            if off > RAY_NORM_TOLERANCE:
+                raise ScanError(f"{source}: ray_directions are not unit vectors (lengths up to {1 + off:.4g}); "
+                                "divide each by its length before importing")
 
 
 def check_speed_of_light(c: object, source: str) -> float:
@@ -226,8 +281,17 @@ def check_speed_of_light(c: object, source: str) -> float:
 
 
 def check_wrap_periods(scan: Scan, source: str) -> None:
-    """Refuse a wrapped scan whose finite depth at some frequency passes that frequency's wrap period c / 2f
-    (beyond :data:`WRAP_TOLERANCE`): its depths are unwrapped already, or were converted with another c."""
+    """Refuse depths outside what a scanner measures: below :data:`MIN_DEPTH_M` (a negative range), and, in a
+    wrapped scan, a finite depth at some frequency past that frequency's wrap period c / 2f (beyond
+    :data:`WRAP_TOLERANCE`): its depths are unwrapped already, or were converted with another c."""
+    lowest = min((float(part[np.isfinite(part)].min(initial=np.inf)) for part in _parts(scan.depth)),
+                 default=np.inf)
+    floor = MIN_DEPTH_M[scan.depth_wrapped]
+    if lowest < floor:
+        measured = "a phase's depth is never negative" if scan.depth_wrapped else (
+            f"a range passes zero by its noise, never by more than {-floor:g} m")
+        raise ScanError(f"{source}: its depth reaches {lowest:.4g} m: {measured}; import the scanner's ranges "
+                        "(distances from the scanner, in metres) as they are")
     if not scan.depth_wrapped:
         return
     relative, absolute = WRAP_TOLERANCE

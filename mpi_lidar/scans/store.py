@@ -83,6 +83,12 @@ class DamagedScanError(ScanError, IntegrityError):
     and an integrity failure."""
 
 
+def foreign_store_error(path: object, why: str) -> ScanError:
+    """A Zarr store another tool wrote (``why``: no mpi-lidar schema, never fingerprinted): not a damaged scan
+    but one to import first, which one line says."""
+    return ScanError(f"{path} is not a scan store ({why}); import it first: mpi-lidar import-scan {path} --out DIR")
+
+
 def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
     """Write a scan store atomically (built beside ``path``, then renamed). Refuses to overwrite by default."""
     path = Path(path)
@@ -186,7 +192,9 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
         raise ScanError(f"{path} is not a readable Zarr store ({type(exc).__name__})") from None
     if attrs.get("schema") != SCAN_SCHEMA:
-        raise ScanError(f"{path} is not an mpi-lidar scan (schema {attrs.get('schema')!r}, expected {SCAN_SCHEMA!r})")
+        raise foreign_store_error(path, f"schema {attrs.get('schema')!r}, expected {SCAN_SCHEMA!r}")
+    if not {"chunk_sha256", "depth_wrapped"} & set(attrs):  # this package writes both, with the arrays
+        raise foreign_store_error(path, "it was never fingerprinted, so another tool wrote it")
     try:
         _check_declared_sizes(path, arrays)
         frequencies = tuple(float(f) for f in attrs["frequencies_hz"])

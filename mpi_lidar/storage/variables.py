@@ -132,6 +132,13 @@ VARIABLES: tuple[Variable, ...] = (
                   "estimate's uncertainty; NaN where the depth or the range is not known."),
     Variable("multipath_bias_m", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
              "expected multipath bias (geometry gate)", note="Written by the geometry gate only."),
+    Variable("second_return_depth", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
+             "range of the weaker of two returns (flag two_returns)",
+             note="Written where some pixel was resolved into two returns; NaN elsewhere. corrected_depth holds "
+                  "the stronger return's range."),
+    Variable("second_return_share", Store.CORRECTED, ("y", "x"), "f", "float32", "1",
+             "share of the light of the weaker of two returns (flag two_returns)",
+             note="Its amplitude over the two returns' amplitudes; written with second_return_depth."),
     Variable("azimuth_rad", Store.CORRECTED, ("x",), "f", "as given", "rad", "azimuth of the pixel column",
              coordinate=True, note="The scan's, where it has a scan grid."),
     Variable("elevation_rad", Store.CORRECTED, ("y",), "f", "as given", "rad", "elevation of the pixel row",

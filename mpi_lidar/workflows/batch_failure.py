@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 from mpi_lidar.correction import ScanOutcome, ScanStatus
 from mpi_lidar.correction.options import FAIL_ON
-from mpi_lidar.correction.outcome import invalid_share
+from mpi_lidar.correction.outcome import degraded_reason
 from mpi_lidar.errors import MpiLidarError
 
 
@@ -36,7 +36,7 @@ def _why(outcome: ScanOutcome) -> str:
     if outcome.status == ScanStatus.FAILED:
         why = outcome.reason
     elif outcome.effective_status == ScanStatus.DEGRADED:
-        why = f"degraded: {100 * invalid_share(outcome.counts):.1f} % of its pixels are invalid"
+        why = f"degraded: {degraded_reason(outcome.counts)}"
     elif outcome.effective_status == ScanStatus.UNSERVED:
         why = f"unserved ({outcome.unserved}): {outcome.reason}" if outcome.status != ScanStatus.SKIPPED else (
             f"unserved ({outcome.unserved})")

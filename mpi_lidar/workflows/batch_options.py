@@ -17,7 +17,7 @@ from mpi_lidar.config import describe_validation_error
 from mpi_lidar.correction.options import FAIL_ON, USER_OPTIONS, CorrectionOptions, ScanStatus, UserOption
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OutputLevel
-from mpi_lidar.scans.pointcloud import PointCloudFormat
+from mpi_lidar.scans.pointcloud import PointCloudFormat, PointCloudFrame
 
 
 def _fails_a_batch(status: ScanStatus) -> ScanStatus:
@@ -29,6 +29,10 @@ def _fails_a_batch(status: ScanStatus) -> ScanStatus:
 # A status that --fail-on names (FAIL_ON): its schema lists those alone.
 FailOn = Annotated[ScanStatus, AfterValidator(_fails_a_batch),
                    WithJsonSchema({"type": "string", "enum": [status.value for status in FAIL_ON]})]
+
+
+# The farthest a no-return pixel may be placed [m]: beyond any AMCW scanner's ambiguity range.
+MAX_NO_RETURN_RANGE_M = 1000.0
 
 
 class BatchOptions(BaseModel):
@@ -58,6 +62,18 @@ class BatchOptions(BaseModel):
         "Write the corrected point cloud in this format at any --outputs level; repeatable: corrected.las / "
         "corrected.laz (LAS 1.4, the raw range an extra dimension) or raw.ply and corrected.ply, each with named "
         "fields per point. Default: laz at light, ply and laz at full, none at data."))
+    point_cloud_frame: PointCloudFrame = Field(PointCloudFrame.SCANNER, description=(
+        "Axes of the point clouds' coordinates: scanner (x to the scanner's left, y up, z forward) or z-up (x "
+        "forward, y to the left, z up, as most point-cloud viewers expect); both right-handed, the scanner at the "
+        "origin."))
+    no_return_range_m: float | None = Field(None, gt=0, le=MAX_NO_RETURN_RANGE_M, description=(
+        "Keep pixels without a range (no return, not finite, beyond the ambiguity) in the LAS/LAZ files, on their "
+        "ray at this range and classified Withheld (raw_range_m keeps what was measured); by default they are "
+        "left out."))
+    replace_options: bool = Field(False, description=(
+        "Correct into an --out that holds scans corrected with other options (or point-cloud settings): the "
+        "scans of this batch get the new ones, the others keep theirs, and the summary says which made each. "
+        "Without it such a batch is refused before anything is written."))
     workers: int = Field(0, ge=0, description=(
         "Worker processes of a local Dask cluster, each correcting scans of its own: for a machine with many more "
         "cores than one process keeps busy. 0: this process, which puts every core on each scan (on 2 cores "
@@ -68,6 +84,11 @@ class BatchOptions(BaseModel):
         """The point-cloud formats asked for, as names (None: the output level's own)."""
         return None if self.point_clouds is None else tuple(fmt.value for fmt in self.point_clouds)
 
+    def point_cloud_placement(self) -> dict[str, Any]:
+        """Where the point clouds' points lie, as :func:`~mpi_lidar.workflows.correct_archive.correct_archive`
+        takes it: ``point_cloud_frame`` and ``no_return_range_m``."""
+        return {"point_cloud_frame": self.point_cloud_frame.value, "no_return_range_m": self.no_return_range_m}
+
 
 # BatchOptions' fields as options of `mpi-lidar correct` and parameters of the correction flow, in that order.
 BATCH_OPTIONS: Final = (
@@ -76,6 +97,9 @@ BATCH_OPTIONS: Final = (
     UserOption("allow_unserved", "allow_unserved"),
     UserOption("outputs", "outputs"),
     UserOption("point_clouds", "point_clouds", spelling="--point-cloud"),
+    UserOption("point_cloud_frame", "point_cloud_frame"),
+    UserOption("no_return_range_m", "no_return_range", unit="m", metavar="M"),
+    UserOption("replace_options", "replace_options"),
     UserOption("workers", "workers"),
     UserOption("scheduler", "scheduler"),
 )
@@ -97,4 +121,6 @@ def batch_options(given: Mapping[str, object]) -> tuple[CorrectionOptions, Batch
         problems = describe_validation_error(exc, "options", shown=None)
         raise MpiLidarError(f"invalid batch options ({problems})") from None
     correction: dict[str, Any] = {option.name: given.get(option.name) for option in USER_OPTIONS}  # from_cli checks
-    return CorrectionOptions.from_cli(**correction, **profile_options(batch.sensor)), batch
+    model = given.get("model")  # the model directory, where given: a profile's frequencies must be its own
+    checked = model if isinstance(model, str | Path) else None
+    return CorrectionOptions.from_cli(**correction, **profile_options(batch.sensor, checked)), batch

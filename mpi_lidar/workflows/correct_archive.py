@@ -28,13 +28,13 @@ from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING
 
 from mpi_lidar.correction import CorrectionOptions, ScanOutcome, ScanStatus, correct_scan, make_gate
-from mpi_lidar.correction.outcome import scan_status
+from mpi_lidar.correction.outcome import scan_status, status_reason
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, CorrectionModel, load_model
 from mpi_lidar.locations import Location, location
 from mpi_lidar.reporting.metrics import scan_metrics
 from mpi_lidar.reporting.output_levels import check_outputs
-from mpi_lidar.reporting.point_cloud_files import point_cloud_files, point_cloud_formats
+from mpi_lidar.reporting.point_cloud_files import cloud_placement, point_cloud_files, point_cloud_formats
 from mpi_lidar.reporting.scan_outputs import write_scan_outputs
 from mpi_lidar.scans.store import STORED_MAPS_ABOVE_BYTES, read_scan
 from mpi_lidar.storage.manifest import unsealed, write_manifest
@@ -45,9 +45,12 @@ from mpi_lidar.workflows.batch_failure import FAIL_ON, batch_failure, failing_ou
 from mpi_lidar.workflows.executor import Executor, as_executor
 from mpi_lidar.workflows.existing_outputs import (
     already_done,
+    earlier_outcome,
     existing_results,
     has_files,
     has_outputs,
+    other_options,
+    output_folders,
     outputs_damage,
 )
 from mpi_lidar.workflows.remote_outputs import written_at
@@ -74,8 +77,8 @@ def _one_line(exc: Exception) -> str:
 
 
 def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path, options: CorrectionOptions,
-                 output: str | None = None, outputs: str = "full",
-                 point_clouds: tuple[str, ...] | None = None) -> ScanOutcome:
+                 output: str | None = None, outputs: str = "full", point_clouds: tuple[str, ...] | None = None,
+                 point_cloud_frame: str = "scanner", no_return_range_m: float | None = None) -> ScanOutcome:
     """Correct one scan and write its outputs into ``out_dir/output``; any failure becomes a 'failed' outcome.
 
     ``output`` is the scan's output directory relative to ``out_dir`` (:func:`scan_output_paths` of the
@@ -83,7 +86,9 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
     the output level (:data:`mpi_lidar.reporting.output_levels.OUTPUT_LEVELS`: full, light, data);
     ``point_clouds`` the point-cloud formats written at any level (``las``, ``laz``, ``ply``; None: the level's,
     ply and laz at full, laz at light, none at data), and a scan done before without one of them is corrected
-    again. Every exception (any type: a damaged store, a bug, no memory) fails this scan alone with a one-line
+    again; ``point_cloud_frame`` and ``no_return_range_m`` where their points lie
+    (:func:`~mpi_lidar.reporting.point_cloud_files.write_point_clouds`), and a scan done before with others is
+    corrected again. Every exception (any type: a damaged store, a bug, no memory) fails this scan alone with a one-line
     reason (``TypeName: message`` for other than the library's own errors); KeyboardInterrupt and SystemExit
     stop it.
     """
@@ -95,7 +100,8 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
         out = location(out_dir)
         base = out.local_path() if out.is_local else out
         return _process_scan(source, Path(model_dir), safe_output(base, output), options, started,
-                             outputs, point_clouds, bundle_dir=base, output=output)
+                             outputs, point_clouds, bundle_dir=base, output=output,
+                             placement=(point_cloud_frame, no_return_range_m))
     except Exception as exc:  # one bad scan, whatever went wrong, must not stop the batch
         return ScanOutcome(source, location(source).name, ScanStatus.FAILED, _one_line(exc),
                            seconds=time.perf_counter() - started)
@@ -146,8 +152,10 @@ def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None
 
 def _process_scan(source: str, model_dir: Path, target: Path | Location, options: CorrectionOptions,
                   started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None,
-                  bundle_dir: Path | Location | None = None, output: str = "") -> ScanOutcome:
+                  bundle_dir: Path | Location | None = None, output: str = "",
+                  placement: tuple[str, float | None] = ("scanner", None)) -> ScanOutcome:
     share_one_heap()
+    placed = cloud_placement(*placement)
     scan = read_scan(source, stored_above_bytes=STORED_MAPS_ABOVE_BYTES)  # a large scan stays in its store
     name = safe_scan_name(scan.name)  # not the output directory any more, but it names the scan everywhere
     model = _cached_model(str(model_dir))
@@ -158,7 +166,7 @@ def _process_scan(source: str, model_dir: Path, target: Path | Location, options
         scan_sha = scan.content_sha256()
         # What is skipped is verified first: every file the outputs' manifest lists, as written.
         damage = outputs_damage(target) if found else None
-        done = damage is None and already_done(target, scan_sha, model_sha, options_sha, outputs) and has_files(
+        done = damage is None and already_done(target, scan_sha, model_sha, options_sha, outputs, placed) and has_files(
             target, list(point_cloud_files(scan, outputs, point_clouds)))
         existing = existing_results(target) if done else None
         if existing is not None:
@@ -176,14 +184,16 @@ def _process_scan(source: str, model_dir: Path, target: Path | Location, options
             pending = hashing.submit(scan.content_sha256)
             correction = correct_scan(scan, model, options)
             scan_sha = pending.result()
-    identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha}
+    identity = {"scan_sha256": scan_sha, "model_sha256": model_sha, "options_sha256": options_sha,
+                "point_cloud_placement": placed}
     # A scan in memory is measured on a thread while its outputs are written; one in its store before (its
     # band of decoded rows would come on top of the writing's memory).
     with ThreadPoolExecutor(1) as beside, written_at(target, bundle_dir, output) as (directory, bundle):
         measuring = beside.submit(scan_metrics, scan, correction) if scan.in_memory() else None
         metrics = scan_metrics(scan, correction) if measuring is None else {}
         notes = write_scan_outputs(directory, scan, correction, metrics if measuring is None else measuring,
-                                   identity, options, outputs, point_clouds=point_clouds, bundle_dir=bundle)
+                                   identity, options, outputs, point_clouds=point_clouds, bundle_dir=bundle,
+                                   point_cloud_frame=placement[0], no_return_range_m=placement[1])
         metrics = metrics if measuring is None else measuring.result()
         if unsealed(directory):  # atomic_path wrote the manifest with the outputs; a marker left empty gets it now
             write_manifest(directory)
@@ -191,8 +201,8 @@ def _process_scan(source: str, model_dir: Path, target: Path | Location, options
         notes = [*notes, f"existing outputs were damaged, corrected again ({damage})"]
     counts = correction.counts()
     reason = None if correction.unserved is None else correction.unserved.reason
-    return ScanOutcome(source, name, scan_status(counts, options.max_invalid_share, reason),
-                       "" if correction.unserved is None else correction.unserved.message, output=str(target),
+    status = scan_status(counts, options.max_invalid_share, reason)
+    return ScanOutcome(source, name, status, status_reason(status, counts, correction.unserved), output=str(target),
                        counts=counts, metrics=metrics, seconds=time.perf_counter() - started, notes=tuple(notes),
                        unserved=reason)
 
@@ -201,7 +211,8 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
                     options: CorrectionOptions | None = None, executor: Executor | Client | None = None,
                     on_scan: Callable[[ScanOutcome], None] | None = None, *, client: Client | None = None,
                     outputs: str = "full", point_clouds: tuple[str, ...] | list[str] | None = None,
-                    on_done: Callable[[list[ScanOutcome]], object] | None = None) -> list[ScanOutcome]:
+                    on_done: Callable[[list[ScanOutcome]], object] | None = None, point_cloud_frame: str = "scanner",
+                    no_return_range_m: float | None = None, replace_options: bool = False) -> list[ScanOutcome]:
     """Correct every scan, one call of :func:`process_scan` per scan on ``executor``; a bad scan fails alone.
 
     The executor runs the scans in this process (None), as Dask tasks (an executor or a ``client``, the same)
@@ -213,9 +224,14 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     (:data:`mpi_lidar.reporting.output_levels.OUTPUT_LEVELS`); the command line and the correction flow default
     to ``light`` (:data:`~mpi_lidar.reporting.output_levels.DEFAULT_OUTPUTS`), the pipeline writes ``full``.
     ``point_clouds``: the point-cloud formats every scan writes (``las``, ``laz``, ``ply``) at any level;
-    None: the level's, ply and laz at full, laz at light, none at data. ``options`` None: the defaults.
-    ``on_done`` sees the outcomes while the batch still holds ``out_dir``
-    (:class:`~mpi_lidar.storage.publication.OutputLock`): the place for its summary.
+    None: the level's, ply and laz at full, laz at light, none at data; ``point_cloud_frame`` and
+    ``no_return_range_m`` where their points lie. ``options`` None: the defaults.
+    A local ``out_dir`` holding scans corrected with other options or point-cloud settings is refused before
+    anything is written (:func:`refuse_other_options`), unless ``replace_options``: this batch's scans then get
+    the new ones and the others keep theirs. ``on_done`` sees the outcomes while the batch still holds ``out_dir``
+    (:class:`~mpi_lidar.storage.publication.OutputLock`): the place for its summary; in a local ``out_dir`` they
+    include the scans earlier batches left there (skipped, "kept from an earlier batch"), so it counts every
+    scan of the folder.
     """
     options = options or CorrectionOptions()
     level = check_outputs(outputs)
@@ -225,13 +241,17 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
     out = location(out_dir)
     sources = expand_archive(inputs)
     directories = scan_output_paths(sources)
+    placed = cloud_placement(point_cloud_frame, no_return_range_m)
+    if out.is_local and not replace_options:
+        refuse_other_options(out.local_path(), options.sha256(), placed)
     lock = LocalOutputLock(_created(out.local_path())) if out.is_local else ObjectOutputLock(out)
     with lock.hold():  # a second batch into out_dir is refused while this one runs
         for folder in sorted({PurePosixPath(output).parent for output in directories.values()}):
             if ".." not in folder.parts:
                 lock.remove_interrupted(folder)
         calls = [{"source": source, "model_dir": str(model_dir), "out_dir": out.url, "options": options,
-                  "output": directories[source], "outputs": level, "point_clouds": point_clouds}
+                  "output": directories[source], "outputs": level, "point_clouds": point_clouds,
+                  "point_cloud_frame": point_cloud_frame, "no_return_range_m": no_return_range_m}
                  for source in sources]
         outcomes: list[ScanOutcome] = []
         for _call, outcome in as_executor(executor if executor is not None else client).map(process_scan, calls):
@@ -240,8 +260,31 @@ def correct_archive(inputs: list[str], model_dir: str | Path, out_dir: str | Pat
                 on_scan(outcome)
         outcomes.sort(key=lambda o: o.source)
         if on_done:  # the batch summary, written while the output directory is still this batch's
-            on_done(outcomes)
+            on_done(outcomes + (_earlier_outcomes(out.local_path(), outcomes, options) if out.is_local else []))
     return outcomes
+
+
+def refuse_other_options(out_dir: Path, options_sha: str, placement: str) -> None:
+    """Refuse, with one line, a batch into a local ``out_dir`` that holds scans corrected with other options or
+    point-cloud settings (their outputs' ``corrected.zarr`` records them): one folder would mix them unnoticed."""
+    if not out_dir.is_dir():
+        return
+    differing = other_options(output_folders(out_dir), options_sha, placement)
+    if differing:
+        folder, what = next(iter(sorted(differing.items())))
+        others = f" and {len(differing) - 1} other scan(s)" if len(differing) > 1 else ""
+        raise MpiLidarError(f"--out {out_dir} holds {folder.relative_to(out_dir).as_posix()}{others} corrected with "
+                            f"other settings ({what}); give the same options, another --out, or --replace-options "
+                            "to correct these scans with the new ones (the summary then says which options made "
+                            "each scan)")
+
+
+def _earlier_outcomes(out_dir: Path, outcomes: list[ScanOutcome], options: CorrectionOptions) -> list[ScanOutcome]:
+    """The scans earlier batches left in ``out_dir`` that this batch did not touch, for the summary."""
+    this_batch = {Path(o.output).resolve() for o in outcomes if o.output}
+    found = [earlier_outcome(folder, attrs, options.max_invalid_share)
+             for folder, attrs in output_folders(out_dir).items() if folder.resolve() not in this_batch]
+    return sorted((o for o in found if o is not None), key=lambda o: o.source)
 
 
 def _created(out_dir: Path) -> Path:

@@ -22,7 +22,7 @@ import zarr
 from mpi_lidar.correction import CORRECTED_SCHEMA
 from mpi_lidar.errors import StoreError
 from mpi_lidar.locations import Location, location
-from mpi_lidar.scans.store import MAX_ARRAY_VALUES, SCAN_SCHEMA, read_scan
+from mpi_lidar.scans.store import MAX_ARRAY_VALUES, SCAN_SCHEMA, foreign_store_error, read_scan
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.integrity import (
     IntegrityError,
@@ -69,6 +69,8 @@ def verify_store(path: str | Path) -> Verified:
         return _verified_arrays(path, "scan", check=False)
     if schema == CORRECTED_SCHEMA:
         return _verified_arrays(path, "corrected output", check=True, files=listed)
+    if schema is None:  # another tool's Zarr store: to import, not damaged
+        raise foreign_store_error(path, "no mpi-lidar schema: not a dataset, scan or corrected output")
     raise StoreError(f"{path} is not an mpi-lidar dataset, scan or corrected output (schema {schema!r})")
 
 

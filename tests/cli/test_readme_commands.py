@@ -68,7 +68,7 @@ def work(tmp_path_factory) -> Path:
     config = Config()
     rng = np.random.default_rng(0)
     depth = rng.uniform(1.5, 2.0, (4, 5, 6)).astype(np.float32)
-    np.savez(root / "frame.npz", depth=depth, amplitude=np.full_like(depth, 0.02),
+    np.savez(root / "frame.npz", depth=depth, amplitude=rng.uniform(0.01, 0.03, depth.shape).astype(np.float32),
              frequencies_hz=np.asarray(config.frequencies_hz))
     # Two of the pipeline's demo scenes already in its run directory, as small scans (it keeps existing scans):
     # the pipeline renders the third itself and corrects all three.

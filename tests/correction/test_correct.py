@@ -105,8 +105,11 @@ def test_correct_archive__rerun_skips_finished_scans_and_redoes_missing(archive,
     second = correct_archive([str(archive)], pixelwise_model, tmp_path, CorrectionOptions(), outputs=LIGHT)
     assert [o.status for o in second] == ["skipped", "unchanged", "skipped"]
     assert (tmp_path / "a" / "corrected.zarr" / "zarr.json").stat().st_mtime_ns == stamp
+    with pytest.raises(MpiLidarError, match="corrected with other settings"):
+        correct_archive([str(archive / "a.scan.zarr")], pixelwise_model, tmp_path,
+                        CorrectionOptions(gate="consistency"), outputs=LIGHT)
     other_gate = correct_archive([str(archive / "a.scan.zarr")], pixelwise_model, tmp_path,
-                                 CorrectionOptions(gate="consistency"), outputs=LIGHT)
+                                 CorrectionOptions(gate="consistency"), outputs=LIGHT, replace_options=True)
     assert other_gate[0].status == "corrected", "other options are another correction"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "no staging directories left"
 
@@ -309,9 +312,9 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(pixelwise_m
 
 @pytest.mark.unit
 def test_flag__existing_codes_are_stable():
-    assert [int(f) for f in Flag] == list(range(11))
+    assert [int(f) for f in Flag] == list(range(13))
     assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0 and Flag.UNCALIBRATED == 8
-    assert Flag.AMBIGUOUS == 9 and Flag.BEYOND_AMBIGUITY == 10
+    assert Flag.AMBIGUOUS == 9 and Flag.BEYOND_AMBIGUITY == 10 and Flag.MIXED == 11 and Flag.TWO_RETURNS == 12
 
 
 @pytest.mark.unit

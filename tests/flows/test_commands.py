@@ -257,18 +257,25 @@ def test_correct_archive_command__own_temporary_server_quiet_and_in_process(trai
 
 
 @pytest.mark.integration
-def test_correct_archive_command__failed_run_prints_one_error_line(trained, tmp_path: Path, home: Path,
-                                                                   prefect_api: str) -> None:
+def test_correct_archive_command__failed_run_prints_its_json_and_one_error_line(trained, archive: Path,
+                                                                              tmp_path: Path, home: Path,
+                                                                              prefect_api: str) -> None:
+    """A wrapper still reads the statuses of the scans that did succeed from the one JSON object on stdout."""
     broken = tmp_path / "broken.scan.zarr"
     broken.mkdir()
     (broken / "zarr.json").write_text("{not json")
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PREFECT_", "DASK_"))}
     env.update(PREFECT_HOME=str(home), PREFECT_API_URL=prefect_api)
-    done = subprocess.run([sys.executable, "-m", "flows", "correct-archive", "--scans", str(broken), "--model",
-                           trained["model"], "--out", str(tmp_path / "out")], cwd=REPO, env=env,
+    done = subprocess.run([sys.executable, "-m", "flows", "correct-archive", "--scans", str(broken),
+                           str(archive / "south.scan.zarr"), "--model", trained["model"], "--out",
+                           str(tmp_path / "out"), "--allow-unserved"], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)
-    assert done.returncode == 1 and done.stdout == ""
-    assert done.stderr.splitlines()[-1].startswith("error: 1 of 1 scans failed")
+    assert done.returncode == 1
+    printed = json.loads(done.stdout)
+    assert printed["state"] == "Failed" and printed["error"].startswith("1 of 2 scans failed")
+    assert printed["result"]["statuses"][str(broken)] == "failed"
+    assert printed["result"]["statuses"][str(archive / "south.scan.zarr")] != "failed"
+    assert done.stderr.splitlines()[-1].startswith("error: 1 of 2 scans failed")
     assert "Traceback" not in done.stderr
 
 
@@ -289,3 +296,9 @@ def test_regenerate_and_pipeline_commands__quiet_and_keyed(config_file: Path, tm
     assert piped["result"]["corrected"] is True and (tmp_path / "run" / "model" / "card.json").is_file()
     keys = assert_keyed(run_artifacts(piped["flow_run_id"], subflows=True))
     assert {"dataset-summary", "tuning-study", "model-card", "evaluation", SUMMARY_ARTIFACT_KEY} <= keys
+
+
+def test_build_parser__correct_archive_help_says_the_point_cloud_defaults_it_follows() -> None:
+    text = " ".join(runner.build_parser("correct-archive", runner.load_flow("correct-archive")).format_help().split())
+    assert "laz at light, ply and laz at full, none at data" in text and "none below" not in text
+    assert "--point-cloud-frame {scanner,z-up}" in text and "--no-return-range" in text

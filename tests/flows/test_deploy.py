@@ -120,3 +120,15 @@ def test_on_demand_deployments__correction_schema_has_every_correct_option(monke
     assert properties["gate"]["default"] == "geometry" and properties["min_bias_mm"].get("default") is None
     cli_options = {param.name for param in cli.cli.commands["correct"].params}
     assert cli_options - {"model_dir", "out_dir"} <= set(properties)
+
+
+def test_docs__every_prefect_server_start_command_turns_telemetry_off() -> None:
+    """A server started as documented prints no telemetry error: the variable is set in its shell block."""
+    pages = [REPO / "docs" / "how-to" / "prefect.md", REPO / "infra" / "README.md"]
+    started = 0
+    for page in pages:
+        for block in page.read_text().split("```")[1::2]:
+            if "prefect server start" in block:
+                started += 1
+                assert "PREFECT_SERVER_ANALYTICS_ENABLED=false" in block, f"{page.name}: {block}"
+    assert started >= 3

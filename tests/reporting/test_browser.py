@@ -102,7 +102,8 @@ LONG_NAME = "corridor_north_wing_2026-11-25_station_0001"  # long names must wra
 def _no_valid_pixel(name: str):
     """A scan whose every pixel is below the no-light noise: finite depths, no return anywhere."""
     scan = two_path_scan(name, height=12, width=16)
-    return replace(scan, amplitude=np.full_like(scan.amplitude, 1e-12))
+    faint = np.linspace(1e-12, 2e-12, scan.amplitude.size, dtype=np.float32).reshape(scan.amplitude.shape)
+    return replace(scan, amplitude=faint)
 
 
 def _batch(work: Path, model: Path) -> dict[str, Path]:

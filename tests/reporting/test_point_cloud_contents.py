@@ -36,7 +36,7 @@ from tests.scan_factory import two_path_scan
 
 pytestmark = pytest.mark.unit
 
-H, W = 12, 12
+H, W = 14, 12
 
 
 @pytest.fixture

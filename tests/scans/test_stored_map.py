@@ -71,8 +71,10 @@ def test_stored_map__ray_directions_stay_in_the_store_and_give_the_same_rays(tmp
 
 
 def tiled(footprint: float | str) -> CorrectionOptions:
-    """Tiles of seven rows and a remainder: they straddle the store's chunk boundary at row 512."""
-    return CorrectionOptions(footprint_area_m2=footprint, tile_pixels=7 * 160 + 13)
+    """Tiles of seven rows and a remainder: they straddle the store's chunk boundary at row 512. Blocks of 10 cm,
+    about 6 x 6 of the coarse render's own pixels (each repeated 4 x 4 times): smaller ones hold too few
+    independent depths for their planes to stand out of the noise."""
+    return CorrectionOptions(footprint_area_m2=footprint, tile_pixels=7 * 160 + 13, geometry_block_m=0.1)
 
 
 @pytest.fixture(scope="module")
@@ -149,7 +151,7 @@ def test_read_scan__stored_maps_are_validated_like_arrays_in_memory(tmp_path):
 @pytest.mark.slow
 def test_process_scan__a_scan_above_the_threshold_is_read_from_its_store_with_the_same_outputs(
         tall_store, model_dir, tmp_path, monkeypatch):
-    options = CorrectionOptions(footprint_area_m2=0.041)
+    options = CorrectionOptions(footprint_area_m2=0.041, geometry_block_m=0.1)  # as :func:`tiled`'s blocks
     in_memory = correct_archive.process_scan(tall_store, model_dir, tmp_path / "memory", options, outputs="data")
     opened = []
     monkeypatch.setattr(correct_archive, "STORED_MAPS_ABOVE_BYTES", 0)

@@ -62,6 +62,8 @@ def test_registry__attributes_the_stores_have_always_written():
         "unwrap_confidence": ("1", "posterior probability of the chosen wrap counts"),
         "estimate": ("1", "which estimate the corrected depth is"),
         "depth_uncertainty": ("m", "1-sigma uncertainty of the corrected depth"),
+        "second_return_depth": ("m", "range of the weaker of two returns (flag two_returns)"),
+        "second_return_share": ("1", "share of the light of the weaker of two returns (flag two_returns)"),
     }
     assert {name: (v.units, v.long_name) for name, v in CORRECTED.items()}.items() <= ARRAY_METADATA.items()
     assert {name: v.dims for name, v in DATASET.items()} == {

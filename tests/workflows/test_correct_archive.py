@@ -291,7 +291,8 @@ def test_correct_cli__fail_on_degraded_exits_1_after_writing_the_summary(small_m
                                "--fail-on", "degraded", "--fail-on", "unchanged")
     assert code == 1
     assert len(err.splitlines()) == 1 and re.fullmatch(
-        rf"error: scan {re.escape(str(archive / 'hot.scan.zarr'))}: degraded: 6[12]\.\d % of its pixels are invalid",
+        rf"error: scan {re.escape(str(archive / 'hot.scan.zarr'))}: degraded: 6[12]\.\d % of its pixels are invalid, "
+        r"first saturated \(6[12]\.\d %: its amplitude is saturated\)",
         err.splitlines()[0]), err
     summary = (tmp_path / "strict" / "summary" / "report.md").read_text()
     assert re.search(r"^\| hot \|[^\n]*\| ⚠ degraded \|", summary, re.M)

@@ -31,13 +31,14 @@ from mpi_lidar.scans.geometry._facing import (
     facing_blocks,
     multipath_potential,
 )
-from mpi_lidar.scans.geometry._pairs import FacingPairs
-from mpi_lidar.scans.geometry._planes import EDGE_JUMP_M, fit_block_planes, pixel_solid_angle
+from mpi_lidar.scans.geometry._pairs import FACING_SIGMAS, FacingPairs
+from mpi_lidar.scans.geometry._planes import EDGE_JUMP_M, fit_block_planes, pixel_solid_angle, plane_uncertainty
 from mpi_lidar.scans.geometry._points import point_cloud, surface_normals
 
 __all__ = [
-    "BAND_PIXELS", "DEFAULT_BLOCK_M", "DEFAULT_MAX_RANGE_M", "DEFAULT_MIN_COS", "EDGE_JUMP_M", "MAX_BLOCK_PIXELS",
-    "NO_COUPLING_ROOT", "BlockPotential", "EquivalentRhoAba", "FacingBlocks", "FacingPairs", "MultipathPotential",
-    "RayRowsLike", "block_row_bands", "block_size_pixels", "block_tiles", "facing_blocks", "fit_block_planes",
-    "multipath_potential", "nanmedian_last", "pixel_solid_angle", "point_cloud", "surface_normals", "to_blocks",
+    "BAND_PIXELS", "DEFAULT_BLOCK_M", "DEFAULT_MAX_RANGE_M", "DEFAULT_MIN_COS", "EDGE_JUMP_M", "FACING_SIGMAS",
+    "MAX_BLOCK_PIXELS", "NO_COUPLING_ROOT", "BlockPotential", "EquivalentRhoAba", "FacingBlocks", "FacingPairs",
+    "MultipathPotential", "RayRowsLike", "block_row_bands", "block_size_pixels", "block_tiles", "facing_blocks",
+    "fit_block_planes", "multipath_potential", "nanmedian_last", "pixel_solid_angle", "plane_uncertainty",
+    "point_cloud", "surface_normals", "to_blocks",
 ]

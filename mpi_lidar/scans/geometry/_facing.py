@@ -31,8 +31,9 @@ def multipath_potential(depth: NDArray, rays: NDArray, *, block_m: float = DEFAU
     The scan is cut into square blocks of about ``block_m`` [m]; a robust plane per block (centre, normal,
     area) stands in for its surface, so the raw depth's noise and its own smooth multipath bias do not
     make fake partners. For each pair of blocks A, B closer than ``max_range_m`` [m] that face each other
-    (cos_A, cos_B > ``min_cos``, and each centre further from the other's plane than three times the
-    two fits' residual RMS, so noisy planes of one surface never face each other), B couples to A with
+    (cos_A, cos_B > ``min_cos``, each centre further from the other's plane than three times the two fits'
+    residual RMS, and each cosine beyond three sds of the planes' turn under the noise, so noisy planes of one
+    surface never face each other), B couples to A with
     the scene simulator's kappa_B = (cos_A cos_B)^2 dA_B A_fp / (pi^2 r^4 cos_i) (the one kernel of
     :mod:`mpi_lidar.physics.coupling`; r clamped below by the block size, the sum capped at 1). A plane, a
     convex surface or open sky has no facing pair: zero everywhere. Block values are interpolated bilinearly to pixels.
@@ -48,8 +49,9 @@ class FacingBlocks:
     """A scan's block planes and the block pairs that face each other: the potential up to the footprint.
 
     Block arrays are (Hb, Wb, ...) as :func:`fit_block_planes` returns them; ``index`` holds the flat
-    indices of the usable blocks, in the order the pairs refer to; ``shape`` is the scan's (H, W) and
-    ``finite`` (H, W) marks the pixels with a point.
+    indices of the usable blocks, in the order the pairs refer to; ``shape`` is the scan's (H, W),
+    ``finite`` (H, W) marks the pixels with a point and ``normal_sd_rad`` (Hb, Wb) is the sd of each block's
+    normal under the noise [rad] (:func:`~mpi_lidar.scans.geometry.plane_uncertainty`).
     """
 
     shape: tuple[int, int]
@@ -62,6 +64,7 @@ class FacingBlocks:
     index: NDArray[np.intp]
     pairs: FacingPairs
     finite: NDArray[np.bool_]
+    normal_sd_rad: NDArray[np.float64]
 
     def bands(self, band_pixels: int = BAND_PIXELS) -> list[slice]:
         """Row ranges of whole block rows, about ``band_pixels`` pixels each (:func:`block_row_bands`)."""
@@ -154,7 +157,7 @@ class FacingBlocks:
 
 def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float = DEFAULT_BLOCK_M,
                   max_range_m: float = DEFAULT_MAX_RANGE_M, min_cos: float = DEFAULT_MIN_COS,
-                  band_pixels: int = BAND_PIXELS) -> FacingBlocks:
+                  band_pixels: int = BAND_PIXELS, depth_sigma: NDArray | None = None) -> FacingBlocks:
     """Block planes of a range map (H, W) [m] along unit rays (H, W, 3) and the block pairs that face each other.
 
     This is the costly part of :func:`multipath_potential` (plane fits, the partner search); the footprint
@@ -162,6 +165,11 @@ def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float
     fitted a tile of whole blocks at a time (about ``band_pixels``), each block from its own pixels, so the
     memory is that of one tile; ``rays`` may be anything that gives rows of rays by slicing
     (:class:`mpi_lidar.scans.scan.RayRows`), the depth any float array.
+
+    ``depth_sigma`` (H, W) [m] is the depth's sd per pixel under the scan's noise (NaN where not known; None:
+    the planes' own residuals stand for it): a pair faces only where both planes turn towards each other
+    beyond what that noise gives them (:func:`~mpi_lidar.scans.geometry.plane_uncertainty`), so the noisy
+    planes of a flat surface never face each other at any range.
     """
     h, w = depth.shape
     b = block_size_pixels(depth, rays, block_m)
@@ -172,12 +180,12 @@ def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float
         halo_rows = slice(max(rows.start - 1, 0), min(rows.stop + 1, h))
         band_rays = np.asarray(rays[halo_rows], dtype=np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):  # blocks without points (this thread only)
-            tiles = [tile_planes(depth, band_rays, halo_rows, rows, columns, b) for _, columns in band]
+            tiles = [tile_planes(depth, band_rays, halo_rows, rows, columns, b, depth_sigma) for _, columns in band]
         return [np.concatenate(parts, axis=1) for parts in zip(*tiles, strict=True)]
 
     fitted = on_cores(band_planes, bands)
-    centres, normals, keep, usable, rms, area, block_cos_i, finite = (np.concatenate(parts)
-                                                                       for parts in zip(*fitted, strict=True))
+    centres, normals, keep, usable, rms, area, block_cos_i, normal_sd, centre_sd, finite = (
+        np.concatenate(parts) for parts in zip(*fitted, strict=True))
     index = np.flatnonzero(usable.ravel())
     empty = np.zeros(0)
     pairs = FacingPairs(np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), empty, empty, empty, empty, empty,
@@ -188,8 +196,9 @@ def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float
         found = pairs_within(c, max_range_m)
         if found.size:
             i, j = found[:, 0], found[:, 1]
-            pairs = facing_pairs(i, j, c, n, cos_blk, a_blk, noise[i] + noise[j], min_cos)
-    return FacingBlocks((h, w), b, centres, normals, keep, usable, rms, index, pairs, finite)
+            pairs = facing_pairs(i, j, c, n, cos_blk, a_blk, noise[i] + noise[j], min_cos,
+                                 normal_sd.ravel()[index], centre_sd.ravel()[index])
+    return FacingBlocks((h, w), b, centres, normals, keep, usable, rms, index, pairs, finite, normal_sd)
 
 
 @dataclass(frozen=True)

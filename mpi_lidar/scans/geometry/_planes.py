@@ -11,6 +11,9 @@ from mpi_lidar.scans.geometry._blocks import nanmedian_last, to_blocks
 
 # Range jump [m] within a block beyond which points are taken for another surface in the first plane fit.
 EDGE_JUMP_M = 0.1
+# Depth sd over a block's lateral spread [1] beyond which its fitted normal is taken for unknown: the noise
+# across the plane nears its extent along it, and the smallest principal axis follows the noise.
+MAX_NOISE_OVER_SPREAD = 0.7
 
 
 def fit_block_planes(points: NDArray, b: int, min_share: float = 0.3
@@ -55,11 +58,13 @@ def fit_block_planes(points: NDArray, b: int, min_share: float = 0.3
     return centres, normals, keep, usable, rms
 
 
-def tile_planes(depth: NDArray, band_rays: NDArray, halo_rows: slice, rows: slice, columns: slice, b: int
-                 ) -> tuple[NDArray, ...]:
-    """Block planes of one tile of whole blocks: centres, normals, inliers, usable flags, RMS, plane areas [m^2]
-    and incidence cosines per block, and the tile's finite pixels. ``band_rays`` are the rays of
-    ``halo_rows``: the tile's rows and one more on each side where the scan has it."""
+def tile_planes(depth: NDArray, band_rays: NDArray, halo_rows: slice, rows: slice, columns: slice, b: int,
+                depth_sigma: NDArray | None = None) -> tuple[NDArray, ...]:
+    """Block planes of one tile of whole blocks: centres, normals, inliers, usable flags, RMS, plane areas [m^2],
+    incidence cosines, the sd of each normal's direction [rad] and of its centre along the normal [m] per block
+    (:func:`plane_uncertainty`, from the depth sd map ``depth_sigma`` (H, W) [m] where given), and the tile's
+    finite pixels. ``band_rays`` are the rays of ``halo_rows``: the tile's rows and one more on each side where
+    the scan has it."""
     w = depth.shape[1]
     d = np.asarray(depth[rows, columns], dtype=np.float64)
     d = np.where(np.isfinite(d) & (d > 0), d, np.nan)
@@ -69,7 +74,10 @@ def tile_planes(depth: NDArray, band_rays: NDArray, halo_rows: slice, rows: slic
     core = (slice(rows.start - halo_rows.start, rows.stop - halo_rows.start),
             slice(columns.start - left, columns.stop - left))
     r = halo[core]
-    centres, normals, keep, usable, rms = fit_block_planes(d[..., None] * r, b)
+    points = d[..., None] * r
+    centres, normals, keep, usable, rms = fit_block_planes(points, b)
+    sigma = None if depth_sigma is None else to_blocks(np.asarray(depth_sigma[rows, columns], dtype=np.float64), b)
+    normal_sd, centre_sd = plane_uncertainty(to_blocks(points, b), keep, centres, normals, rms, sigma)
     # Pixel footprints on the fitted plane: range^2 times solid angle over the incidence cosine.
     solid_angle = pixel_solid_angle(halo)[core]
     cos_i = np.abs(np.einsum("hwni,hwi->hwn", np.nan_to_num(to_blocks(r, b)), normals))
@@ -77,7 +85,45 @@ def tile_planes(depth: NDArray, band_rays: NDArray, halo_rows: slice, rows: slic
     area = np.where(keep, np.nan_to_num(pixel_area), 0.0).sum(-1)
     centre_ray = centres / np.maximum(np.linalg.norm(centres, axis=-1, keepdims=True), 1e-12)
     block_cos_i = np.maximum(-np.einsum("hwi,hwi->hw", normals, centre_ray), 1e-3)
-    return centres, normals, keep, usable, rms, area, block_cos_i, np.isfinite(d)
+    return centres, normals, keep, usable, rms, area, block_cos_i, normal_sd, centre_sd, np.isfinite(d)
+
+
+def plane_uncertainty(points: NDArray, keep: NDArray, centres: NDArray, normals: NDArray, rms: NDArray,
+                      sigma: NDArray | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """How far the depth noise can turn each block's plane: the sd of its normal's direction [rad] and of its
+    centre along the normal [m] (Hb, Wb).
+
+    ``points`` (Hb, Wb, b*b, 3) [m], their inliers ``keep`` (Hb, Wb, b*b), the blocks' ``centres`` (Hb, Wb, 3)
+    [m], unit ``normals`` (Hb, Wb, 3) and residual ``rms`` (Hb, Wb) [m] as :func:`fit_block_planes` gives them;
+    ``sigma`` (Hb, Wb, b*b) [m] the depth sd of every pixel (the scan's noise at its amplitude), None where not
+    known. Depth noise moves a point along its ray, so across the plane by the depth sd times the incidence
+    cosine: the root mean square of the inliers' sds times it, or the residual's own estimate where that is
+    larger (a normal the noise has turned leaves the noise in the residual; without ``sigma`` the residual is
+    all there is). A smallest principal axis of n points of lateral spread s (their rms offset across the line
+    of sight along its narrower direction, free of the depth noise) and noise e across the plane turns by
+    (e / s) / (sqrt(n) (1 - (e / s)^2)): at a long range the noise nears the block's width, the fit's own
+    residual understates it, and where e / s reaches ``MAX_NOISE_OVER_SPREAD`` the normal is taken for
+    unknown (an infinite sd). Blocks with fewer than 3 inliers get infinite sds.
+    """
+    count = keep.sum(-1)
+    n = np.maximum(count, 1)
+    across = rms * np.sqrt(n / np.maximum(n - 3, 1))  # the plane's three parameters take their share
+    line_of_sight = centres / np.maximum(vector_length(centres), 1e-12)[..., None]
+    if sigma is not None:
+        mean_variance = np.where(keep, np.nan_to_num(sigma) ** 2, 0.0).sum(-1) / n
+        cos_i = np.abs(np.einsum("hwi,hwi->hw", normals, line_of_sight))
+        across = np.maximum(np.sqrt(mean_variance) * cos_i, across)
+    offset = np.where(keep[..., None], np.nan_to_num(points) - centres[..., None, :], 0.0)
+    lateral = offset - np.einsum("hwni,hwi->hwn", offset, line_of_sight)[..., None] * line_of_sight[..., None, :]
+    spread = np.linalg.eigvalsh(np.matmul(lateral.swapaxes(-1, -2), lateral) / n[..., None, None])[..., 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = across / np.sqrt(np.maximum(spread, 0.0))
+        # The smallest principal axis turns by the points' cross moment over the gap between the lateral and the
+        # noise variances; where the noise nears the spread, that axis is any.
+        known = (count >= 3) & (ratio < MAX_NOISE_OVER_SPREAD)
+        normal_sd = np.where(known, ratio / (np.sqrt(n) * (1.0 - np.where(known, ratio, 0.0) ** 2)), np.inf)
+    centre_sd = np.where(count >= 3, across / np.sqrt(n), np.inf)
+    return normal_sd, centre_sd
 
 
 def pixel_solid_angle(rays: NDArray) -> NDArray[np.float64]:

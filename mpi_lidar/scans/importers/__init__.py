@@ -1,6 +1,6 @@
 """Importers of other tools' files into scans, one module per format (as xarray's backends), and the
 registry that picks one by suffix: :func:`load_scan_file`, and the batch import of :func:`find_scan_files`,
-:func:`plan_import` and :func:`import_files`.
+:func:`plan_import`, :func:`new_stores` and :func:`import_files`.
 
 The interface every importer keeps is :class:`~mpi_lidar.scans.importers.base.ScanImporter`.
 """
@@ -27,15 +27,16 @@ from mpi_lidar.scans.importers.base import (
 )
 from mpi_lidar.scans.importers.netcdf import NetcdfImporter, load_netcdf
 from mpi_lidar.scans.importers.npz import NpzImporter, load_npz
+from mpi_lidar.scans.importers.zarr_group import ZarrImporter, is_zarr_group, load_zarr, zarr_scan_name
 from mpi_lidar.scans.scan import Scan, ScanError, check_wrap_periods
 from mpi_lidar.scans.store import MAX_SCAN_BYTES, SCAN_SUFFIX, read_scan, write_scan
 
 __all__ = ["IMPORTERS", "IMPORT_SUFFIXES", "MAX_FILE_BYTES", "SCAN_VARIABLES", "ScanImporter", "check_regular_file",
            "check_variables", "find_scan_files", "import_arrays", "import_files", "importer_for", "load_netcdf",
-           "load_npz", "load_scan_file", "plan_import", "select_variables"]
+           "load_npz", "load_scan_file", "load_zarr", "new_stores", "plan_import", "select_variables"]
 
 # The importers, in the order their suffixes are listed to the user.
-IMPORTERS: tuple[ScanImporter, ...] = (NpzImporter(), NetcdfImporter())
+IMPORTERS: tuple[ScanImporter, ...] = (NpzImporter(), NetcdfImporter(), ZarrImporter())
 IMPORT_SUFFIXES = tuple(suffix for importer in IMPORTERS for suffix in importer.suffixes)
 
 
@@ -47,10 +48,11 @@ def importer_for(path: Path) -> ScanImporter | None:
 
 def load_scan_file(path: str | Path, frequencies_hz: tuple[float, ...] | None = None,
                    variables: Mapping[str, str] | None = None, speed_of_light_m_per_s: float | None = None) -> Scan:
-    """Import one file by its suffix: ``.npz`` (:func:`load_npz`), ``.nc``/``.h5``/``.hdf5`` (:func:`load_netcdf`).
+    """Import one file by its suffix: ``.npz`` (:func:`load_npz`), ``.nc``/``.h5``/``.hdf5`` (:func:`load_netcdf`),
+    or a Zarr group's directory ``.zarr`` (:func:`load_zarr`).
 
-    Only a regular file of at most :data:`MAX_FILE_BYTES` is opened (every importer checks it with
-    :func:`check_regular_file` first).
+    Only a regular file of at most :data:`MAX_FILE_BYTES` (a directory holding a Zarr group for ``.zarr``) is
+    opened (every importer checks it with its ``check_source`` first).
     """
     path = Path(path)
     importer = importer_for(path)
@@ -63,14 +65,17 @@ def load_scan_file(path: str | Path, frequencies_hz: tuple[float, ...] | None = 
 def find_scan_files(sources: Sequence[str | Path]) -> list[Path]:
     """The files named directly, found in a directory (not recursively) or matched by a glob, in order, once.
 
-    A source that names nothing importable is an error, so a mistyped path or pattern is never silently empty;
-    so is any path found that is not a regular file within :data:`MAX_FILE_BYTES` (:func:`check_regular_file`:
-    a FIFO, a device or a link to one), before any file is opened.
+    A Zarr group (a directory with its metadata) named directly is one source; a directory that is not one is
+    searched. A source that names nothing importable is an error, so a mistyped path or pattern is never
+    silently empty; so is any path found that its importer cannot read safely (:func:`check_regular_file`: a
+    FIFO, a device or a link to one; a ``.zarr`` that is not a Zarr group), before any file is opened.
     """
     found: list[Path] = []
     for source in sources:
         path = Path(source)
-        if path.is_dir():
+        if is_zarr_group(path):
+            matches = [path]
+        elif path.is_dir():
             matches = sorted(p for p in path.iterdir() if _importable(p))
         elif path.exists():
             matches = [path]
@@ -81,7 +86,11 @@ def find_scan_files(sources: Sequence[str | Path]) -> list[Path]:
         if not matches:
             raise ScanError(f"{source} holds or matches no {', '.join(IMPORT_SUFFIXES)} file")
         for match in matches:
-            check_regular_file(match)
+            importer = importer_for(match)
+            if importer is None:
+                raise ScanError(f"{match}: cannot import {match.suffix.lower() or 'a file without suffix'}; give "
+                                f"{', '.join(IMPORT_SUFFIXES)}")
+            importer.check_source(match)
         found += matches
     unique: dict[Path, Path] = {}
     for path in found:
@@ -94,9 +103,18 @@ def _importable(path: Path) -> bool:
     return path.suffix.lower() in IMPORT_SUFFIXES and not path.name.startswith(".")
 
 
+def store_name(path: Path) -> str:
+    """The name of the scan store a file is imported into: ``<name>.scan.zarr``, ``<name>`` the file's name
+    without its suffix (without ``.scan.zarr`` or ``.zarr`` for a Zarr group)."""
+    stem = zarr_scan_name(path) if path.suffix.lower() == ".zarr" else path.stem
+    return f"{stem}{SCAN_SUFFIX}"
+
+
 def plan_import(files: Sequence[Path], out: str | Path) -> list[tuple[Path, Path]]:
     """(source, store) pairs: ``out`` itself for one file and an ``out`` ending in ``.scan.zarr``, else
-    ``out/<stem>.scan.zarr`` per file. Two files for one store, or a store that exists, are refused."""
+    ``out/<name>.scan.zarr`` per file (:func:`store_name`). Two files for one store are refused, and so is an
+    ``out`` store that exists; in a directory, stores that exist already are for :func:`new_stores` to set
+    apart."""
     out = Path(out)
     if out.name.endswith(SCAN_SUFFIX):
         if len(files) != 1:
@@ -106,16 +124,29 @@ def plan_import(files: Sequence[Path], out: str | Path) -> list[tuple[Path, Path
     else:
         if out.exists() and not out.is_dir():
             raise ScanError(f"--out {out} exists and is not a directory")
-        plan = [(Path(f), out / f"{Path(f).stem}{SCAN_SUFFIX}") for f in files]
+        plan = [(Path(f), out / store_name(Path(f))) for f in files]
     targets: dict[Path, Path] = {}
     for source, target in plan:
         if target in targets:
             raise ScanError(f"{targets[target]} and {source} would both be written to {target}; import them "
                             "into different directories")
         targets[target] = source
-        if target.exists() or target.is_symlink():
-            raise ScanError(f"{target} already exists; choose another --out or remove it")
+    if out.name.endswith(SCAN_SUFFIX) and (out.exists() or out.is_symlink()):
+        raise ScanError(f"{out} already exists; choose another --out or remove it")
     return plan
+
+
+def new_stores(plan: Sequence[tuple[Path, Path]]) -> tuple[list[tuple[Path, Path]], list[tuple[Path, Path]]]:
+    """The pairs of a plan whose store does not exist yet, and those whose store does (an earlier import into
+    the same directory): more files are added to an import directory, never over a store already there. A plan
+    whose every store exists is refused with one line naming the first."""
+    existing = [(source, target) for source, target in plan if target.exists() or target.is_symlink()]
+    if existing and len(existing) == len(plan):
+        source, target = existing[0]
+        more = f" (and the {len(existing) - 1} others')" if len(existing) > 1 else ""
+        raise ScanError(f"{target} already exists{more}, so {source} was not imported; nothing was new: remove a "
+                        "store to import its file again, or choose another --out")
+    return [pair for pair in plan if pair not in existing], existing
 
 
 def import_files(plan: Sequence[tuple[Path, Path]], frequencies_hz: tuple[float, ...] | None = None,

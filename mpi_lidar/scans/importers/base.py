@@ -58,8 +58,9 @@ class ScanImporter(ABC):
 
     The contract every importer keeps:
 
-    - **What it reads**: a file whose name ends in one of :attr:`suffixes` (lower case; the registry in
-      :mod:`mpi_lidar.scans.importers` picks the importer by suffix). Its arrays are named as in the scan store
+    - **What it reads**: a file (a directory for Zarr) whose name ends in one of :attr:`suffixes` (lower case;
+      the registry in :mod:`mpi_lidar.scans.importers` picks the importer by suffix), once
+      :meth:`check_source` accepts the path. Its arrays are named as in the scan store
       (:data:`SCAN_VARIABLES`), or mapped by ``variables`` (scan name -> the file's own name, checked with
       :func:`check_variables`); other arrays are refused or ignored as the format documents. The frequencies
       come from ``frequencies_hz`` when given, else from the file.
@@ -74,6 +75,11 @@ class ScanImporter(ABC):
     """
 
     suffixes: ClassVar[tuple[str, ...]]
+
+    def check_source(self, path: Path) -> None:
+        """Refuse, before anything is opened, a path this importer cannot read safely (by default anything
+        but a regular file of at most :data:`MAX_FILE_BYTES`: :func:`check_regular_file`)."""
+        check_regular_file(path)
 
     @abstractmethod
     def load(self, path: Path, frequencies_hz: tuple[float, ...] | None = None,
@@ -252,6 +258,11 @@ def select_variables(source: str, held: Collection[str], variables: Mapping[str,
     if clash:
         raise ScanError(f"{source} holds {clash} itself and --var maps other arrays to them; remove one or the "
                         f"other, or leave it out with --var {IGNORE}={','.join(clash)}")
+    needed = [] if "taps" in chosen else [name for name in ("depth", "amplitude") if name not in chosen]
+    if unknown and needed:  # some of them hold the measurements: never suggest leaving those out
+        raise ScanError(f"{source} holds no {' or '.join(needed)} under the scan store's names; map "
+                        f"{'them' if len(needed) > 1 else 'it'} from its variables {unknown} with "
+                        f"{' '.join(f'--var {name}=VARIABLE' for name in needed)} (or --var taps=VARIABLE)")
     if unknown:
         what = (f"variable {unknown[0]!r} is not a scan array" if len(unknown) == 1
                 else f"variables {unknown} are not scan arrays")

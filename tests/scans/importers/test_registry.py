@@ -16,11 +16,11 @@ from tests.scans.importers.files import FREQS, MAPPING, save_npz, tool_dataset
 
 @pytest.mark.unit
 def test_importers__one_per_format_each_suffix_once(tmp_path):
-    assert IMPORT_SUFFIXES == (".npz", ".nc", ".h5", ".hdf5")
+    assert IMPORT_SUFFIXES == (".npz", ".nc", ".h5", ".hdf5", ".zarr")
     assert all(isinstance(importer, ScanImporter) for importer in IMPORTERS)
     assert importer_for(tmp_path / "A.NPZ") is IMPORTERS[0] and importer_for(tmp_path / "a.hdf5") is IMPORTERS[1]
     assert importer_for(tmp_path / "a.txt") is None
-    with pytest.raises(ScanError, match=r"cannot import \.txt; give \.npz, \.nc, \.h5, \.hdf5"):
+    with pytest.raises(ScanError, match=r"cannot import \.txt; give \.npz, \.nc, \.h5, \.hdf5, \.zarr"):
         from mpi_lidar.scans.importers import load_scan_file
 
         load_scan_file(tmp_path / "a.txt", FREQS)
@@ -103,6 +103,26 @@ def test_import_scan_cli__single_store_and_user_errors(tmp_path, monkeypatch, ca
         assert code == 2 and out == "", args
         assert_one_error_line(err, fragment)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.npz", "two.npz", "x.scan.zarr"]
+
+
+@pytest.mark.integration
+def test_import_scan_cli__more_files_join_an_import_directory(tmp_path, monkeypatch, capsys):
+    day = tmp_path / "day"
+    day.mkdir()
+    save_npz(day / "a.npz", "a")
+    code, _, err = call_main(monkeypatch, capsys, "import-scan", day, "--out", tmp_path / "out")
+    assert code == 0, err
+    first = (tmp_path / "out" / "a.scan.zarr" / "zarr.json").stat().st_mtime_ns
+    save_npz(day / "b.npz", "b", seed=1)
+    code, out, err = call_main(monkeypatch, capsys, "import-scan", str(day / "*.npz"), "--out", tmp_path / "out")
+    assert code == 0, err
+    assert "scan b:" in out and "scan a:" not in out
+    assert err.count("\n") == 1 and "a.npz (a.scan.zarr)" in err and "b.npz" not in err
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.scan.zarr", "b.scan.zarr"]
+    assert (tmp_path / "out" / "a.scan.zarr" / "zarr.json").stat().st_mtime_ns == first
+    code, out, err = call_main(monkeypatch, capsys, "import-scan", day, "--out", tmp_path / "out")
+    assert code == 2 and out == ""
+    assert_one_error_line(err, "a.scan.zarr already exists (and the 1 others')")
 
 
 @pytest.mark.integration

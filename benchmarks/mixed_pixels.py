@@ -1,0 +1,239 @@
+"""Mixed pixels at depth edges: a plate before a wall, rendered with sub-ray footprints, through the correction.
+
+Run: .venv/bin/python -m benchmarks.mixed_pixels [--model DIR] [--work DIR] [--quick]
+
+Each scene is a fronto-parallel plate before a fronto-parallel wall, both Lambertian, seen on a small scan grid;
+each pixel's footprint is 4 x 4 sub-rays, each hitting the plate (inside a rectangle whose edges fall between
+pixel centres) or the wall, and the pixel's phasor at each frequency is the sum of its sub-rays' (amplitude
+Gamma_R albedo cos / r^2, phase 4 pi f r / c), through the sensor model with its noise
+(:func:`mpi_lidar.simulation.scenes.scan_from_phasors`). A mixed pixel is one whose sub-rays hit both. The scans are
+corrected with default options (:func:`mpi_lidar.correction.correct_scan`) and the benchmark prints, per scene:
+
+- the mixed pixels, and of them: reported as one valid depth more than 5 cm from both surfaces (the target: at most
+  2 %), flagged ``mixed``, resolved (``two_returns``), flagged ``inconsistent``;
+- of the resolved: the stronger and the weaker return's median and largest error against the sub-rays' truth, and
+  the median of those errors over the two-return Cramer-Rao bound;
+- then the share of pixels flagged mixed or two_returns on clean surfaces (flat walls, corners, the cornered board,
+  1-20 m; the target: under 0.1 %).
+
+The model is ``--model DIR``, or one trained here as the correction benchmark's (``--quick``: a small one and a
+smaller sweep).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from benchmarks.correction import trained_model
+from mpi_lidar.config import Config
+from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.learning.model import CorrectionModel, load_model
+from mpi_lidar.physics.noise import NoiseModel
+from mpi_lidar.scans.scan import Scan
+from mpi_lidar.simulation.scenes import corner, cornered_board, flat_wall, render, scan_from_phasors
+
+SUB = 4  # sub-rays per pixel side
+HEIGHT, WIDTH = 48, 64
+HALF_FOV_RAD = 0.12
+
+
+@dataclass(frozen=True)
+class PlateScene:
+    """A plate of ``plate_albedo`` at ``plate_m`` before a wall of ``wall_albedo`` at ``wall_m``."""
+
+    plate_m: float
+    plate_albedo: float
+    wall_m: float
+    wall_albedo: float
+
+    @property
+    def label(self) -> str:
+        return f"plate {self.plate_albedo:g} at {self.plate_m:g} m, wall {self.wall_albedo:g} at {self.wall_m:g} m"
+
+
+ISSUE_SCENES = (PlateScene(1.5, 0.05, 3.0, 1.0), PlateScene(1.5, 0.9, 3.0, 0.3), PlateScene(2.0, 0.1, 9.0, 1.0))
+
+
+def sweep(quick: bool) -> tuple[PlateScene, ...]:
+    """Gaps 0.2-10 m and albedo ratios 0.05-20 (plate over wall), plate at 2 m."""
+    gaps = (0.2, 1.0, 3.0, 10.0) if quick else (0.2, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0)
+    pairs = ((0.05, 1.0), (1.0, 0.05)) if quick else ((0.05, 1.0), (0.2, 0.8), (0.5, 0.5), (0.8, 0.2), (1.0, 0.05))
+    return tuple(PlateScene(2.0, p, 2.0 + g, wa) for g in gaps for p, wa in pairs)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Per pixel (H, W): the plate's and the wall's range [m] and the plate's share of the sub-rays [1]."""
+
+    plate_m: NDArray[np.float64]
+    wall_m: NDArray[np.float64]
+    plate_share: NDArray[np.float64]
+    plate_light: NDArray[np.float64]  # the plate's share of the light
+
+
+def render_plate(scene: PlateScene, config: Config, rng: np.random.Generator) -> tuple[Scan, Truth]:
+    """The scene's scan (sub-ray footprints, the sensor's noise) and its truth per pixel."""
+    az = np.linspace(-HALF_FOV_RAD, HALF_FOV_RAD, WIDTH)
+    el = np.linspace(-HALF_FOV_RAD * HEIGHT / WIDTH, HALF_FOV_RAD * HEIGHT / WIDTH, HEIGHT)
+    step = az[1] - az[0]
+    offsets = (np.arange(SUB) + 0.5) / SUB - 0.5
+    sub_az = (az[None, :, None, None] + step * offsets[None, None, None, :])  # (1, W, 1, SUB)
+    sub_el = (el[:, None, None, None] + step * offsets[None, None, :, None])  # (H, 1, SUB, 1)
+    tan_x, tan_y = np.tan(sub_az), np.tan(sub_el)
+    # The plate: a rectangle in angle whose edges fall between pixel centres, left part of the view.
+    on_plate = (tan_x < np.tan(0.0133)) & (tan_y > np.tan(-0.0571)) & (tan_y < np.tan(0.0493))
+    on_plate = np.broadcast_to(on_plate, (HEIGHT, WIDTH, SUB, SUB))
+    cosine = 1.0 / np.sqrt(1.0 + tan_x**2 + tan_y**2)  # incidence on a fronto-parallel plane
+    freqs = np.asarray(config.frequencies_hz)
+    c = config.sensor.speed_of_light_m_per_s
+    phasor = np.zeros((freqs.size, HEIGHT, WIDTH), np.complex128)
+    light = {}
+    for name, depth, albedo, where in (("plate", scene.plate_m, scene.plate_albedo, on_plate),
+                                       ("wall", scene.wall_m, scene.wall_albedo, ~on_plate)):
+        r = depth / cosine
+        amp = np.where(where, config.sensor.gamma_r_v2 * albedo * cosine / r**2, 0.0) / SUB**2
+        light[name] = amp.sum(axis=(2, 3))
+        for k, f in enumerate(freqs):
+            phasor[k] += (amp * np.exp(1j * 4 * np.pi * f * r / c)).sum(axis=(2, 3))
+    centre = 1.0 / np.sqrt(1.0 + np.tan(az)[None, :] ** 2 + np.tan(el)[:, None] ** 2)
+    truth = Truth(scene.plate_m / centre, scene.wall_m / centre, on_plate.mean(axis=(2, 3)),
+                  light["plate"] / (light["plate"] + light["wall"]))
+    scan = scan_from_phasors(f"plate-{scene.plate_m:g}-{scene.wall_m:g}", phasor, config, rng,
+                             azimuth_rad=az, elevation_rad=el)
+    return scan, truth
+
+
+@dataclass(frozen=True)
+class SceneResult:
+    mixed: int
+    single_far: int  # valid single depth > 5 cm from both surfaces
+    flagged: int
+    resolved: int
+    inconsistent: int
+    stronger_errors: NDArray[np.float64]
+    weaker_errors: NDArray[np.float64]
+    crb_ratios: NDArray[np.float64]
+
+
+def crb_m(near: NDArray, far: NDArray, a_near: NDArray, a_far: NDArray, noise: NoiseModel) -> NDArray[np.float64]:
+    """The two-return Cramer-Rao bound (k, 2) [m] of the near and far range, real amplitudes, at the truth."""
+    freqs = np.asarray(noise.frequencies_hz)
+    w = 4 * np.pi * freqs / noise.speed_of_light_m_per_s
+    out = np.empty((near.size, 2))
+    for i in range(near.size):
+        e1, e2 = np.exp(1j * w * near[i]), np.exp(1j * w * far[i])
+        sigma = noise.quadrature_sigma_v2(np.abs(a_near[i] * e1 + a_far[i] * e2)[None, :])[0]
+        cols = [1j * w * a_near[i] * e1, 1j * w * a_far[i] * e2, e1, e2]
+        jac = np.stack([np.concatenate([c.real, c.imag]) / np.concatenate([sigma, sigma]) for c in cols], axis=1)
+        cov = np.linalg.pinv(jac.T @ jac)
+        out[i] = np.sqrt(np.diag(cov)[:2])
+    return out
+
+
+def evaluate(scene: PlateScene, model: CorrectionModel, config: Config, seed: int) -> SceneResult:
+    scan, truth = render_plate(scene, config, np.random.default_rng(seed))
+    corrected = correct_scan(scan, model, CorrectionOptions(), config.sensor)
+    mixed = (truth.plate_share > 0) & (truth.plate_share < 1)
+    flags, depth = corrected.flags, corrected.depth
+    valid = ~np.isin(flags, [int(f) for f in INVALID_FLAGS]) & np.isfinite(depth)
+    far = np.minimum(np.abs(depth - truth.plate_m), np.abs(depth - truth.wall_m)) > 0.05
+    resolved = mixed & (flags == Flag.TWO_RETURNS)
+    plate_stronger = truth.plate_light[resolved] >= 0.5
+    true_strong = np.where(plate_stronger, truth.plate_m[resolved], truth.wall_m[resolved])
+    true_weak = np.where(plate_stronger, truth.wall_m[resolved], truth.plate_m[resolved])
+    strong_err = np.abs(depth[resolved] - true_strong)
+    second = corrected.second_returns
+    weak_err = np.abs(second.depth_m[resolved] - true_weak) if second is not None else np.zeros(0)
+    ratios = np.zeros(0)
+    if resolved.any():
+        noise = NoiseModel.for_sensor(config.sensor, config.frequencies_hz)
+        total = np.abs(scan_light(truth, scene, config))[resolved]
+        a_plate, a_wall = total * truth.plate_light[resolved], total * (1 - truth.plate_light[resolved])
+        bound = crb_m(truth.plate_m[resolved], truth.wall_m[resolved], a_plate, a_wall, noise)
+        strong_bound = np.where(plate_stronger, bound[:, 0], bound[:, 1])
+        weak_bound = np.where(plate_stronger, bound[:, 1], bound[:, 0])
+        ratios = np.concatenate([strong_err / strong_bound, weak_err / weak_bound])
+    return SceneResult(int(mixed.sum()), int((mixed & valid & far).sum()), int((mixed & (flags == Flag.MIXED)).sum()),
+                       int(resolved.sum()), int((mixed & (flags == Flag.INCONSISTENT)).sum()), strong_err, weak_err,
+                       ratios)
+
+
+def scan_light(truth: Truth, scene: PlateScene, config: Config) -> NDArray[np.float64]:
+    """The two returns' summed amplitude per pixel (H, W) [V^2], from the shares (pixel-centre ranges)."""
+    g = config.sensor.gamma_r_v2
+    plate = g * scene.plate_albedo * truth.plate_share / truth.plate_m**2
+    wall = g * scene.wall_albedo * (1 - truth.plate_share) / truth.wall_m**2
+    return plate + wall
+
+
+def clean_scans(config: Config, quick: bool) -> list[tuple[str, Scan]]:
+    """Flat walls (square and turned 45 degrees), corners and the cornered board at 1-20 m."""
+    distances = (1.0, 5.0, 20.0) if quick else (1.0, 2.0, 5.0, 10.0, 20.0)
+    out = [("cornered board", render(cornered_board(60, 80), config, np.random.default_rng(1), patch_spacing_m=0.05))]
+    for i, d in enumerate(distances):
+        for name, scene in ((f"flat wall {d:g} m", flat_wall(0.0, d, height=60, width=80)),
+                            (f"flat wall 45 deg {d:g} m", flat_wall(45.0, d, height=60, width=80)),
+                            (f"corner {d:g} m", corner(90.0, d, height=60, width=80, board_m=0.3 * d,
+                                                       half_height_m=0.2 * d))):
+            out.append((name, render(scene, config, np.random.default_rng(10 + i), patch_spacing_m=0.05 * d)))
+    return out
+
+
+def false_flags(scan: Scan, model: CorrectionModel, config: Config) -> tuple[int, int]:
+    """Pixels flagged mixed or two_returns, and pixels with a finite measured depth."""
+    corrected = correct_scan(scan, model, CorrectionOptions(), config.sensor)
+    flagged = np.isin(corrected.flags, [int(Flag.MIXED), int(Flag.TWO_RETURNS)])
+    return int(flagged.sum()), int(np.isfinite(np.asarray(scan.depth[-1])).sum())
+
+
+def _median(values: NDArray) -> str:
+    return f"{np.median(values) * 1000:.1f}" if values.size else "-"
+
+
+def _largest(values: NDArray) -> str:
+    return f"{values.max() * 1000:.1f}" if values.size else "-"
+
+
+def report(model: CorrectionModel, quick: bool) -> str:
+    config = Config()
+    lines = ["| scene | mixed pixels | single valid depth > 5 cm from both | flagged mixed | resolved | "
+             "inconsistent | stronger error median / max [mm] | weaker error median / max [mm] | "
+             "median error / CRB |", "|" + "---|" * 9]
+    for i, scene in enumerate(ISSUE_SCENES + sweep(quick)):
+        r = evaluate(scene, model, config, seed=100 + i)
+        share = 100 * r.single_far / max(r.mixed, 1)
+        lines.append(f"| {scene.label} | {r.mixed} | {r.single_far} ({share:.1f} %) | {r.flagged} | {r.resolved} | "
+                     f"{r.inconsistent} | {_median(r.stronger_errors)} / {_largest(r.stronger_errors)} | "
+                     f"{_median(r.weaker_errors)} / {_largest(r.weaker_errors)} | "
+                     f"{np.median(r.crb_ratios) if r.crb_ratios.size else float('nan'):.2f} |")
+    lines += ["", "| clean scene | pixels flagged mixed or two_returns | pixels measured | share |",
+              "|---|---|---|---|"]
+    flagged_total = measured_total = 0
+    for name, scan in clean_scans(config, quick):
+        flagged, measured = false_flags(scan, model, config)
+        flagged_total, measured_total = flagged_total + flagged, measured_total + measured
+        lines.append(f"| {name} | {flagged} | {measured} | {100 * flagged / max(measured, 1):.3f} % |")
+    lines.append(f"| all | {flagged_total} | {measured_total} | {100 * flagged_total / max(measured_total, 1):.3f} % |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", type=Path, help="Model directory (default: train one here).")
+    parser.add_argument("--work", type=Path, help="Where a trained model is kept (default: a temporary directory).")
+    parser.add_argument("--quick", action="store_true", help="A small model and a smaller sweep.")
+    args = parser.parse_args()
+    work = args.work or Path(tempfile.mkdtemp(prefix="mixed-pixels-"))
+    rows, rounds = (2_000, 10) if args.quick else (20_000, 100)
+    model_dir = args.model or trained_model(work / f"model-{rows}-{rounds}", rows, rounds)
+    print(report(load_model(model_dir), args.quick))
+
+
+if __name__ == "__main__":
+    main()
