@@ -47,10 +47,6 @@ VARIABLE_NAMES = (*SCAN_VARIABLES, *ALIASES, *DEGREE_NAMES)
 # The largest file an importer opens [bytes]: twice the arrays a scan may hold in memory
 # (:data:`~mpi_lidar.scans.store.MAX_SCAN_BYTES`, 1 GiB), room for float64 copies and the format's overhead.
 MAX_FILE_BYTES = 2 * MAX_SCAN_BYTES
-# The angles of a scan grid in radians lie within these bounds [rad]; larger values are degrees.
-ANGLE_LIMITS_RAD = {"azimuth_rad": 2 * np.pi, "elevation_rad": np.pi / 2}
-# How far a ray direction's length may be from 1.
-RAY_NORM_TOLERANCE = 1e-3
 
 
 class ScanImporter(ABC):
@@ -117,10 +113,7 @@ def import_arrays(
             raise ScanError(f"{source}: {str(exc).removeprefix(f'{name}: ')}") from None
     else:
         raise ScanError(f"{source}: needs arrays 'depth' and 'amplitude' (F, H, W), or 'taps' (F, 4, H, W)")
-    scan = validate(scan, source)  # shapes and dtypes first: the geometry's values are checked on valid arrays
-    check_geometry({name: value for name in ("azimuth_rad", "elevation_rad", "ray_directions")
-                    if (value := getattr(scan, name)) is not None}, source)
-    return scan
+    return validate(scan, source)  # shapes, dtypes and the geometry's values (angles in radians, unit rays)
 
 
 # The lowest modulation frequency taken as one [Hz]: an AMCW scanner modulates at MHz; a value below this is
@@ -278,38 +271,6 @@ def _canonical(name: str) -> str:
 
 def _ignored(variables: Mapping[str, str]) -> list[str]:
     return [v.strip() for v in variables.get(IGNORE, "").split(",") if v.strip()]
-
-
-def check_geometry(arrays: Mapping[str, NDArray], source: str) -> None:
-    """Refuse scan-grid angles that are not finite radians, and ray directions that are not unit vectors.
-
-    :func:`import_arrays` calls it on a validated scan (the arrays have their declared shapes and dtypes).
-    Angles in radians lie within :data:`ANGLE_LIMITS_RAD` (azimuth within +-2 pi, elevation within +-pi/2);
-    beyond that they are degrees written as radians, and the line says how to import them as degrees. Degrees
-    of a narrow field of view (within +-1.57) cannot be told from radians: declare them (a ``_deg`` name or a
-    NetCDF ``units`` attribute).
-    """
-    for name, limit in ANGLE_LIMITS_RAD.items():
-        if name not in arrays:
-            continue
-        values = np.asarray(arrays[name], dtype=np.float64)
-        if not np.isfinite(values).all():
-            raise ScanError(f"{source}: {name} has values that are not finite; every pixel row and column needs "
-                            "its angle")
-        largest = float(np.abs(values).max(initial=0.0))
-        if largest > limit * (1 + 1e-9):
-            degrees = name.replace("_rad", "_deg")
-            raise ScanError(f"{source}: {name} reaches {largest:g}, beyond the {limit:.4g} rad an angle of the scan "
-                            f"grid can be, so it is in degrees; import it with --var {degrees}=VARIABLE (or a "
-                            "NetCDF units attribute 'degrees')")
-    if "ray_directions" in arrays:
-        rays = np.asarray(arrays["ray_directions"], dtype=np.float64)
-        if rays.ndim == 3 and rays.shape[-1] == 3:
-            norms = np.sqrt((rays**2).sum(axis=-1))
-            off = np.abs(norms[np.isfinite(norms)] - 1)
-            if off.size and off.max() > RAY_NORM_TOLERANCE:
-                raise ScanError(f"{source}: ray_directions are not unit vectors (lengths up to "
-                                f"{1 + float(off.max()):.4g}); divide each by its length before importing")
 
 
 def check_regular_file(path: Path) -> None:
