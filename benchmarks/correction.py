@@ -58,7 +58,7 @@ import numpy as np
 
 from benchmarks.startup import startup_tables
 from mpi_lidar.config import Config
-from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction import MODEL_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec, synthetic_geometry
 from mpi_lidar.learning.model import DatasetCard, load_model, save_model
 from mpi_lidar.learning.train import DEFAULT_EARLY_STOPPING, DEFAULT_ROUNDS, model_card, train_arrays
@@ -200,7 +200,7 @@ def stages(source: Path, model_dir: Path, work: Path) -> tuple[list[tuple[object
     scan, read_cpu, _ = _cpu_wall(read_scan, source)
     correct_scan(scan, model, options)  # warm: noise model, first-call costs
     correction = correct_scan(scan, model, options)
-    needs = np.flatnonzero(correction.flags.ravel() == Flag.CORRECTED)
+    needs = np.flatnonzero(np.isin(correction.flags.ravel(), MODEL_FLAGS))
     raw = scan.raw_pixels()[needs]
     geometry = np.zeros((needs.size, 2)) if model.geometric else None  # computed by the gate; here only copied
     _, features_cpu, _ = _cpu_wall(model.spec.transform, raw, geometry)

@@ -32,7 +32,7 @@ from benchmarks.calibration import (
 )
 from benchmarks.scenes import EdgeLine, edge_line
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correction import CorrectionOptions, Flag, analyse_geometry, correct_scan
+from mpi_lidar.correction import MODEL_FLAGS, CorrectionOptions, analyse_geometry, correct_scan
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.scans.geometry import surface_normals
@@ -81,7 +81,7 @@ def diagnose(label: str, scene: Scene, edges: tuple[EdgeLine, ...], model: Corre
     geometry = analyse_geometry(scan, np.where(usable.ravel(), raw[:, f - 1], np.nan), options, SensorConfig(),
                                 with_model_inputs=True)
     chosen = np.flatnonzero((usable & near_edges(scan, edges)).ravel()
-                            & (correction.flags.ravel() == Flag.CORRECTED))
+                            & np.isin(correction.flags.ravel(), MODEL_FLAGS))
     if chosen.size < len(BIN_QUANTILES):
         return []  # the gate left the edges as measured: nothing to take apart
     cos_i = incidence_cosine(scan).ravel()[chosen]

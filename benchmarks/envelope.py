@@ -97,7 +97,7 @@ def row(case: Case, scan: Scan, model: CorrectionModel) -> str:
                                                                                      correction.depth))
     change = f"{100 * (edge_fixed / edge_raw - 1):+.0f} %" if edge.any() and edge_raw > 0 else ""
     note = (f"{correction.unserved.reason}" if correction.unserved is not None
-            else f"{int(usable.sum()):,} pixels, {correction.counts()['corrected']:,} corrected")
+            else f"{int(usable.sum()):,} pixels, {correction.model_pixels():,} corrected")
     return (f"| {case.label} | {status} | {raw:.3f} | {fixed:.3f} | {_cell(edge_raw)} | {_cell(edge_fixed)} "
             f"| {change} | {note} |")
 

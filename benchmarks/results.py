@@ -36,6 +36,7 @@ PAGES = {
     "geometry": "benchmarks.scenes",
     "limits": "benchmarks.limits",
     "mixed-pixels": "benchmarks.mixed_pixels",
+    "object-storage": "benchmarks.object_storage",
     "model-range": "benchmarks.model_range",
     "noise-limit": "benchmarks.noise_limit",
     "point-clouds": "benchmarks.point_clouds",

@@ -50,8 +50,10 @@ from mpi_lidar.simulation.scenes import (
     light_transport,
     multi_object,
     render,
+    room_with_box,
     scan_from_phasors,
     sphere_scene,
+    turned_room_with_box,
     wooden_corner,
 )
 
@@ -81,7 +83,36 @@ def scene_set(shrink: int = 1) -> list[tuple[str, Callable[[], Scene], EdgeLine 
     scenes += [("cornered board (Fig. 7)", lambda: cornered_board(**large), edge_line(2.25)),
                ("wooden corner (Fig. 10)", lambda: wooden_corner(**small), edge_line(2.3)),
                ("multi-object (Fig. 8)", lambda: multi_object(**large), None)]
-    return scenes
+    return scenes + room_set(shrink)
+
+
+# The rooms' effective receiver footprints [m^2]: weak, middling and strong coupling (the default is 0.041).
+ROOM_FOOTPRINTS_M2 = (0.002, 0.024, 0.073)
+
+
+def room_set(shrink: int = 1) -> list[tuple[str, Callable[[], Scene], EdgeLine | None]]:
+    """The two room corners (multi-bounce light transport, a box on the floor) at each of ROOM_FOOTPRINTS_M2, each
+    with its vertical wall-wall fold as its edge line; the rooms' other folds and tri-corners are on the scene
+    (:attr:`Scene.folds`, :attr:`Scene.tri_corners`)."""
+    rooms: list[tuple[str, Callable[[], Scene], EdgeLine | None]] = []
+    for name, factory, (height, width) in ROOMS:
+        for area in ROOM_FOOTPRINTS_M2:
+            def make(f: Callable[..., Scene] = factory, a: float = area, h: int = height, w: int = width) -> Scene:
+                return f(height=h // shrink, width=w // shrink, footprint_m2=a)
+            rooms.append((f"{name}, footprint {area:g} m^2", make, vertical_fold(make())))
+    return rooms
+
+
+# The rooms and their scan grids (height, width): the turned room's wider view needs more pixels, or its floor
+# and ceiling are too few blocks across for the geometry stage's planes.
+ROOMS: tuple[tuple[str, Callable[..., Scene], tuple[int, int]], ...] = (
+    ("room corner", room_with_box, (48, 64)), ("turned room corner with ceiling", turned_room_with_box, (72, 96)))
+
+
+def vertical_fold(scene: Scene) -> EdgeLine:
+    """The edge line through a room's first fold after its floor's two (the walls' vertical one)."""
+    start, end = (np.asarray(point) for point in scene.folds[2])
+    return start, (end - start) / np.linalg.norm(end - start)
 
 
 # footprint_area_m2 of a sensor with footprint radius r: this gain times pi r^2 (physics.coupling.footprint_area).

@@ -13,11 +13,14 @@ with default options and a small model trained here (flat walls: no pixel needs 
 - fused / ideal: the fused pixels' MAE over that of inverse-variance fusion with the true law, the true wrap counts
   and the true c (paired, on the same pixels; target within 5 %), and 1-sigma coverage (target 60-76 %);
 - the share of pixels flagged saturated or no return (target 0), uncalibrated (target < 1 %), beyond the ambiguity;
+- the scan's status (:func:`~mpi_lidar.correction.outcome.scan_status`, default options);
 - the same scans in counts (x 4000) and x 0.01 without the unit: the largest difference of the fused or measured
-  depths against the V^2 scan's [mm] (target 0.05) and the status (corrected identically, or unserved);
+  depths against the V^2 scan's [mm] (target 0.05), the status (corrected identically, or unserved) and the
+  pixels fused or measured in the V^2 scan that are neither in this one (target 0);
 - a bright wall at 26 m (no pixel a valid depth near 2 m) and a 3 %-albedo ramp at 0.5-4 m (at most 1 % flagged);
-- ten times the noise: the scan's status and the share of mis-unwrapped pixels against an exhaustive
-  maximum-likelihood unwrapper given the true law.
+- ten times the noise: the scan's status, its first invalid cause, and the share of mis-unwrapped pixels (more
+  than 1 m off) among those it unwraps (valid, not ambiguous) against an exhaustive maximum-likelihood unwrapper
+  given the true law and the true c on the same pixels (target at most twice its share) and on all pixels.
 """
 
 from __future__ import annotations
@@ -34,7 +37,9 @@ import numpy as np
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.constants import SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.correction import correct_scan
-from mpi_lidar.correction.options import Estimate, Flag
+from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Estimate, Flag
+from mpi_lidar.correction.outcome import first_cause, scan_status
+from mpi_lidar.correction.result import Correction
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.physics.unwrap import unwrap_depths
@@ -83,6 +88,17 @@ def ideal_fused(scan: Scan, truth: dict) -> np.ndarray:
     return (weight * unwrapped).sum(0) / weight.sum(0)
 
 
+def status(correction: Correction) -> str:
+    """The scan's status, as a correction run states it."""
+    reason = None if correction.unserved is None else correction.unserved.reason
+    return str(scan_status(correction.counts(), CorrectionOptions().max_invalid_share, reason))
+
+
+def returned(correction: Correction) -> np.ndarray:
+    """Pixels whose depth was written fused or measured (H, W)."""
+    return np.isin(correction.estimate, [Estimate.FUSED, Estimate.MEASURED])
+
+
 def row(model: CorrectionModel, name: str, law_name: str, range_m: np.ndarray, seed: int) -> list[str]:
     law = law_model(law_name)
     scan, truth = made_scan(name, range_m, 0.7, law, seed)
@@ -97,30 +113,32 @@ def row(model: CorrectionModel, name: str, law_name: str, range_m: np.ndarray, s
     units = []
     for unit in (4000.0, 0.01):
         other = correct_scan(replace(scan, amplitude=(scan.amplitude * unit).astype(np.float32)), model)
-        both = np.isin(other.estimate, [Estimate.FUSED, Estimate.MEASURED]) & np.isin(
-            correction.estimate, [Estimate.FUSED, Estimate.MEASURED])
+        both = returned(other) & returned(correction)
+        lost = int((returned(correction) & ~returned(other)).sum())
         difference = 1e3 * float(np.max(np.abs(other.depth - correction.depth)[both], initial=0.0))
-        status = "unserved" if other.unserved is not None else "corrected"
-        units.append(f"{difference:.4f} ({status})")
-    return [name, law_name, f"{fused.mean():.1%}", f"{ratio:.3f}", f"{coverage:.1%}",
+        units.append(f"{difference:.4f} ({status(other)}, {lost} lost)")
+    return [name, law_name, status(correction), f"{fused.mean():.1%}", f"{ratio:.3f}", f"{coverage:.1%}",
             f"{share[Flag.SATURATED] + share[Flag.NO_RETURN]:.2%}", f"{share[Flag.UNCALIBRATED]:.2%}",
             f"{share[Flag.BEYOND_AMBIGUITY]:.2%}", *units]
 
 
 def noise_x10(model: CorrectionModel, law_name: str, range_m: np.ndarray, seed: int) -> list[str]:
-    """Ten times the noise: the scan's status and the mis-unwrapped share against an exhaustive ML unwrapper."""
+    """Ten times the noise: the scan's status and the mis-unwrapped share against an exhaustive ML unwrapper, on
+    the pixels the correction unwraps and on all."""
     law = law_model(law_name, 10.0)
     scan, truth = made_scan("x10", range_m, 0.7, law, seed)
     correction = correct_scan(scan, model)
-    valid = ~np.isin(correction.flags, [Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT,
-                                        Flag.BEYOND_AMBIGUITY, Flag.AMBIGUOUS])
+    unwrapped = ~np.isin(correction.flags, [*INVALID_FLAGS, Flag.AMBIGUOUS])
     ours = np.abs(correction.measured_depth - range_m) > 1.0
     f = len(FREQUENCIES_HZ)
     exhaustive = unwrap_depths(scan.depth.reshape(f, -1).T, truth["sigma"].reshape(f, -1).T, FREQUENCIES_HZ,
                                SPEED_OF_LIGHT_M_PER_S)
     theirs = np.abs(exhaustive.depth_m[:, -1].reshape(range_m.shape) - range_m) > 1.0
-    status = "degraded" if np.mean(~valid) > 0.5 else ("unserved" if correction.unserved else "fine")
-    return [law_name, f"{np.mean(range_m):.1f}", status, f"{np.mean(~valid):.1%}", f"{ours[valid].mean():.3%}",
+    cause = first_cause(correction.counts())
+    invalid = np.isin(correction.flags, INVALID_FLAGS)
+    return [law_name, f"{np.mean(range_m):.1f}", status(correction),
+            f"{invalid.mean():.1%}" + ("" if cause is None else f" ({cause.name.lower()})"),
+            f"{np.mean(~unwrapped):.1%}", f"{ours[unwrapped].mean():.3%}", f"{theirs[unwrapped].mean():.3%}",
             f"{theirs.mean():.3%}"]
 
 
@@ -160,13 +178,13 @@ def main(argv: list[str] | None = None) -> None:
             rows.append(row(model, f"wall {distance:g} m", law_name, np.full((side, side), distance), index))
         ramp = np.repeat(np.linspace(0.5, 23.0, side)[None], side, axis=0)
         rows.append(row(model, "ramp 0.5-23 m", law_name, ramp, 99))
-    print(table(["scan", "law", "fused", "fused / ideal MAE", "1-sigma coverage", "saturated or no return",
+    print(table(["scan", "law", "status", "fused", "fused / ideal MAE", "1-sigma coverage", "saturated or no return",
                  "uncalibrated", "beyond ambiguity", "x 4000 max diff [mm]", "x 0.01 max diff [mm]"], rows))
     print()
     tens = [noise_x10(model, law_name, np.full((side, side), distance), 20 + index)
             for law_name in LAWS for index, distance in enumerate(walls[:3])]
-    print(table(["law", "range [m]", "status", "invalid", "mis-unwrapped (ours)", "mis-unwrapped (exhaustive ML)"],
-                tens))
+    print(table(["law", "range [m]", "status", "invalid (first cause)", "not unwrapped", "mis-unwrapped (ours)",
+                 "exhaustive ML, same pixels", "exhaustive ML, all pixels"], tens))
     print()
     print(table(["bright wall at 26 m: valid near 2 m", "flagged beyond ambiguity", "3 % ramp 0.5-4 m flagged"],
                 [special(model, side)]))

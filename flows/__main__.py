@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import enum
+import errno
 import importlib
 import inspect
 import json
@@ -73,6 +74,29 @@ CLI_SPELLINGS = {"point_clouds": ["--point-cloud"], "report": ["--out"]}
 CHECKS: dict[str, str | Callable[[dict[str, object]], object]] = {
     "correct-archive": "mpi_lidar.workflows.batch_options:batch_options",
 }
+
+
+# The parameters that name files or directories (or globs, or URLs): one past the file system's limits is refused
+# before a run starts, as the command line refuses it, the path shortened (:func:`mpi_lidar.cli.path_fault`).
+PATH_PARAMETERS = ("out", "data", "model", "report", "report_dir", "root", "scans", "config_file", "sensor")
+NAME_MAX_BYTES, PATH_MAX_BYTES = 255, 4096
+
+
+def check_path_lengths(args: dict[str, object]) -> None:
+    """Refuse a local path among :data:`PATH_PARAMETERS` longer than the file system takes (a name past
+    :data:`NAME_MAX_BYTES`, the whole past :data:`PATH_MAX_BYTES`) with one line: MpiLidarError."""
+    from mpi_lidar.cli import path_fault
+
+    for name in PATH_PARAMETERS:
+        given = args.get(name)
+        for value in given if isinstance(given, list) else [given]:
+            if not isinstance(value, str) or "://" in value:
+                continue
+            encoded = os.fsencode(value)
+            if len(encoded) >= PATH_MAX_BYTES or any(len(part) > NAME_MAX_BYTES for part in encoded.split(b"/")):
+                fault = path_fault(OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG), value))
+                assert fault is not None  # an ENAMETOOLONG always has one
+                raise fault
 
 
 def check_configuration(args: dict[str, object]) -> object:
@@ -144,7 +168,11 @@ def _choices(annotation: Any) -> list[str] | None:
 
 
 def _converter(annotation: Any) -> tuple[Callable[[str], object], list[str] | None]:
-    """How one value of the annotation is read from text, and its choices (a ``Literal``'s or an enum's)."""
+    """How one value of the annotation is read from text, and its choices (a ``Literal``'s or an enum's); a
+    number declared with bounds (``Annotated[int, Field(ge=1)]``, :mod:`mpi_lidar.workflows.job_options`) is
+    refused past them as the command line refuses it."""
+    if typing.get_origin(annotation) is typing.Annotated:
+        return _bounded_reader(annotation), None
     choices = _choices(annotation)
     if choices is not None:
         return str, choices
@@ -165,6 +193,37 @@ def _converter(annotation: Any) -> tuple[Callable[[str], object], list[str] | No
     raise TypeError(f"no command-line reading for {annotation!r}")
 
 
+def _bounded_reader(annotation: Any) -> Callable[[str], object]:
+    """A reader of the annotation's type that refuses a value past its declared bounds (argparse's one line)."""
+    from pydantic import TypeAdapter, ValidationError
+
+    read, _ = _converter(typing.get_args(annotation)[0])
+    adapter = TypeAdapter(annotation)
+
+    def bounded(text: str) -> object:
+        value = read(text)
+        try:
+            return adapter.validate_python(value)
+        except ValidationError as exc:
+            message = exc.errors(include_url=False)[0]["msg"]
+            raise argparse.ArgumentTypeError(f"{text}: {message[:1].lower()}{message[1:]}") from None
+    bounded.__name__ = getattr(read, "__name__", "number")  # argparse names it where text is no number at all
+    return bounded
+
+
+def _bounds_said(annotation: Any) -> str:
+    """A bounded number's bounds as help says them ("; at least 1"), else nothing."""
+    from pydantic import TypeAdapter
+
+    if typing.get_origin(annotation) is not typing.Annotated:
+        return ""
+    schema = TypeAdapter(annotation).json_schema()
+    words = {"minimum": "at least", "exclusiveMinimum": "above", "maximum": "at most", "exclusiveMaximum": "below"}
+    said = [f"{word} {schema[key]:,}" if isinstance(schema[key], int) else f"{word} {schema[key]:g}"
+            for key, word in words.items() if key in schema]
+    return "; " + ", ".join(said) if said else ""
+
+
 def build_parser(name: str, flow: Any) -> argparse.ArgumentParser:
     """An option per parameter of ``flow``, with its type, choices and default read from its signature and its
     help from the flow's parameter schema (the ``Args:`` section of its docstring)."""
@@ -182,7 +241,8 @@ def build_parser(name: str, flow: Any) -> argparse.ArgumentParser:
         required = parameter.default is inspect.Parameter.empty
         default = None if required else _plain(parameter.default)
         listed = typing.get_origin(annotation) is list
-        said = ("required" if required else f"default: {default}") + ("; one or more, repeatable" if listed else "")
+        said = (("required" if required else f"default: {default}") + _bounds_said(annotation)
+                + ("; one or more, repeatable" if listed else ""))
         shown = f"{helps[parameter.name]} ({said})" if helps.get(parameter.name) else said
         if annotation is bool:
             parser.add_argument(*flags, dest=parameter.name, action=argparse.BooleanOptionalAction,
@@ -248,7 +308,8 @@ def stop_api() -> None:
 def failure_line(state: Any) -> str:
     """Why a flow run failed, in one line: a user error's own message (as ``mpi-lidar`` prints it), else the
     exception's type and message, else the state's message."""
-    from mpi_lidar.errors import MpiLidarError
+    from mpi_lidar.cli import path_fault
+    from mpi_lidar.errors import MpiLidarError, environment_fault
 
     try:
         raised = state.result(raise_on_failure=False)
@@ -256,6 +317,9 @@ def failure_line(state: Any) -> str:
         raised = None
     if isinstance(raised, MpiLidarError):
         return str(raised)
+    fault = environment_fault(raised) or path_fault(raised) if isinstance(raised, BaseException) else None
+    if fault is not None:  # a full disk, a path too long: the user's to fix, said as the command line says it
+        return str(fault)
     if isinstance(raised, BaseException):
         return f"{type(raised).__name__}: {raised}"
     return state.message or state.name
@@ -283,11 +347,11 @@ def _refused(name: str, args: dict[str, object]) -> str | None:
     from mpi_lidar.errors import MpiLidarError
     from mpi_lidar.redact import redact
 
-    if name not in CHECKS:
-        return None
-    check = CHECKS[name]
+    check = CHECKS.get(name)
     try:
-        (check if callable(check) else _load(check))(args)
+        check_path_lengths(args)
+        if check is not None:
+            (check if callable(check) else _load(check))(args)
     except MpiLidarError as exc:
         return redact(str(exc))
     return None

@@ -11,11 +11,15 @@ when this process ends. See ``infra/README.md`` for the work-pool alternative (`
 from __future__ import annotations
 
 import argparse
+import asyncio
+import logging
+import signal
 import sys
 from pathlib import Path
 
-from prefect import serve
 from prefect.deployments.runner import RunnerDeployment
+from prefect.exceptions import TerminationSignal
+from prefect.runner import Runner
 from prefect.settings import get_current_settings
 
 from flows.correct import correct_archive_flow
@@ -24,6 +28,7 @@ from flows.train import train_flow
 from flows.tune import tune_flow
 from mpi_lidar.config import PRESETS
 from mpi_lidar.errors import EXIT_USER_ERROR
+from mpi_lidar.workflows.cluster import check_scheduler_address
 
 DEPLOYMENT_NAME = "nightly-regeneration"
 DEFAULT_ROOT = "runs/nightly"
@@ -37,7 +42,7 @@ def build_deployments(
     """The regeneration deployment(s) of ``regenerate_dataset_flow`` on a cron schedule."""
     parameters: dict[str, object] = {"root": root, "preset": preset, "workers": workers}
     if scheduler:
-        parameters["scheduler"] = scheduler
+        parameters["scheduler"] = check_scheduler_address(scheduler)  # a flow-run parameter: never a password
     deployment = regenerate_dataset_flow.to_deployment(
         name=DEPLOYMENT_NAME,
         cron=cron,
@@ -56,7 +61,7 @@ def on_demand_deployments(workers: int = 2, scheduler: str | None = None) -> lis
     is the LocalCluster of tuning and training; correction keeps the flow's default, as ``mpi-lidar correct``
     does: the scans run in the flow's process, every core on each scan (``--param workers=N`` for a cluster).
     """
-    at_scheduler: dict[str, object] = {"scheduler": scheduler} if scheduler else {}
+    at_scheduler: dict[str, object] = {"scheduler": check_scheduler_address(scheduler)} if scheduler else {}
     cluster: dict[str, object] = {"workers": workers, **at_scheduler}
     return [
         tune_flow.to_deployment(name="tune", parameters=cluster, tags=["mpi-lidar", "tuning"],
@@ -79,6 +84,33 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+class _Runner(Runner):
+    """Prefect's runner, stopped by SIGTERM as Ctrl-C stops it: out of its event loop, which then cancels its tasks
+    and pauses the schedules. (Prefect's own SIGTERM handler calls a coroutine it never awaits, a RuntimeWarning,
+    and exits from inside the loop.)"""
+
+    def handle_sigterm(self, *args: object, **kwargs: object) -> None:
+        _terminate()
+
+
+def _terminate(*_: object) -> None:
+    """SIGTERM: stop where the process is, as Ctrl-C would; the runner's own lines of pausing are left out (the
+    one line after it says so)."""
+    logging.getLogger("prefect.runner").setLevel(logging.WARNING)
+    raise TerminationSignal(signal=signal.SIGTERM)
+
+
+def serve(*deployments: RunnerDeployment) -> None:
+    """Serve ``deployments`` until SIGTERM or Ctrl-C; on either, their schedules are paused."""
+    runner = _Runner(pause_on_shutdown=True)
+    for deployment in deployments:
+        runner.add_deployment(deployment)
+    names = ", ".join(f"{d.flow_name}/{d.name}" for d in deployments)
+    print(f"serving {len(deployments)} deployments ({names}); trigger one with: prefect deployment run NAME; "
+          "stop with Ctrl-C or SIGTERM", flush=True)
+    asyncio.run(runner.start())
+
+
 def main(argv: list[str] | None = None) -> None:
     """Serve the deployments until interrupted; refuse without a real server, where schedules would not run."""
     args = parse_args(argv)
@@ -88,8 +120,13 @@ def main(argv: list[str] | None = None) -> None:
               file=sys.stderr)
         sys.exit(EXIT_USER_ERROR)
     root = str(Path(args.root).resolve())  # runs start in other directories than this one
-    serve(*build_deployments(root, args.cron, args.preset, args.workers, args.scheduler),
-          *on_demand_deployments(args.workers, args.scheduler))
+    signal.signal(signal.SIGTERM, _terminate)  # from here on; the runner's handler, once it runs, does the same
+    try:
+        serve(*build_deployments(root, args.cron, args.preset, args.workers, args.scheduler),
+              *on_demand_deployments(args.workers, args.scheduler))
+    except (KeyboardInterrupt, TerminationSignal) as stop:
+        why = "SIGTERM" if isinstance(stop, TerminationSignal) else "Ctrl-C"
+        print(f"stopped ({why}): served deployments' schedules are paused until they are served again", flush=True)
 
 
 if __name__ == "__main__":

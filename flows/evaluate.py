@@ -12,6 +12,7 @@ from mpi_lidar.learning.baselines import table2
 from mpi_lidar.learning.evaluate import Evaluation
 from mpi_lidar.reporting.report import Report, write_report
 from mpi_lidar.reporting.table2 import table2_report
+from mpi_lidar.workflows.job_options import BaselineRows, Trials
 from mpi_lidar.workflows.pipeline import evaluate_to_report
 
 Split = Literal["test", "train"]  # the dataset splits a model is evaluated on, as mpi-lidar evaluate --split
@@ -50,7 +51,7 @@ def evaluate_flow(data: str, model: str, report: str, split: Split = "test") -> 
 
 
 @flow(name="table-2")
-def table2_flow(data: str, report: str, model: str | None = None, trials: int = 10, train_rows: int = 100_000,
-                svm_rows: int = 20_000) -> str:
+def table2_flow(data: str, report: str, model: str | None = None, trials: Trials = 10,
+                train_rows: BaselineRows = 100_000, svm_rows: BaselineRows = 20_000) -> str:
     """``mpi-lidar table2`` as a flow (``report`` is ``--out``); returns the published markdown."""
     return table2_task(data, model, report, trials, train_rows, svm_rows)

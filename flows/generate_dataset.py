@@ -22,6 +22,7 @@ from mpi_lidar.config import Config, config_sha256, resolve_config, validate_ove
 from mpi_lidar.reporting import report
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.generate import CHUNK_RETRIES, GenerationReport, generate
+from mpi_lidar.workflows.job_options import Workers
 
 SUMMARY_ARTIFACT_KEY = "dataset-summary"
 CHUNK_RETRY_DELAY_S = 2
@@ -89,7 +90,7 @@ def generate_dataset_flow(
     config_file: str | None = None,
     samples: int | None = None,
     seed: int | None = None,
-    workers: int = 2,
+    workers: Workers = 2,
     scheduler: str | None = None,
     chunk_rows: int | None = None,
     fidelity: str | None = None,

@@ -24,6 +24,7 @@ from mpi_lidar.learning import tune
 from mpi_lidar.learning.evaluate import Evaluation
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.workflows.generate import GenerationReport
+from mpi_lidar.workflows.job_options import Trials, TuneRows, Workers
 from mpi_lidar.workflows.pipeline import PipelineSteps, demo_scans, run_pipeline
 
 
@@ -75,8 +76,8 @@ class FlowSteps(PipelineSteps):
 
 
 @flow(name="pipeline")
-def pipeline_flow(out: str | None = None, preset: str = "quick", trials: int = 6, tune_rows: int = 20_000,
-                  workers: int = 2, scheduler: str | None = None, config_file: str | None = None,
+def pipeline_flow(out: str | None = None, preset: str = "quick", trials: Trials = 6, tune_rows: TuneRows = 20_000,
+                  workers: Workers = 2, scheduler: str | None = None, config_file: str | None = None,
                   sensor: str | None = None) -> dict[str, object]:
     """``mpi-lidar pipeline`` as a flow: the same options (``config_file`` is ``--config``), the same run directory
     (``runs/<preset>`` by default).

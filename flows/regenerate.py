@@ -19,6 +19,7 @@ from flows.generate_dataset import build_config_task, generate_dataset_flow
 from mpi_lidar.errors import StoreError
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.atomic import atomic_path
+from mpi_lidar.workflows.job_options import Workers
 
 STORE_NAME = "dataset.zarr"
 LATEST_NAME = "latest"
@@ -52,7 +53,7 @@ def regenerate_dataset_flow(
     root: str,
     preset: str = "quick",
     config_file: str | None = None,
-    workers: int = 2,
+    workers: Workers = 2,
     scheduler: str | None = None,
 ) -> dict[str, object]:
     """Make sure ``root`` holds the complete dataset of this configuration and code version.

@@ -35,6 +35,8 @@ from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_se
 from prefect_dask import DaskTaskRunner
 
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.locations import display_url
+from mpi_lidar.workflows.cluster import check_scheduler_address
 from mpi_lidar.workflows.executor import Call, Executor
 
 R = TypeVar("R")
@@ -85,7 +87,7 @@ def dask_task_runner(workers: int = 2, scheduler: str | None = None) -> DaskTask
     The cluster starts when the first task is submitted, not here.
     """
     if scheduler:
-        return DaskTaskRunner(address=scheduler)
+        return DaskTaskRunner(address=check_scheduler_address(scheduler))
     if workers < 1:
         raise MpiLidarError(f"workers must be at least 1, got {workers}")
     return DaskTaskRunner(cluster_class=LocalCluster, cluster_kwargs=local_cluster_kwargs(workers))
@@ -107,7 +109,7 @@ def describe_workers(workers: int, scheduler: str | None) -> str:
     if workers == 0:
         return "the flow's process"
     if scheduler:
-        return f"Dask scheduler {scheduler}"
+        return f"Dask scheduler {display_url(scheduler)}"
     return f"LocalCluster, {workers} process{'es' * (workers != 1)} x 1 thread"
 
 

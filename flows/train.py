@@ -16,6 +16,7 @@ from mpi_lidar.learning.model import CARD_FILE, read_card
 from mpi_lidar.learning.train import train_and_save
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.cluster import dask_client
+from mpi_lidar.workflows.job_options import Workers
 
 CARD_ARTIFACT_KEY = "model-card"
 
@@ -59,7 +60,7 @@ def _geometric(requested: bool | None, settings: dict[str, object], study: str |
 
 def train_flow(data: str, out: str, study: str | None = None, storage: str | None = None,
                feature_set: str | None = None, target: str | None = None, geometric: bool | None = None,
-               workers: int = 2, scheduler: str | None = None, storage_secret: str | None = None,
+               workers: Workers = 2, scheduler: str | None = None, storage_secret: str | None = None,
                ) -> dict[str, object]:
     """Train on the whole train split with the study's best parameters (or the defaults).
 

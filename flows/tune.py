@@ -27,6 +27,7 @@ from mpi_lidar.reporting.report import write_report
 from mpi_lidar.reporting.tuning_report import tuning_report
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.cluster import dask_client
+from mpi_lidar.workflows.job_options import Trials, TuneRows, Workers
 
 TUNING_ARTIFACT_KEY = "tuning-study"
 WHERE_SECRETS_COME_FROM = (f"leave storage out and set {tune.STORAGE_URL_VARIABLE} where the flow runs, give the URL "
@@ -80,9 +81,9 @@ def publish_study_task(storage: str, study: str, report_dir: str) -> str:
     return markdown
 
 
-def tune_flow(data: str, storage: str | None = None, study: str = "xgboost", trials: int = tune.DEFAULT_TRIALS,
-              tune_rows: int = tune.DEFAULT_TUNE_ROWS, feature_set: str | None = None, target: str | None = None,
-              geometric: bool = DEFAULT_GEOMETRIC, workers: int = 2, scheduler: str | None = None,
+def tune_flow(data: str, storage: str | None = None, study: str = "xgboost", trials: Trials = tune.DEFAULT_TRIALS,
+              tune_rows: TuneRows = tune.DEFAULT_TUNE_ROWS, feature_set: str | None = None, target: str | None = None,
+              geometric: bool = DEFAULT_GEOMETRIC, workers: Workers = 2, scheduler: str | None = None,
               report_dir: str | None = None, storage_secret: str | None = None) -> dict[str, object]:
     """Run the study to ``trials`` finished trials and publish it (report in ``<data dir>/tuning`` by default).
 

@@ -68,7 +68,7 @@ INVALID_REPLACEMENTS = [
     ({"prior": {"rho": (0.0, 1.1)}}, "rho must lie in [0, 1]"),
     ({"prior": {"albedo": (-0.1, 1.0)}}, "albedo must lie in [0, 1]"),
     ({"prior": {"rho_aba": (0.0, 1.5)}}, "rho_aba must lie in [0, 1]"),
-    ({"prior": {"coupling": (0.5, 2.0)}}, "coupling must lie in [0, 1]"),
+    ({"prior": {"coupling": (0.5, 20.0)}}, "coupling must lie in [0, 10]"),
     ({"prior": {"scheme": "uniform"}}, "'reciprocal', 'independent' or 'explicit'"),
     ({"prior": {"albedos": (0.1, 1.0)}}, "Extra inputs are not permitted"),
     ({"frequencies_hz": ()}, "frequencies_hz is empty"),
@@ -93,7 +93,7 @@ INVALID_REPLACEMENTS = [
 ]
 INVALID_REPLACEMENT_IDS = [
     "negative_d_as", "zero_d_as", "negative_d_ab", "reversed_interval", "infinite_interval", "rho_above_one",
-    "negative_albedo", "rho_aba_above_one", "coupling_above_one", "unknown_scheme", "unknown_prior_field",
+    "negative_albedo", "rho_aba_above_one", "coupling_above_max", "unknown_scheme", "unknown_prior_field",
     "no_frequencies", "zero_frequency", "negative_frequency", "nan_frequency", "frequency_at_nyquist",
     "frequency_above_nyquist", "duplicate_frequencies", "under_one_cycle", "unknown_fidelity",
     "negative_noise_scale", "unknown_simulator_field", "quantum_efficiency_above_one", "gain_below_one",
@@ -285,7 +285,7 @@ def _perturbed(value: object, key: str) -> object:
         return "independent"
     if key == "fidelity":
         return "waveform"
-    if key == "d_as_distribution":
+    if key in ("d_as_distribution", "coupling_distribution"):
         return "uniform" if value == "log_uniform" else "log_uniform"
     if isinstance(value, int):
         return value - 1 if key == "chunk_rows" else value + 1

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 import re
+import types
+import typing
 from dataclasses import replace
 from pathlib import Path
 
@@ -16,7 +18,17 @@ import zarr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mpi_lidar.calibration.profile import FREQUENCY_BOUNDS_HZ, MAX_OFFSET_M, check_profile_frequencies, read_profile
+from mpi_lidar.calibration.profile import (
+    FREQUENCY_BOUNDS_HZ,
+    MAX_OFFSET_M,
+    PER_FREQUENCY_FIELDS,
+    SensorProfile,
+    check_profile_frequencies,
+    profile_options,
+    read_profile,
+)
+from mpi_lidar.config import SensorConfig
+from mpi_lidar.correction.baseline import PER_FREQUENCY_OPTIONS
 from mpi_lidar.correction.options import (
     AMPLITUDE_SCALE_BOUNDS,
     MAX_AMPLITUDE_V2,
@@ -33,8 +45,10 @@ from mpi_lidar.correction.options import (
     UnservedReason,
 )
 from mpi_lidar.correction.outcome import Unserved, degraded_reason, first_cause, scan_status, status_reason
+from mpi_lidar.correction.validity import validity_flags
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.scans.scan import ScanError, validate
+from mpi_lidar.physics.noise import NoiseModel
+from mpi_lidar.scans.scan import ScanError, check_wrap_periods, lowest_depth_m, validate
 from mpi_lidar.scans.store import read_scan, store_fingerprints, write_scan
 from tests.cli_runner import assert_one_error_line, call_main
 from tests.model_factory import tiny_model
@@ -204,8 +218,9 @@ AZIMUTH, ELEVATION = np.linspace(-0.2, 0.2, 8), np.linspace(-0.15, 0.15, 6)
 
 @pytest.mark.unit
 @pytest.mark.parametrize(("change", "fragment"), [
-    ({"depth": np.asarray(SCAN.depth) - 13.0}, "a phase's depth is never negative"),
-    ({"depth": np.asarray(SCAN.depth) - 13.0, "depth_wrapped": False}, "never by more than 1 m"),
+    ({"depth": np.asarray(SCAN.depth) - 13.0}, "never by more than 1.15 m"),
+    ({"depth": np.asarray(SCAN.depth) - 13.0, "depth_wrapped": False}, "never by more than 1.15 m"),
+    ({"depth": np.asarray(SCAN.depth) + 2.9}, "beyond that frequency's wrap period 4.8000 m"),
     ({"amplitude": np.full_like(SCAN.amplitude, 1e30)}, "every finite amplitude is 1e+30"),
     ({"amplitude": np.full_like(SCAN.amplitude, 1e-12)}, "every finite amplitude is 1e-12"),
     ({"azimuth_rad": np.where(np.arange(8) == 3, np.nan, AZIMUTH)}, "azimuth_rad has values that are not"),
@@ -298,3 +313,119 @@ def test_correct__profile_of_other_frequencies_is_one_line_exit_2(tmp_path, monk
     assert not out.exists()
     with pytest.raises(MpiLidarError, match=fragment):
         check_profile_frequencies(read_profile(sensor), (12.5e6, 18.75e6, 25e6, 31.25e6), "the scan", sensor)
+
+
+# --- fields of one value per frequency: checked where a profile or the options meet the scan -------------------
+
+
+def _variable_tuple(annotation: object) -> bool:
+    """Whether the annotation is, under Optional and Annotated, a tuple of any length (``tuple[float, ...]``)."""
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return any(_variable_tuple(member) for member in typing.get_args(annotation))
+    if typing.get_origin(annotation) is typing.Annotated:
+        return _variable_tuple(typing.get_args(annotation)[0])
+    return typing.get_origin(annotation) is tuple and typing.get_args(annotation)[-1:] == (Ellipsis,)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(("model", "declared"), [(CorrectionOptions, PER_FREQUENCY_OPTIONS),
+                                                 (SensorProfile, PER_FREQUENCY_FIELDS)])
+def test_per_frequency__every_field_of_any_length_is_declared_and_checked(model, declared):
+    of_any_length = {name for name, field in model.model_fields.items() if _variable_tuple(field.annotation)}
+    assert of_any_length == set(declared)
+
+
+@pytest.mark.unit
+def test_correct_scan__a_profiles_offsets_for_other_frequencies_are_one_line_not_an_index_error(tmp_path, raw_model):
+    """Through the Python API, with no model card to check the profile against: the scan's own frequencies."""
+    from mpi_lidar.correction.correct import correct_scan
+    from mpi_lidar.learning.model import load_model
+
+    sensor = tmp_path / "sensor.toml"
+    sensor.write_text(PROFILE + "frequency_offsets_m = [0.001, 0.0]\n")
+    options = CorrectionOptions.from_cli(**profile_options(sensor))
+    fragment = "give 2 frequency_offsets_m for the 4 frequencies of scan bounds"
+    with pytest.raises(MpiLidarError, match=fragment) as refused:
+        correct_scan(SCAN, load_model(raw_model), options)
+    assert "\n" not in str(refused.value) and not isinstance(refused.value, IndexError)
+    options = options.model_copy(update={"frequency_offsets_m": (0.001, 0.0, 0.0, 0.0)})
+    assert correct_scan(SCAN, load_model(raw_model), options).frequency_offsets_m == (0.001, 0.0, 0.0, 0.0)
+
+
+@pytest.mark.unit
+def test_check_profile_frequencies__each_per_frequency_field_one_value_per_frequency(tmp_path):
+    sensor = tmp_path / "sensor.toml"
+    sensor.write_text(PROFILE + "frequencies_hz = [1.25e7, 1.875e7]\n")
+    with pytest.raises(MpiLidarError, match=re.escape("calibrated at 12.5, 18.75 MHz")):
+        check_profile_frequencies(read_profile(sensor), (12.5e6, 18.75e6, 25e6, 31.25e6), "the scan", sensor)
+    check_profile_frequencies(read_profile(sensor), (12.5e6, 18.75e6), "the scan", sensor)
+
+
+# --- depths: at least -3 sigma of each pixel's own noise, below the wrap period ---------------------------------
+
+
+@pytest.mark.unit
+def test_lowest_depth_m__three_deviations_of_the_weakest_return_at_the_lowest_frequency():
+    # c / (4 pi f) / SNR at 12.5 MHz, c = 3e8: 1.9099 m / 5 = 0.38197 m; three of them.
+    assert lowest_depth_m((31.25e6, 12.5e6), 3e8) == pytest.approx(-3 * 3e8 / (4 * math.pi * 12.5e6) / 5, rel=1e-12)
+    assert lowest_depth_m((12.5e6,), 3e8) == pytest.approx(-1.14592, abs=1e-5)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("wrapped", [True, False])
+def test_scan_store__a_near_surface_slightly_negative_within_its_noise_is_read(tmp_path, wrapped):
+    """A row at 2 mm before the scanner's zero, by its noise: no reason to refuse the scan, wrapped or not."""
+    depth = np.asarray(SCAN.depth).copy()
+    depth[:, 0, :] = -0.002
+    path = write_scan(replace(SCAN, depth=depth, depth_wrapped=wrapped), tmp_path / "near.scan.zarr")
+    assert float(np.min(read_scan(path).depth)) == pytest.approx(-0.002, abs=1e-7)
+
+
+@pytest.mark.unit
+def test_scan_store__an_unwrapped_depth_may_pass_the_wrap_period():
+    """The scanner unwrapped them: past 4.8 m at 31.25 MHz is a range, not a wrong period."""
+    far = replace(SCAN, depth=np.asarray(SCAN.depth) + 2.9, depth_wrapped=False)
+    check_wrap_periods(validate(far, "far"), "far")
+
+
+@pytest.mark.unit
+def test_validity_flags__a_depth_more_than_three_of_its_own_deviations_below_zero_is_inconsistent():
+    frequencies = (12.5e6, 18.75e6, 25e6, 31.25e6)
+    noise = NoiseModel.for_sensor(SensorConfig(), frequencies)
+    amplitude = np.full((1, 4), 0.05)
+    sigma = noise.depth_sigma_m(amplitude)[0]  # each frequency's own deviation at this amplitude [m]
+    rows = np.concatenate([np.stack([-2.5 * sigma, -3.5 * sigma, 0.5 * sigma, -3.5 * sigma * np.eye(4)[0]]),
+                           np.repeat(amplitude, 4, axis=0)], axis=1)
+    flags = validity_flags(rows, CorrectionOptions(), noise)
+    assert [Flag(flag) for flag in flags[:2]] == [Flag.NOT_NEEDED, Flag.INCONSISTENT]
+    assert Flag(flags[2]) == Flag.NOT_NEEDED  # at +0.5 sigma, each frequency: a near surface
+    assert Flag(flags[3]) == Flag.INCONSISTENT  # one frequency alone 3.5 of its deviations below zero
+
+
+# --- classes of bad data end with their own reason, and every depth with its uncertainty ---------------------------
+
+
+@pytest.mark.unit
+def test_correct_scan__amplitudes_all_zero_are_no_return_in_every_pixel(raw_model):
+    from mpi_lidar.correction.correct import correct_scan
+    from mpi_lidar.learning.model import load_model
+
+    correction = correct_scan(replace(SCAN, amplitude=np.zeros_like(SCAN.amplitude)), load_model(raw_model))
+    assert (correction.flags == Flag.NO_RETURN).all()
+    assert np.isnan(correction.depth).all()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("change", [{}, {"amplitude": np.asarray(SCAN.amplitude) * 30},
+                                    {"depth": np.asarray(SCAN.depth) + 4.0, "depth_wrapped": False}],
+                         ids=["as-is", "units-contradicted", "out-of-range"])
+def test_correct_scan__every_pixel_with_a_depth_has_its_uncertainty(raw_model, change):
+    """Served, unserved for its amplitudes' units, or beyond the model's range: a depth never comes alone."""
+    from mpi_lidar.correction.correct import correct_scan
+    from mpi_lidar.learning.model import load_model
+
+    correction = correct_scan(replace(SCAN, **change), load_model(raw_model))
+    assert correction.uncertainty_m is not None
+    has_depth = np.isfinite(correction.depth)
+    assert has_depth.any()
+    assert np.isfinite(correction.uncertainty_m[has_depth]).all() and (correction.uncertainty_m[has_depth] > 0).all()

@@ -62,6 +62,11 @@ _DEFAULTS = CorrectionOptions()
 RANGE_MARGIN = 0.15
 
 
+# The fields of a profile that hold one value per frequency, in the order of its scans' frequencies: where the
+# profile meets a model or a scan each must have one value per frequency (check_profile_frequencies).
+PER_FREQUENCY_FIELDS = ("frequencies_hz", "frequency_offsets_m")
+
+
 class SensorProfile(BaseModel):
     """One sensor's footprint [m^2], validity thresholds [V^2, 1] and amplitude unit [units/V^2], with how the
     footprint was measured; optionally its frequencies [Hz], noise scale [1], working range [m] and the
@@ -205,18 +210,20 @@ class ProfileOptions(TypedDict, total=False):
 def check_profile_frequencies(profile: SensorProfile, frequencies_hz: tuple[float, ...], where: str,
                               path: str | Path) -> None:
     """Refuse a profile measured at other frequencies than ``frequencies_hz`` [Hz] (those of ``where``: a model,
-    whose scans share them), or whose ``frequency_offsets_m`` are not one per frequency, with one line."""
+    whose scans share them), or whose per-frequency fields (:data:`PER_FREQUENCY_FIELDS`) do not give one value
+    per frequency, with one line."""
     mhz = ", ".join(f"{f / 1e6:g}" for f in frequencies_hz) + " MHz"
     if profile.frequencies_hz is not None and tuple(float(f) for f in profile.frequencies_hz) != tuple(
             float(f) for f in frequencies_hz):
         given = ", ".join(f"{f / 1e6:g}" for f in profile.frequencies_hz) + " MHz"
         raise MpiLidarError(f"sensor profile {path} was calibrated at {given}, but {where} is at {mhz}; calibrate "
                             "the sensor at the scans' frequencies (mpi-lidar calibrate)")
-    offsets = profile.frequency_offsets_m
-    if offsets is not None and len(offsets) != len(frequencies_hz):
-        raise MpiLidarError(f"sensor profile {path} gives {len(offsets)} frequency_offsets_m for the "
-                            f"{len(frequencies_hz)} frequencies of {where} ({mhz}); give one per frequency, or "
-                            "calibrate the sensor again")
+    for name in PER_FREQUENCY_FIELDS:
+        values = getattr(profile, name)
+        if values is not None and len(values) != len(frequencies_hz):
+            raise MpiLidarError(f"sensor profile {path} gives {len(values)} {name} for the "
+                                f"{len(frequencies_hz)} frequencies of {where} ({mhz}); give one per frequency, or "
+                                "calibrate the sensor again")
 
 
 def profile_options(path: str | Path | None, model_dir: str | Path | None = None) -> ProfileOptions:

@@ -40,7 +40,10 @@ def for_sensor(config: Config, sensor: Path | None) -> Config:
 def cluster_options(command: F) -> F:
     """--workers and --scheduler, shared by every command that runs on Dask."""
     command = click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786).")(command)
-    return click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
+    from mpi_lidar.cli._declared import bounded
+    from mpi_lidar.workflows.job_options import Workers
+
+    return click.option("--workers", type=bounded(Workers), default=2, show_default=True,
                         help="Worker processes of a local Dask cluster; 0 runs in this process (ignored with "
                              "--scheduler).")(command)
 
@@ -57,7 +60,7 @@ def model_options(command: F) -> F:
                         help=f"Model inputs (default {DEFAULT_FEATURE_SET}, or the study's).")(command)
 
 
-def feature_spec(data: Path, feature_set: str | None, target_mode: str | None,
+def feature_spec(data: str | Path, feature_set: str | None, target_mode: str | None,
                  geometric: bool | None = None) -> FeatureSpec:
     """The model's inputs and target on the dataset ``data``'s frequencies; None: the default."""
     from mpi_lidar.learning.features import FeatureSpec

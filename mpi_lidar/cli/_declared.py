@@ -91,6 +91,17 @@ def _option(model: type[BaseModel], option: UserOption) -> DeclaredOption:
     return DeclaredOption([option.flag, option.name], **settings)
 
 
+def bounded(declared: object) -> click.IntRange | click.FloatRange:
+    """The click type of a number declared with its bounds: an ``Annotated[int, Field(ge=...)]`` (as
+    :mod:`mpi_lidar.workflows.job_options` declares them) or a model's field (``DatasetConfig.model_fields[...]``)."""
+    info = declared if isinstance(declared, FieldInfo) else FieldInfo.from_annotation(declared)  # type: ignore[arg-type]
+    low, high, low_open, high_open = _bounds(info, 1)
+    if info.annotation is int:
+        return click.IntRange(None if low is None else int(low), None if high is None else int(high), low_open,
+                              high_open)
+    return click.FloatRange(low, high, low_open, high_open)
+
+
 def _item(annotation: Any) -> tuple[Any, bool]:
     """The type of one value of ``annotation`` without None, and whether it holds several (a tuple)."""
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):

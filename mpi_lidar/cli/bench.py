@@ -6,14 +6,16 @@ from pathlib import Path
 
 import click
 
+from mpi_lidar.cli._declared import bounded
 from mpi_lidar.terminal import Display, print_table
+from mpi_lidar.workflows.job_options import Seed
 
 
 @click.command()
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Report directory.")
 @click.option("--rows", type=click.IntRange(min=100), help="Train rows (default 50,000; the test set is half).")
 @click.option("--quick", is_flag=True, help="Tiny sizes (seconds), for a first look and for tests.")
-@click.option("--seed", type=click.IntRange(min=0), help="Seed of the simulated rows (default: the config's).")
+@click.option("--seed", type=bounded(Seed), help="Seed of the simulated rows (default: the config's).")
 def bench(out_dir: Path, rows: int | None, quick: bool, seed: int | None) -> None:
     """Run time against error: test MAE, training time and throughput of every estimator, Pareto fronts.
 

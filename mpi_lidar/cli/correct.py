@@ -110,4 +110,6 @@ def print_batch(outcomes: list[ScanOutcome], wall_s: float, summary_dir: str | P
         click.echo(line)
     for code, note in legend:
         click.echo(cut(f"{code}: {note}", width))
-    click.echo(f"summary: {str(summary_dir).rstrip('/')}/report.html (every note in full)")
+    where = f"{str(summary_dir).rstrip('/')}/report.html"
+    said = f"summary: {where} (every note in full)"
+    click.echo(said if len(said) <= width else f"summary (every note in full):\n{where}")  # a path stays whole

@@ -7,12 +7,14 @@ from pathlib import Path
 import click
 
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.locations import Location, is_url, location
 
 
 @click.command("import-scan")
 @click.argument("sources", nargs=-1, required=True)
-@click.option("--out", type=click.Path(path_type=Path), required=True,
-              help="Scan store to write (X.scan.zarr) for one file, or a directory: OUT/<name>.scan.zarr per file.")
+@click.option("--out", required=True,
+              help="Scan store to write (X.scan.zarr) for one file, or a directory: OUT/<name>.scan.zarr per file; "
+                   "a path or an s3:// URL.")
 @click.option("--frequencies", help="Comma-separated frequencies in Hz, if the files do not hold frequencies_hz.")
 @click.option("--var", "variables", multiple=True, metavar="NAME=VARIABLE",
               help="Read the scan array NAME (depth, amplitude, taps, azimuth_rad, elevation_rad, azimuth_deg, "
@@ -28,7 +30,7 @@ from mpi_lidar.errors import MpiLidarError
               help="The speed of light the scanner converted phase to range with, in m/s, where the files hold "
                    "neither speed_of_light_m_per_s nor wrap_period_m (each frequency's c/2f) [default: 299792458]. "
                    "A wrapped depth beyond its frequency's c/2f refuses the import.")
-def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, variables: tuple[str, ...],
+def import_scan(sources: tuple[str, ...], out: str, frequencies: str | None, variables: tuple[str, ...],
                 depths: str, speed_of_light: float | None) -> None:
     """Import scans from .npz archives, NetCDF/HDF5 files (.nc, .h5, .hdf5) or Zarr groups (.zarr): files,
     directories or globs.
@@ -58,6 +60,9 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
     if speed_of_light is not None:
         check_speed_of_light(speed_of_light, "--speed-of-light")  # before any file is read
     mapping = variable_mapping(variables)
+    if is_url(out):  # into a bucket: written locally, all or none, then each store published there
+        _import_into_store(sources, location(out), freqs, mapping, depths == "wrapped", speed_of_light)
+        return
     plan, existing = new_stores(plan_import(find_scan_files(sources), out))
 
     def echo(scan, target: Path) -> None:
@@ -66,6 +71,24 @@ def import_scan(sources: tuple[str, ...], out: Path, frequencies: str | None, va
 
     import_files(plan, freqs, mapping, on_scan=echo, depth_wrapped=depths == "wrapped",
                  speed_of_light_m_per_s=speed_of_light)
+    if existing:
+        names = ", ".join(f"{source.name} ({target.name})" for source, target in existing)
+        click.echo(f"import-scan: not imported, their stores already exist in {out}: {names}; remove a store to "
+                   "import its file again", err=True)
+
+
+def _import_into_store(sources: tuple[str, ...], out: Location, freqs: tuple[float, ...] | None,
+                       mapping: dict[str, str], depth_wrapped: bool, speed_of_light: float | None) -> None:
+    """``import-scan`` into an object store (:func:`mpi_lidar.workflows.remote_outputs.import_into_store`)."""
+    from mpi_lidar.scans.importers import find_scan_files, import_files
+    from mpi_lidar.workflows.remote_outputs import import_into_store
+
+    def run(plan: list[tuple[Path, Path]]) -> None:
+        import_files(plan, freqs, mapping, depth_wrapped=depth_wrapped, speed_of_light_m_per_s=speed_of_light)
+
+    imported, existing = import_into_store(find_scan_files(sources), out, run)
+    for source, target in imported:
+        click.echo(f"scan {source.name} written to {target}")
     if existing:
         names = ", ".join(f"{source.name} ({target.name})" for source, target in existing)
         click.echo(f"import-scan: not imported, their stores already exist in {out}: {names}; remove a store to "

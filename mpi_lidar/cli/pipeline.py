@@ -7,8 +7,10 @@ from pathlib import Path
 import click
 
 from mpi_lidar.cli._common import SENSOR_SIMULATION_HELP, cluster_options, for_sensor
+from mpi_lidar.cli._declared import bounded
 from mpi_lidar.config import PRESETS, resolve_config
 from mpi_lidar.terminal import Display
+from mpi_lidar.workflows.job_options import Trials, TuneRows
 
 
 @click.command()
@@ -16,8 +18,8 @@ from mpi_lidar.terminal import Display
               help="Run directory: dataset.zarr, optuna.db, model/, report/ (default: runs/<preset>).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file overriding the preset.")
 @click.option("--preset", "preset_name", type=click.Choice(sorted(PRESETS)), default="quick", show_default=True)
-@click.option("--trials", type=click.IntRange(min=1), default=6, show_default=True, help="Tuning budget.")
-@click.option("--tune-rows", type=click.IntRange(min=100), default=20_000, show_default=True)
+@click.option("--trials", type=bounded(Trials), default=6, show_default=True, help="Tuning budget.")
+@click.option("--tune-rows", type=bounded(TuneRows), default=20_000, show_default=True)
 @click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None, help=SENSOR_SIMULATION_HELP)
 @cluster_options
 def pipeline(out_dir: Path, config_file: Path | None, preset_name: str, trials: int, tune_rows: int,

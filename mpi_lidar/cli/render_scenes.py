@@ -6,13 +6,15 @@ from pathlib import Path
 
 import click
 
+from mpi_lidar.cli._declared import bounded
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.workflows.job_options import Seed
 
 
 @click.command("render-scenes")
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Directory for the scans.")
 @click.option("--scene", "names", multiple=True, help="Scene name (repeatable); default: the demo scenes.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=bounded(Seed), default=0, show_default=True)
 def render_scenes(out_dir: Path, names: tuple[str, ...], seed: int) -> None:
     """Render simulated scenes (cornered board, multi-object, flat wall, ...) as scan stores with references.
 

@@ -7,24 +7,27 @@ from pathlib import Path
 import click
 
 from mpi_lidar.cli._common import SENSOR_SIMULATION_HELP, for_sensor
-from mpi_lidar.config import PRESETS, resolve_config
+from mpi_lidar.cli._declared import bounded
+from mpi_lidar.config import PRESETS, DatasetConfig, resolve_config
 from mpi_lidar.terminal import Display, plural, print_table
+from mpi_lidar.workflows.job_options import Workers
 
 
 @click.command()
-@click.option("--out", "out", type=click.Path(path_type=Path), required=True, help="Dataset store to write (.zarr).")
+@click.option("--out", "out", required=True, help="Dataset store to write (.zarr): a path or an s3:// URL.")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file overriding the preset.")
 @click.option("--preset", "preset_name", type=click.Choice(sorted(PRESETS)), default="quick", show_default=True)
-@click.option("--samples", type=int, help="Number of rows (overrides the preset and file).")
-@click.option("--chunk-rows", type=int, help="Rows per chunk.")
-@click.option("--seed", type=int, help="Seed of the sampling plan.")
+@click.option("--samples", type=bounded(DatasetConfig.model_fields["samples"]),
+              help="Number of rows (overrides the preset and file).")
+@click.option("--chunk-rows", type=bounded(DatasetConfig.model_fields["chunk_rows"]), help="Rows per chunk.")
+@click.option("--seed", type=bounded(DatasetConfig.model_fields["seed"]), help="Seed of the sampling plan.")
 @click.option("--fidelity", type=click.Choice(["moment", "waveform"]), help="Simulator fidelity.")
 @click.option("--sensor", "sensor", type=click.Path(path_type=Path), default=None, help=SENSOR_SIMULATION_HELP)
-@click.option("--workers", type=click.IntRange(min=0), default=2, show_default=True,
+@click.option("--workers", type=bounded(Workers), default=2, show_default=True,
               help="Dask worker processes of a local cluster; 0 runs in this process.")
 @click.option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786) instead of a local cluster.")
 def simulate(
-    out: Path, config_file: Path | None, preset_name: str, samples: int | None, chunk_rows: int | None,
+    out: str, config_file: Path | None, preset_name: str, samples: int | None, chunk_rows: int | None,
     seed: int | None, fidelity: str | None, sensor: Path | None, workers: int, scheduler: str | None,
 ) -> None:
     """Simulate a labelled dataset and print its raw-error summary.

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import click
 
+from mpi_lidar.cli._declared import bounded
 from mpi_lidar.terminal import Display, print_table
+from mpi_lidar.workflows.job_options import BaselineRows, Trials
 
 
 @click.command()
@@ -14,10 +16,10 @@ from mpi_lidar.terminal import Display, print_table
 @click.option("--out", "--report", "report_dir", type=click.Path(path_type=Path), required=True,
               help="Report directory (--report is the older name).")
 @click.option("--model", "model_dir", type=click.Path(path_type=Path), help="XGBoost model directory for its row.")
-@click.option("--trials", type=click.IntRange(min=1), default=10, show_default=True, help="TPE trials per baseline.")
-@click.option("--train-rows", type=click.IntRange(min=10), default=100_000, show_default=True,
+@click.option("--trials", type=bounded(Trials), default=10, show_default=True, help="TPE trials per baseline.")
+@click.option("--train-rows", type=bounded(BaselineRows), default=100_000, show_default=True,
               help="Train rows the scikit-learn baselines fit on.")
-@click.option("--svm-rows", type=click.IntRange(min=10), default=20_000, show_default=True)
+@click.option("--svm-rows", type=bounded(BaselineRows), default=20_000, show_default=True)
 def table2(data: Path, report_dir: Path, model_dir: Path | None, trials: int, train_rows: int, svm_rows: int) -> None:
     """The paper's Table II: KNN, RF, SVM, DNN and XGBoost against raw and weighted depth.
 

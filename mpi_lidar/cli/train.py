@@ -12,7 +12,7 @@ from mpi_lidar.terminal import Display, plural
 
 
 @click.command()
-@click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
+@click.option("--data", required=True, help="Dataset store (.zarr): a path or an s3:// URL.")
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Model directory to create.")
 @click.option("--params", "params_file", type=click.Path(path_type=Path), help="JSON or TOML file of parameters.")
 @click.option("--study", "study_name", help="Take the best parameters of this Optuna study.")
@@ -20,7 +20,7 @@ from mpi_lidar.terminal import Display, plural
                                 "beside the dataset).")
 @model_options
 @cluster_options
-def train(data: Path, out: Path, params_file: Path | None, study_name: str | None, storage: str | None,
+def train(data: str, out: Path, params_file: Path | None, study_name: str | None, storage: str | None,
           feature_set: str | None, target_mode: str | None, geometric: bool | None, workers: int,
           scheduler: str | None) -> None:
     """Train the final XGBoost model through xgboost.dask on the whole train split.

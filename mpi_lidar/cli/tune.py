@@ -7,7 +7,9 @@ from pathlib import Path
 import click
 
 from mpi_lidar.cli._common import cluster_options, feature_spec, model_options
+from mpi_lidar.cli._declared import bounded
 from mpi_lidar.terminal import Display, plural
+from mpi_lidar.workflows.job_options import Trials, TuneRows
 
 
 @click.command()
@@ -15,9 +17,9 @@ from mpi_lidar.terminal import Display, plural
 @click.option("--storage", help="Optuna storage URL (default: $MPI_LIDAR_STORAGE_URL, else sqlite file optuna.db "
                                 "beside the dataset).")
 @click.option("--study", "study_name", default="xgboost", show_default=True, help="Study name in the storage.")
-@click.option("--trials", type=click.IntRange(min=1), default=30, show_default=True,
+@click.option("--trials", type=bounded(Trials), default=30, show_default=True,
               help="Finished trials the study should hold; a re-run resumes or extends it.")
-@click.option("--tune-rows", type=click.IntRange(min=100), default=100_000, show_default=True,
+@click.option("--tune-rows", type=bounded(TuneRows), default=100_000, show_default=True,
               help="Train rows each trial learns from.")
 @model_options
 @cluster_options

@@ -18,6 +18,7 @@ if TYPE_CHECKING:  # the names for type checkers; at run time __getattr__ import
         CORRECTED_SCHEMA,
         GATES,
         INVALID_FLAGS,
+        MODEL_FLAGS,
         CorrectionOptions,
         Flag,
         GateName,
@@ -32,7 +33,8 @@ if TYPE_CHECKING:  # the names for type checkers; at run time __getattr__ import
 _MODULES = {
     "mpi_lidar.correction.correct": ("Correction", "correct_scan", "in_model_range"),
     "mpi_lidar.correction.gates": ("ConsistencyGate", "CorrectAll", "Gate", "GeometryGate", "make_gate"),
-    "mpi_lidar.correction.options": ("CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "CorrectionOptions", "Flag",
+    "mpi_lidar.correction.options": ("CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "MODEL_FLAGS",
+                                     "CorrectionOptions", "Flag",
                                      "GateName", "ScanStatus", "UnservedReason"),
     "mpi_lidar.correction.outcome": ("ScanOutcome", "Unserved"),
     "mpi_lidar.correction.scene": ("NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "SceneGeometry", "analyse_geometry"),
@@ -42,7 +44,8 @@ _MODULES = {
 _EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = [
-    "CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "NO_GEOMETRY_INPUTS_NOTE", "NO_GEOMETRY_NOTE", "ConsistencyGate",
+    "CORRECTED_SCHEMA", "GATES", "INVALID_FLAGS", "MODEL_FLAGS", "NO_GEOMETRY_INPUTS_NOTE",
+    "NO_GEOMETRY_NOTE", "ConsistencyGate",
     "CorrectAll", "Correction", "CorrectionOptions", "Flag", "Gate", "GateName", "GeometryGate", "NoiseModel",
     "ScanOutcome",
     "ScanStatus", "SceneGeometry", "Unserved", "UnservedReason", "analyse_geometry", "correct_scan",

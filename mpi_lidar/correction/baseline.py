@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.correction.options import Baseline, CorrectionOptions, Flag
 from mpi_lidar.correction.validity import OffsetSample
+from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 from mpi_lidar.physics.noise import Fused, NoiseModel
 from mpi_lidar.scans.geometry import FacingBlocks
@@ -27,6 +28,24 @@ MIN_OFFSET_PIXELS = 500
 # footprint, expects a bias below this [m]: from the geometry alone, so that the same pixels are picked whatever
 # the amplitudes' unit and whether the scan's own footprint estimate is significant.
 QUIET_BIAS_M = 2e-5
+
+
+# The options that hold one value per frequency of the scan, highest last as the scan orders them (a sensor
+# profile's): each must have as many values as the scan has frequencies.
+PER_FREQUENCY_OPTIONS = ("frequency_offsets_m",)
+
+
+def check_per_frequency(options: CorrectionOptions, frequencies_hz: tuple[float, ...], where: str) -> None:
+    """Refuse options that give another number of values than ``where`` (a scan) has frequencies [Hz], in any of
+    :data:`PER_FREQUENCY_OPTIONS`, with one line, before any stage reads them."""
+    for name in PER_FREQUENCY_OPTIONS:
+        values = getattr(options, name)
+        if values is not None and len(values) != len(frequencies_hz):
+            mhz = ", ".join(f"{f / 1e6:g}" for f in frequencies_hz)
+            raise MpiLidarError(f"the correction options give {len(values)} {name} for the {len(frequencies_hz)} "
+                                f"frequencies of {where} ({mhz} MHz): a sensor profile of another sensor or "
+                                "frequency set; give one value per frequency, or calibrate the sensor on such scans "
+                                "(mpi-lidar calibrate)")
 
 
 class OffsetSource(StrEnum):

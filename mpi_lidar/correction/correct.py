@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.baseline import frequency_offsets
+from mpi_lidar.correction.baseline import check_per_frequency, frequency_offsets
 from mpi_lidar.correction.estimates import ScenePart, estimate_pixels
 from mpi_lidar.correction.gates import make_gate
 from mpi_lidar.correction.gating import GateDecision, decide
@@ -74,6 +74,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     options = options or CorrectionOptions()
     sensor = sensor or SensorConfig()
     model.check_compatible(scan.frequencies_hz, model.spec.raw_names, f"scan {scan.name}")
+    check_per_frequency(options, scan.frequencies_hz, f"scan {scan.name}")
     clock = StageClock()
     tiles = scan_tiles(scan, options.tile_pixels)
     with clock("unit"):
@@ -98,11 +99,14 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     part = ScenePart() if scene is None else ScenePart(scene.model_inputs, scene.bias_m, scene.footprint)
     offsets = frequency_offsets(validity.offsets, decision.flags, None if scene is None else scene.blocks, options)
     pixels = estimate_pixels(scan, tiles, noise, decision.flags, validity, part, model, offsets, options, clock)
+    # Corrected pixels beyond the training prior keep the model's depth under their own flag.
+    flags = (decision.flags if pixels.beyond_prior is None
+             else np.where(pixels.beyond_prior, np.uint8(Flag.BEYOND_PRIOR), decision.flags).astype(np.uint8))
     h, w = scan.shape
     unserved = (unserved_reason(decision.flags, model.card.dataset.prior.d_as_m, options, decision.served)
-                if reading.unit_trusted else untrusted_unit(reading.unit_contradiction))
+                if reading.unit_trusted else untrusted_unit(reading.unit_contradiction, options))
     return Correction(
-        depth=pixels.depth.reshape(h, w), flags=decision.flags.reshape(h, w), inference_s=pixels.inference_s,
+        depth=pixels.depth.reshape(h, w), flags=flags.reshape(h, w), inference_s=pixels.inference_s,
         total_s=time.perf_counter() - started, gate_s=gate_s + pixels.inputs_s, multipath_bias_m=part.bias_m,
         cpu_s=clock.seconds, calibration=part.footprint, unserved=unserved,
         measured_depth=validity.measured_depth.reshape(h, w),

@@ -10,7 +10,7 @@ import zarr
 from numpy.typing import NDArray
 
 from mpi_lidar.correction.correct import Correction
-from mpi_lidar.correction.options import CORRECTED_SCHEMA, CorrectionOptions, Estimate, Flag
+from mpi_lidar.correction.options import CORRECTED_SCHEMA, MODEL_FLAGS, CorrectionOptions, Estimate, Flag
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import consolidate, store_fingerprints, write_described_arrays
 from mpi_lidar.storage.variables import CORRECTED, Store, attributes
@@ -67,5 +67,6 @@ def footprint_record(correction: Correction) -> dict[str, object]:
     if estimate is None:
         raise ValueError("the correction measured no footprint of its own")
     return {"mode": "auto", **estimate.to_dict(),
-            "pixels_corrected_with_it": counts["corrected"] if estimate.significant else 0,
+            "pixels_corrected_with_it": sum(counts[flag.name.lower()] for flag in MODEL_FLAGS)
+            if estimate.significant else 0,
             "pixels_left_uncalibrated": counts["uncalibrated"]}

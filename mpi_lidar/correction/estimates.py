@@ -20,6 +20,7 @@ from mpi_lidar.correction.prediction import predict_rows
 from mpi_lidar.correction.tiles import PARALLEL_MIN_ROWS, StageClock, raw_tiles
 from mpi_lidar.correction.uncertainty import corrected_uncertainty_m, left_alone_sigma_m, measured_sigma_m
 from mpi_lidar.correction.validity import Validity
+from mpi_lidar.learning.error_model import beyond_prior
 from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans.scan import Scan
@@ -37,6 +38,8 @@ class PixelEstimates:
     beyond_prior_pixels : Corrected pixels whose geometric inputs lie beyond the training prior.
     inference_s : Wall seconds of the model's inputs and prediction. [s]
     inputs_s : Wall seconds of the geometric inputs (the gate's share of the model's work). [s]
+    beyond_prior : Bool (H*W,): the corrected pixels whose geometric inputs lie beyond the training prior (None
+        where the model takes none or its card does not say how far its prior reaches).
     """
 
     depth: NDArray[np.float32]
@@ -45,6 +48,7 @@ class PixelEstimates:
     beyond_prior_pixels: int
     inference_s: float
     inputs_s: float
+    beyond_prior: NDArray[np.bool_] | None = None
 
 
 @dataclass(frozen=True)
@@ -75,12 +79,16 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
     known = [int(flag) for flag in (*BASELINE_FLAGS, Flag.CORRECTED, Flag.TWO_RETURNS)]
     invalid = [int(flag) for flag in INVALID_FLAGS]
     beyond, inference_s, inputs_s = 0, 0.0, 0.0
+    # The geometric inputs each corrected pixel's model read: where in the prior it lies, for its uncertainty.
+    read = np.full((flags.size, 2), np.nan) if model.geometric and scene.inputs is not None else None
     for pixels, raw in raw_tiles(scan, tiles):
         cpu, started = time.process_time(), time.perf_counter()
         needs = np.flatnonzero(flags[pixels] == Flag.CORRECTED)
         if needs.size:
             predicted = predict_rows(model, raw[needs], pixels.start + needs, scene.inputs, reach)
             depth[pixels.start + needs] = predicted.depth_m
+            if read is not None and predicted.inputs is not None:
+                read[pixels.start + needs] = predicted.inputs
             beyond += predicted.beyond_prior
             inputs_s += predicted.inputs_wall_s
             clock.add("gate", predicted.inputs_cpu_s)
@@ -107,9 +115,13 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
             uncertainty[index] = left_alone_sigma_m(sigma, expected)
             uncertainty[index[corrected]] = corrected_uncertainty_m(
                 model.card, measured_sigma[corrected], fused.sigma_m[corrected],
-                depth[index[corrected]] - validity.measured_depth[index[corrected]], scene.footprint)
+                depth[index[corrected]] - validity.measured_depth[index[corrected]], scene.footprint,
+                None if read is None else read[index[corrected]])
             estimate[index[corrected]] = Estimate.CORRECTED
 
         on_cores_by_rows(estimate_rows, raw.shape[0], PARALLEL_MIN_ROWS)
         clock.add("baseline", time.process_time() - cpu)
-    return PixelEstimates(depth, estimate, uncertainty, beyond, inference_s, inputs_s)
+    past = None
+    if read is not None and reach is not None:
+        past = beyond_prior(np.nan_to_num(read, nan=0.0), reach) & (flags == Flag.CORRECTED)
+    return PixelEstimates(depth, estimate, uncertainty, beyond, inference_s, inputs_s, past)

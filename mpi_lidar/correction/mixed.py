@@ -6,23 +6,36 @@ which mix the two phases differently, disagree. A pixel is MIXED where both hold
 
 - its frequencies disagree beyond their noise: chi-square of their depths under the scan's noise model above its
   1 - ``MIXED_P_VALUE`` quantile (looser than validity's ``inconsistent_p_value``, which flags only the grossest
-  disagreements INCONSISTENT, and which an edge may turn into MIXED);
+  disagreements INCONSISTENT, and which an edge may turn into MIXED), or chi-square of their amplitudes above its
+  1 - ``AMPLITUDE_P_VALUE`` quantile (:func:`amplitude_spread`: one surface returns the same light at every
+  frequency, after the scanner's gains, :func:`frequency_gains`; two returns' sum beats as cos(2 pi f g / c) over
+  their gap g, which two equally bright returns, whose phase is their mean at every frequency, show only there);
 - it sits at a depth edge: a neighbour within one pixel whose measured depth differs from its own by more than
   ``EDGE_SIGMAS`` times the two depths' noise and more than ``MIN_EDGE_M``.
 
 A pixel whose second return is weak has frequencies that barely disagree, yet a depth off by a share of the gap:
 it is MIXED too where its depth lies between two opposite neighbours', by those margins from each and from their
-mean (a point off the line through its neighbours, which no plane gives, however grazing).
+mean (a point off the line through its neighbours, which no plane gives, however grazing). Where both returns are
+about equally bright and the gap below a metre, or the noise large, none of these sees it: the frequencies' depths
+agree (two equal returns' phase is their mean at every frequency), their amplitudes part by less than their noise,
+and the depth lies on the line through the neighbours. What tells it from a
+grazing surface is the neighbourhood two pixels out: at a depth edge the pixel lies between two flat sides, each
+neighbour's depth close to its own next neighbour's and far from the pixel's, where a surface, however grazing or
+curved, steps by similar amounts from pixel to pixel (:func:`_stepped`; a corner's pixel has one flat side at
+most). Its jumps need ``STEP_SIGMAS`` of the noise, fewer than a lone edge's ``EDGE_SIGMAS``: two flat sides make
+such a step rarer. The amplitude's level tells little here: a mixture's lies between its neighbours' as a grazing
+surface's does.
 
 A clean surface passes the first test but for a share ``MIXED_P_VALUE`` of its pixels, and only those beside a
-jump of several centimetres (a grazing surface's) can be flagged. Where the frequencies are evenly spaced and their
-phasors fit two returns within the noise (:func:`mpi_lidar.physics.two_returns.fit_two_returns`), at least
-``MIN_GAP_M`` apart with the weaker holding at least ``MIN_SHARE`` of the light, the pixel is TWO_RETURNS instead:
-its depth is the stronger return's and the weaker's range and share are kept (:class:`SecondReturns`).
+jump of several centimetres (a grazing surface's) can be flagged. Where the phasors fit two returns within the
+noise (:func:`mpi_lidar.physics.two_returns.fit_two_returns`: in closed form at evenly spaced frequencies, by least
+squares at others), at least ``MIN_GAP_M`` apart with the weaker holding at least ``MIN_SHARE`` of the light, the
+pixel is TWO_RETURNS instead: its depth is the stronger return's and the weaker's range and share are kept
+(:class:`SecondReturns`).
 
-The neighbourhood test reads the validity stage's measured depths, which exist whole; the raw measurements are
+The neighbourhood tests read the validity stage's measured depths, which exist whole; the raw measurements are
 read again only for the rows of the tiles that hold a candidate (a pixel beside a jump of ``MIN_EDGE_M``), with
-one row either side. A scan without such a pixel is left exactly as the gate left it.
+``MARGIN_ROWS`` rows either side. A scan without such a pixel is left exactly as the gate left it.
 """
 
 from __future__ import annotations
@@ -36,18 +49,23 @@ from mpi_lidar.correction.gating import GateDecision
 from mpi_lidar.correction.options import Flag
 from mpi_lidar.correction.validity import Validity
 from mpi_lidar.physics.noise import NoiseModel
-from mpi_lidar.physics.two_returns import evenly_spaced, fit_two_returns
+from mpi_lidar.physics.two_returns import fit_two_returns, gap_ambiguity_m
 from mpi_lidar.scans.scan import Scan
 
 MIXED_P_VALUE = 1e-3  # the frequencies' chi-square p-value below which a pixel at a depth edge is mixed
+# ...and their amplitudes': stricter, as far-off surfaces' noisy depths put many pixels beside a jump
+AMPLITUDE_P_VALUE = 1e-4
 EDGE_SIGMAS = 10.0  # a depth edge: a neighbour's depth this many noise sigmas away...
 MIN_EDGE_M = 0.05  # ...and this many metres [m]
+FLAT_SHARE = 0.35  # a step's sides are flat: a side's next depth outwards within this share of its jump [1]
+STEP_SIGMAS = 4.0  # ...and its jumps this many noise sigmas: flat sides make a step rarer than a lone jump
 MIN_GAP_M = 2.0  # two returns are resolved only this far apart [m]: nearer, four frequencies cannot tell them
 MIN_SHARE = 0.2  # ...and only where the weaker return holds at least this share of the light
 TWO_RETURN_P_VALUE = 1e-3  # the two-return fit's residual must lie within chi-square's 1 - this quantile
 # The flags a mixed pixel may have had: valid ones, and inconsistent (a depth edge is the better reason).
 CANDIDATE_FLAGS = (Flag.CORRECTED, Flag.NOT_NEEDED, Flag.NO_MULTIPATH, Flag.UNCALIBRATED, Flag.OUT_OF_RANGE,
                    Flag.INCONSISTENT)
+MARGIN_ROWS = 2  # rows read either side of a tile: a step's flat sides reach two pixels out
 NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx)
 
 
@@ -85,16 +103,17 @@ class MixedPixels:
 def find_mixed(scan: Scan, tiles: list[slice], validity: Validity, decision: GateDecision,
                noise: NoiseModel) -> MixedPixels:
     """The mixed and resolved pixels of ``scan`` (the validity stage's: depths in one range, amplitudes in V^2),
-    read in ``tiles`` (flat ranges of whole rows, each with a row either side for the neighbours); ``decision`` is
-    the gate's. The working memory is a tile's: nothing of the whole scan is made unless a pixel is found."""
+    read in ``tiles`` (flat ranges of whole rows, each with ``MARGIN_ROWS`` rows either side for the neighbours);
+    ``decision`` is the gate's. The working memory is a tile's: nothing of the whole scan is made unless a pixel is
+    found."""
     h, w = scan.shape
     depth = validity.measured_depth.reshape(h, w)
     allowed = [int(f) for f in CANDIDATE_FLAGS]
     mixed_parts: list[NDArray[np.intp]] = []
-    resolved_parts: list[tuple[NDArray[np.intp], NDArray, NDArray, NDArray]] = []
+    mixed_rows: list[NDArray] = []  # their measurements, fitted at once: a fit's cost is mostly per call
     for pixels in tiles:
         top, bottom = pixels.start // w, pixels.stop // w
-        first, last = max(top - 1, 0), min(bottom + 1, h)  # one row either side for the neighbours
+        first, last = max(top - MARGIN_ROWS, 0), min(bottom + MARGIN_ROWS, h)  # the neighbours' rows
         band = depth[first:last]
         candidates = np.isin(decision.flags[first * w:last * w], allowed).reshape(band.shape)
         candidates &= largest_jump(band) > MIN_EDGE_M
@@ -106,12 +125,13 @@ def find_mixed(scan: Scan, tiles: list[slice], validity: Validity, decision: Gat
         found = np.flatnonzero(mixed_in_rows(raw, band, candidates, noise))
         if not found.size:
             continue
-        flat = first * w + found
-        mixed_parts.append(flat)
-        resolved_parts.append(resolve(raw[found], flat, depth.reshape(-1), noise))
+        mixed_parts.append(first * w + found)
+        mixed_rows.append(raw[found])
     if not mixed_parts:
         return MixedPixels(decision, validity, None, 0, 0)
-    return _applied(decision, validity, np.concatenate(mixed_parts), resolved_parts, (h, w))
+    mixed = np.concatenate(mixed_parts)
+    resolved = resolve(np.concatenate(mixed_rows), mixed, depth.reshape(-1), noise)
+    return _applied(decision, validity, mixed, [resolved], (h, w))
 
 
 def largest_jump(depth: NDArray) -> NDArray[np.float32]:
@@ -168,39 +188,109 @@ def _between(depth: NDArray, sigma: NDArray) -> NDArray[np.bool_]:
     return found
 
 
+def _stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDArray[np.bool_]:
+    """Pixels (h, W) at a step: their depth lies between two opposite neighbours' (left and right, above and
+    below, or diagonally), more than ``MIN_EDGE_M`` and ``STEP_SIGMAS`` of the noise from each, while each of those
+    neighbours lies on a flat side, its own next neighbour outwards less than ``FLAT_SHARE`` of its jump to the
+    pixel away. A surface, however grazing or curved, changes its depth by similar steps from pixel to pixel; a
+    footprint on both sides of a depth edge jumps twice between two runs of nearly equal depth, wherever its
+    depth falls between them (the mean of two equally bright returns included, which :func:`_between` misses).
+    ``depth`` (h, W) [m] and ``sigma`` (h, W) [m]; only the pixels ``where`` (h, W) is true are looked at (None:
+    all), so that a band's few candidates cost what they are; pixels within two of the band's border are never
+    found."""
+    h, w = depth.shape
+    ys, xs = np.nonzero(np.ones((h, w), bool) if where is None else where)
+    padded = np.full((h + 4, w + 4), np.nan, dtype=np.float32)
+    padded[2:-2, 2:-2] = depth
+    noisy = np.zeros((h + 4, w + 4), dtype=np.float32)
+    noisy[2:-2, 2:-2] = sigma
+    own, own_sigma = padded[ys + 2, xs + 2], noisy[ys + 2, xs + 2]
+    found = np.zeros(ys.size, bool)
+    with np.errstate(invalid="ignore"):
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            jumps, flat = [], np.ones(ys.size, bool)
+            for sign in (1, -1):
+                near = padded[ys + 2 + sign * dy, xs + 2 + sign * dx]
+                outer = padded[ys + 2 + 2 * sign * dy, xs + 2 + 2 * sign * dx]
+                jump = near - own
+                margin = np.maximum(MIN_EDGE_M, STEP_SIGMAS * np.hypot(own_sigma,
+                                                                       noisy[ys + 2 + sign * dy, xs + 2 + sign * dx]))
+                flat &= (np.abs(jump) > margin) & (np.abs(outer - near) < FLAT_SHARE * np.abs(jump))
+                jumps.append(jump)
+            found |= flat & (jumps[0] * jumps[1] < 0)
+    out = np.zeros((h, w), bool)
+    out[ys[found], xs[found]] = True
+    return out
+
+
 def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
-    """Which candidates (h, W) of some whole rows are mixed: their frequencies disagree beyond chi-square's
-    1 - ``MIXED_P_VALUE`` quantile and a neighbour's measured depth (``depth`` (h, W) [m]) lies more than
+    """Which candidates (h, W) of some whole rows are mixed: their frequencies' depths disagree beyond chi-square's
+    1 - ``MIXED_P_VALUE`` quantile, or their amplitudes beyond its 1 - ``AMPLITUDE_P_VALUE`` quantile
+    (:func:`amplitude_spread`), and a neighbour's measured depth (``depth`` (h, W) [m]) lies more than
     ``EDGE_SIGMAS`` of the two depths' noise and ``MIN_EDGE_M`` away, or their depth lies off the line between two
     opposite neighbours (:func:`_between`: a weak second return biases the depth more than the frequencies'
-    spread shows); ``raw`` (h*W, 2F) are the rows' measurements."""
+    spread shows), or between two flat sides (:func:`_stepped`: two returns of about equal strength, or a gap
+    below a metre); ``raw`` (h*W, 2F) are the rows' measurements."""
     from scipy.special import chdtri  # the quantile without scipy.stats's imports
 
     f = len(noise.frequencies_hz)
     fused = noise.fuse(raw)
     chi2 = ((f - 1) * fused.birge_ratio.astype(np.float64) ** 2).reshape(depth.shape)
     sigma = fused.top_sigma_m.reshape(depth.shape)
+    ys, xs = np.nonzero(candidates)
+    amplitude = raw[:, f:].reshape(*depth.shape, f)
+    amplitude_chi2 = np.zeros(depth.shape)
+    amplitude_chi2[ys, xs] = amplitude_spread(amplitude[ys, xs], frequency_gains(amplitude, ys, xs), noise)
     with np.errstate(invalid="ignore"):
         edge = np.nan_to_num(_jumps(depth, sigma), nan=0.0).max(axis=0) > MIN_EDGE_M
-        disagree = chi2 > chdtri(f - 1, MIXED_P_VALUE)
-    return np.asarray(candidates & ((edge & disagree) | _between(depth, sigma)))
+        disagree = (chi2 > chdtri(f - 1, MIXED_P_VALUE)) | (amplitude_chi2 > chdtri(f - 1, AMPLITUDE_P_VALUE))
+    return np.asarray(candidates & ((edge & disagree) | _between(depth, sigma) | _stepped(depth, sigma, candidates)))
+
+
+def frequency_gains(amplitude: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Each frequency's share of the light (k, F) [1] about the pixels (``ys``, ``xs``) of some rows' amplitudes
+    ``amplitude`` (h, W, F) [V^2]: the median over a pixel's eight neighbours of each one's amplitudes over their
+    mean (a neighbour without positive, finite amplitudes counts as equal ones). One surface returns the same light
+    at every frequency but for the scanner's gains, which its neighbours share; at an edge, most of them see one
+    surface."""
+    h, w, f = amplitude.shape
+    padded = np.full((h + 2, w + 2, f), np.nan)
+    padded[1:-1, 1:-1] = amplitude
+    profiles = np.ones((len(NEIGHBOURS), ys.size, f))
+    for i, (dy, dx) in enumerate(NEIGHBOURS):
+        around = padded[ys + 1 + dy, xs + 1 + dx]
+        usable = np.all(np.isfinite(around) & (around > 0), axis=1)
+        profiles[i, usable] = around[usable] / around[usable].mean(axis=1, keepdims=True)
+    return np.asarray(np.median(profiles, axis=0))
+
+
+def amplitude_spread(amplitude: NDArray, gains: NDArray, noise: NoiseModel) -> NDArray[np.float64]:
+    """chi^2 (n,) of each row's amplitudes (n, F) [V^2], over the frequencies' ``gains`` (n, F) or (F,), about their
+    inverse-variance mean in units of their noise (the quadrature sd): chi^2(F - 1) where one surface returned
+    the light, whose amplitude is the same at every frequency; two returns' sum is not (it beats as
+    cos(2 pi f g / c) over a gap g)."""
+    values = np.asarray(amplitude, dtype=np.float64)
+    scaled = values / gains
+    weights = (gains / noise.quadrature_sigma_v2(values)) ** 2
+    mean = (weights * scaled).sum(axis=1, keepdims=True) / weights.sum(axis=1, keepdims=True)
+    return np.asarray((weights * (scaled - mean) ** 2).sum(axis=1))
 
 
 def resolve(rows: NDArray, flat: NDArray[np.intp], depth: NDArray, noise: NoiseModel,
             ) -> tuple[NDArray[np.intp], NDArray, NDArray, NDArray]:
     """Fit two returns to the mixed pixels' ``rows`` (k, 2F) at flat indices ``flat`` (k,): those resolved
     (``MIN_GAP_M`` apart, ``MIN_SHARE`` of the light, a residual within the noise), with their stronger return's
-    range [m], the weaker's [m] and its share [1]. None where the frequencies are not evenly spaced (the closed
-    form needs them)."""
-    none = (flat[:0], np.zeros(0), np.zeros(0), np.zeros(0))
-    if not flat.size or not evenly_spaced(noise.frequencies_hz):
-        return none
+    range [m], the weaker's [m] and its share [1]. The fit is the closed form where the frequencies are evenly
+    spaced, a least-squares fit at other sets of four or more (:func:`~mpi_lidar.physics.two_returns.fit_two_returns`);
+    none with fewer."""
+    f = len(noise.frequencies_hz)
+    if not flat.size or f < 4:
+        return flat[:0], np.zeros(0), np.zeros(0), np.zeros(0)
     from scipy.special import chdtri
 
-    f = len(noise.frequencies_hz)
     sigma = noise.quadrature_sigma_v2(rows[:, f:].astype(np.float64))
     fit = fit_two_returns(rows, noise.frequencies_hz, sigma, noise.speed_of_light_m_per_s, depth[flat])
-    period = noise.speed_of_light_m_per_s / (2 * (noise.frequencies_hz[1] - noise.frequencies_hz[0]))
+    period = gap_ambiguity_m(noise.frequencies_hz, noise.speed_of_light_m_per_s)
     gap = fit.far_m - fit.near_m
     with np.errstate(invalid="ignore"):  # a gap near half the poles' ambiguity may be either of two
         good = ((gap >= MIN_GAP_M) & (gap <= period / 2 - MIN_GAP_M) & (fit.weaker_share >= MIN_SHARE)

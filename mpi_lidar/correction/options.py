@@ -43,6 +43,9 @@ class Flag(IntEnum):
     MIXED = 11
     # The same, resolved into two returns: the depth is the stronger return's, the weaker is kept beside it.
     TWO_RETURNS = 12
+    # Corrected by the model, but its geometric inputs lie beyond the training prior's reach: the model's depth, with
+    # an uncertainty widened by the share of the multipath the prior leaves out (mpi_lidar.learning.error_model).
+    BEYOND_PRIOR = 13
 
 
 class Estimate(IntEnum):
@@ -68,6 +71,8 @@ class Baseline(StrEnum):
     RAW = "raw"
 
 
+# The pixels whose depth is the model's: corrected inside the training prior and beyond it.
+MODEL_FLAGS = (Flag.CORRECTED, Flag.BEYOND_PRIOR)
 INVALID_FLAGS = (Flag.NOT_FINITE, Flag.NO_RETURN, Flag.SATURATED, Flag.INCONSISTENT, Flag.BEYOND_AMBIGUITY,
                  Flag.MIXED)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from mpi_lidar.correction.options import INVALID_FLAGS, Flag, ScanStatus, UnservedReason
+from mpi_lidar.correction.options import INVALID_FLAGS, MODEL_FLAGS, Flag, ScanStatus, UnservedReason
 
 # What each invalid flag says of a pixel, as a degraded scan's reason names it.
 INVALID_CAUSES = {
@@ -41,7 +41,8 @@ def scan_status(counts: Mapping[str, int], max_invalid_share: float,
     everywhere or contradict their unit, as those of another unit do, or no pixel that may need correction
     could be corrected: out of the model's range, ambiguous range, no geometry for a geometric model);
     degraded, too, where the invalid pixels are mostly saturated and the model could serve the scan;
-    unchanged: no pixel was corrected and none needed the model; corrected: some were.
+    unchanged: no pixel was corrected and none needed the model; corrected: some were (beyond the training prior
+    or within it).
     """
     over = invalid_share(counts) > max_invalid_share
     if over and first_cause(counts) != Flag.SATURATED:
@@ -50,7 +51,8 @@ def scan_status(counts: Mapping[str, int], max_invalid_share: float,
         return ScanStatus.UNSERVED
     if over:
         return ScanStatus.DEGRADED
-    return ScanStatus.CORRECTED if counts.get("corrected", 0) > 0 else ScanStatus.UNCHANGED
+    corrected = sum(counts.get(flag.name.lower(), 0) for flag in MODEL_FLAGS)
+    return ScanStatus.CORRECTED if corrected > 0 else ScanStatus.UNCHANGED
 
 
 def degraded_reason(counts: Mapping[str, int]) -> str:

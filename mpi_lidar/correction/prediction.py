@@ -13,6 +13,7 @@ from mpi_lidar.correction.footprint import PlaneModelInputs
 from mpi_lidar.correction.gating import in_depth_range
 from mpi_lidar.correction.options import CorrectionOptions
 from mpi_lidar.correction.tiles import PARALLEL_MIN_ROWS
+from mpi_lidar.learning.error_model import beyond_prior
 from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel
 from mpi_lidar.threads import on_cores_by_rows
@@ -36,12 +37,15 @@ class RowsPredicted:
     inputs_cpu_s : CPU seconds the geometric inputs took (the gate's share). [s]
     inputs_wall_s : The longest wall seconds a thread spent on them. [s]
     beyond_prior : Rows whose geometric inputs lie beyond the training prior's reach.
+    inputs : A geometric model's inputs per row (n, 2), equivalent rho_ABA [1] and d_AB [m] (None for a model
+        without them, or where the scan gave none): where in the prior each row lies, for its uncertainty.
     """
 
     depth_m: NDArray[np.float64]
     inputs_cpu_s: float
     inputs_wall_s: float
     beyond_prior: int
+    inputs: NDArray[np.float64] | None = None
 
 
 def predict_rows(model: CorrectionModel, raw: NDArray, pixels: NDArray, inputs: PlaneModelInputs | None,
@@ -55,21 +59,22 @@ def predict_rows(model: CorrectionModel, raw: NDArray, pixels: NDArray, inputs: 
     """
     features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)
     top = raw.shape[1] // 2 - 1  # the highest frequency's depth column
+    read = np.empty((raw.shape[0], 2)) if inputs is not None and model.geometric else None
 
     def build(rows: slice) -> tuple[float, float, int]:
         cpu, wall = time.thread_time(), time.perf_counter()
         geometric, beyond = None, 0
-        if inputs is not None and model.geometric:
-            geometric = _geometric_inputs(inputs, pixels[rows], raw[rows, top])
+        if read is not None and inputs is not None:
+            geometric = read[rows] = _geometric_inputs(inputs, pixels[rows], raw[rows, top])
             if reach is not None:
-                beyond = int(((geometric[:, 0] > reach[0]) | (geometric[:, 1] > reach[1])).sum())
+                beyond = int(beyond_prior(geometric, reach).sum())
         gate_share = (time.thread_time() - cpu, time.perf_counter() - wall)
         model.spec.transform_into(raw[rows], geometric, features[rows])
         return (*gate_share, beyond)
 
     shares = on_cores_by_rows(build, raw.shape[0], PARALLEL_MIN_ROWS)
     return RowsPredicted(model.depth_from_features(raw, features), sum(cpu for cpu, _, _ in shares),
-                         max(wall for _, wall, _ in shares), sum(count for _, _, count in shares))
+                         max(wall for _, wall, _ in shares), sum(count for _, _, count in shares), read)
 
 
 def _geometric_inputs(inputs: PlaneModelInputs, pixels: NDArray, measured_range: NDArray) -> NDArray[np.float64]:

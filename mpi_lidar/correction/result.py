@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 from mpi_lidar.correction.baseline import FrequencyOffsets
 from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.mixed import SecondReturns
-from mpi_lidar.correction.options import Estimate, Flag
+from mpi_lidar.correction.options import MODEL_FLAGS, Estimate, Flag
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.sensor_reading import SensorReading
 
@@ -87,6 +87,10 @@ class Correction:
         """Pixels per flag (:class:`~mpi_lidar.correction.options.Flag`), by lower-case name."""
         found = code_counts(self.flags, len(Flag))
         return {flag.name.lower(): int(found[int(flag)]) for flag in Flag}
+
+    def model_pixels(self) -> int:
+        """Pixels whose depth is the model's, inside the training prior and beyond it (``MODEL_FLAGS``)."""
+        return int(np.isin(self.flags, MODEL_FLAGS).sum())
 
     def estimate_counts(self) -> dict[str, int]:
         """Pixels per estimate (:class:`~mpi_lidar.correction.options.Estimate`): none, measured, fused, corrected."""

@@ -6,10 +6,11 @@
   unit. Where the scan has too few pixels for a significant law, the sensor's (a profile's noise scale included).
 - **The amplitude unit**, which only the model's inputs and the radiometric limits need: the options' (a number, a
   sensor profile's), else V^2; either is checked against the scan's own evidence: surfaces far brighter than a
-  white one at their range would be (a scanner's counts read as V^2), or none brighter than a very dark one (a
-  unit far smaller than the one taken). Where the evidence contradicts the unit, the model is not applied. The
-  scatter of the frequencies fixes only the product of the unit and the noise constant, so it is never read as a
-  unit.
+  white one at their range would be (a scanner's counts read as V^2), or a scan quieter at its darkest pixels
+  than any sensor's no-light noise with nothing in it brighter than a dark surface (a unit far smaller than the
+  one taken; dark alone is also a scene past the frequencies' combined ambiguity). Where the evidence contradicts
+  the unit, the model is not applied. The scatter of the frequencies fixes only the product of the unit and the
+  noise constant, so it is never read as a unit; only a bound on the noise no sensor passes is.
 - **Saturation**, from the data: a plateau of clipped amplitudes at a frequency (several pixels at exactly its
   largest amplitude), or the options' threshold where a profile or the user gives one.
 """
@@ -31,17 +32,23 @@ from mpi_lidar.scans.scan import Scan
 # Pixels the law and the evidence are read from at most, evenly spaced over the scan.
 SAMPLE_PIXELS = 20_000
 # The unit is not V^2 where the brightest surfaces (the 99th percentile of amplitude x range^2 / Gamma_R, an albedo
-# times the cosine of incidence in V^2) read above this (no surface reflects several times what a white one does)
-# or below that (nothing in the scan as bright as a very dark surface).
+# times the cosine of incidence in V^2) read above this (no surface reflects several times what a white one does).
 MAX_BRIGHT_ALBEDO = 3.0
-MIN_BRIGHT_ALBEDO = 0.01
 BRIGHT_PERCENTILE = 99.0
 # Pixels read for that have a phase noise below this [rad] at every frequency.
 CLEAR_PHASE_SIGMA_RAD = 0.15
-# A scan too dark for V^2 is in a smaller unit where its depth noise is below this share of the sensor model's at
-# the same amplitude; where the radiometry cannot be read, a noise outside these multiples of it contradicts the unit.
-MAX_QUIET_RATIO = 0.6
-NOISE_RATIO_BOUNDS = (0.2, 10.0)
+# Nor where the scan is quieter than any sensor's front end: its noise at its darkest pixels (the law's quadrature
+# sd at this percentile of the highest frequency's amplitudes, three of its relative errors up) below this share of
+# the sensor model's no-light noise, while nothing in it is brighter than a dark surface (MAX_DARK_ALBEDO) or too
+# few pixels stand clear to tell. Light only adds noise, so that noise bounds the scan's own no-light noise from
+# above; a unit u moves it by u (and a dark scene by nothing), while a sensor's front end (its load's thermal noise,
+# its amplifier's) is taken to be no more than ten times quieter than the model's.
+DARK_PERCENTILE = 5.0
+MIN_FLOOR_RATIO = 0.1
+MAX_DARK_ALBEDO = 0.05
+# Where too few pixels stand clear for the radiometry, a noise above this multiple of the sensor model's at the
+# same amplitude contradicts the unit (a unit u moves it by u^(1/2) to u; a sensor's own noise differs by less).
+MAX_NOISE_RATIO = 30.0
 # A frequency's amplitudes have a saturation plateau where at least this many sampled pixels read its largest
 # amplitude to this relative tolerance, and at least as many read less.
 PLATEAU_PIXELS = 5
@@ -106,9 +113,8 @@ def read_sensor(scan: Scan, sensor: SensorConfig, options: CorrectionOptions) ->
     law = measure_noise_law(rows, reference) if rows.shape[0] else None
     noise = law.model(reference) if law is not None and law.significant else reference
     ratio = _noise_ratio(rows, f, noise, reference) if noise is not reference else float("nan")
-    shot_only = replace(reference, read_variance_v4=0.0 * reference.read_variance_v4)
-    shot_ratio = _noise_ratio(rows, f, noise, shot_only) if noise is not reference else float("nan")
-    contradiction = _unit_evidence(rows, f, sensor, noise, ratio, shot_ratio)
+    floor = _floor_ratio(rows, f, law, noise, reference) if noise is not reference else float("nan")
+    contradiction = _unit_evidence(rows, f, sensor, noise, ratio, floor)
     if contradiction and given:
         contradiction = f"with the unit given ({units:g} per V^2), {contradiction}"
     return SensorReading(units, given, contradiction, law, noise, _saturation_v2(rows, f, options), ratio)
@@ -135,40 +141,45 @@ def sample_rows(scan: Scan) -> NDArray[np.float64]:
     return np.hstack([depth, amplitude])
 
 
+def _floor_ratio(rows: NDArray, f: int, law: NoiseLaw | None, noise: NoiseModel, reference: NoiseModel) -> float:
+    """The most the scan's no-light noise can be, over the sensor model's: the law's quadrature sd at the darkest
+    pixels (``DARK_PERCENTILE`` of the highest frequency's amplitudes), three of its relative errors up, over the
+    model's no-light sd. [1]"""
+    amplitude = rows[:, 2 * f - 1]
+    amplitude = amplitude[np.isfinite(amplitude) & (amplitude > 0)]
+    if law is None or amplitude.size == 0 or not reference.floor_v2[-1] > 0:
+        return float("nan")
+    dark = np.full((1, f), float(np.percentile(amplitude, DARK_PERCENTILE)))
+    sigma = float(noise.quadrature_sigma_v2(dark)[0, -1]) * np.sqrt(1 + 3 * law.relative_sigma)
+    return sigma / float(reference.floor_v2[-1])
+
+
 def _unit_evidence(rows: NDArray, f: int, sensor: SensorConfig, noise: NoiseModel, ratio: float,
-                   shot_ratio: float) -> str:
+                   floor: float) -> str:
     """Why the rows' amplitudes (in V^2 after the unit taken) cannot be in V^2, or "" where nothing says so.
 
-    ``ratio`` is the scan's depth noise over the sensor model's at the same amplitude, ``shot_ratio`` over the
-    model's shot noise alone (NaN: no law measured). A unit u moves them by u^(1/2) where shot noise dominates and
-    by u where read noise does, while a sensor differs from the model by a factor. Only pixels whose light stands
-    well above their noise are read for the radiometry (a noisy amplitude times a far range squared reads as a
-    bright surface). Too bright settles it; too dark also fits a scene past the frequencies' combined ambiguity
-    (whose noise is the sensor's at that light), so it needs a shot noise far below the sensor's too. Where too few
-    pixels stand clear, the noise alone tells, far out of bounds.
+    ``ratio`` is the scan's depth noise over the sensor model's at the same amplitude, ``floor`` the most its
+    no-light noise can be over the model's (:func:`_floor_ratio`; NaN: no law measured). Only pixels whose light
+    stands well above their noise are read for the radiometry (a noisy amplitude times a far range squared reads as
+    a bright surface). Too bright settles a larger unit; where too few pixels stand clear, a noise far above any
+    sensor's does. Too dark alone does not settle a smaller one (a scene past the frequencies' combined ambiguity
+    reads dark too): it needs a scan quieter at its darkest pixels than any sensor's no-light noise.
     """
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         clear = (noise.quadrature_sigma_v2(rows[:, f:]) / rows[:, f:] < CLEAR_PHASE_SIGMA_RAD).all(1)
         albedo = rows[:, 2 * f - 1] * rows[:, f - 1] ** 2 / sensor.gamma_r_v2
         albedo = albedo[clear & np.isfinite(albedo) & (rows[:, f - 1] > 0)]
-    low, high = NOISE_RATIO_BOUNDS
-    if albedo.size < 20:
-        if ratio > high:
-            return (f"its noise is {ratio:.3g} times the sensor's at the same amplitude: the amplitudes are in "
-                    "another unit")
-        if ratio < low:
-            return (f"its noise is only {ratio:.2g} of the sensor's at the same amplitude: the amplitudes are in a "
-                    "unit far smaller than V^2")
-        return ""
-    bright = float(np.percentile(albedo, BRIGHT_PERCENTILE))
+    bright = float(np.percentile(albedo, BRIGHT_PERCENTILE)) if albedo.size >= 20 else float("nan")
     if bright > MAX_BRIGHT_ALBEDO:
         return (f"its brightest surfaces would reflect {bright:.3g} times what a white one does at their range: the "
                 "amplitudes are in another unit")
-    # Against the shot noise alone: a sensor without the model's read noise, past the ambiguity, is not quiet.
-    if bright < MIN_BRIGHT_ALBEDO and shot_ratio < MAX_QUIET_RATIO:
-        return (f"its brightest surfaces would reflect only {bright:.2g} of what a white one does at their range, with "
-                f"{shot_ratio:.2g} of the sensor's shot noise at that light: the amplitudes are in a unit far smaller "
-                "than V^2")
+    if np.isnan(bright) and ratio > MAX_NOISE_RATIO:
+        return f"its noise is {ratio:.3g} times the sensor's at the same amplitude: the amplitudes are in another unit"
+    if floor < MIN_FLOOR_RATIO and not bright >= MAX_DARK_ALBEDO:
+        seen = ("too few of its pixels stand clear of their noise to read their brightness" if np.isnan(bright) else
+                f"its brightest surfaces would reflect only {bright:.2g} of what a white one does at their range")
+        return (f"its noise at its darkest pixels is only {floor:.2g} of the sensor's no-light noise, quieter than any "
+                f"sensor's, and {seen}: the amplitudes are in a unit far smaller than V^2")
     return ""
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.correction.options import CorrectionOptions, Flag, UnservedReason
+from mpi_lidar.correction.options import AUTO, MODEL_FLAGS, CorrectionOptions, Flag, UnservedReason
 from mpi_lidar.correction.outcome import Unserved
 from mpi_lidar.correction.result import code_counts
 
@@ -31,8 +31,7 @@ def unserved_reason(flags: NDArray[np.uint8], d_as_m: tuple[float, float], optio
         return Unserved(UnservedReason.AMPLITUDE_UNITS,
                         f"{100 * counts[Flag.SATURATED] / measured:.0f} % of the pixels read as saturated: the "
                         "amplitudes are clipped nearly everywhere (a scanner's gain, or a threshold in another unit); "
-                        "give the scanner's unit per V^2 and saturation level (a profile from mpi-lidar calibrate: "
-                        "--sensor sensor.toml, or mpi-lidar correct --amplitude-scale)")
+                        + unit_hint(options, "and saturation level"))
     if not served:
         return Unserved(UnservedReason.NO_GEOMETRY,
                         "the model takes geometric inputs and the scan has no geometry: import the scan with its "
@@ -43,7 +42,7 @@ def unserved_reason(flags: NDArray[np.uint8], d_as_m: tuple[float, float], optio
                         f"{100 * counts[Flag.AMBIGUOUS] / measured:.0f} % of the pixels have an ambiguous range: "
                         "their frequencies' wrap counts cannot be told apart at their noise; if the scanner "
                         "unwrapped its depths already, import them so (mpi-lidar import-scan --depths unwrapped)")
-    if counts[Flag.CORRECTED] == 0 and counts[Flag.OUT_OF_RANGE] > 0:
+    if sum(counts[flag] for flag in MODEL_FLAGS) == 0 and counts[Flag.OUT_OF_RANGE] > 0:
         return Unserved(UnservedReason.OUT_OF_RANGE,
                         f"{counts[Flag.OUT_OF_RANGE]:,} pixels that may need correction lie outside the model's "
                         f"range ({low:g}-{high:g} m) and none inside it: train a model for the scan's range "
@@ -51,10 +50,26 @@ def unserved_reason(flags: NDArray[np.uint8], d_as_m: tuple[float, float], optio
     return None
 
 
-def untrusted_unit(evidence: str) -> Unserved:
+def untrusted_unit(evidence: str, options: CorrectionOptions | None = None) -> Unserved:
     """A scan whose own evidence contradicts the V^2 its amplitudes were assumed in (``evidence``): the model does
     not read them; its fused depths are still written."""
     return Unserved(UnservedReason.AMPLITUDE_UNITS,
-                    f"the model was not applied: {evidence}; give the scanner's unit per V^2 (mpi-lidar correct "
-                    "--amplitude-scale, or a profile from mpi-lidar calibrate: --sensor sensor.toml); the fused "
+                    f"the model was not applied: {evidence}; {unit_hint(options or CorrectionOptions())}; the fused "
                     "depths are written")
+
+
+def unit_hint(options: CorrectionOptions, what: str = "") -> str:
+    """What to do about amplitudes in a unit the correction cannot use, by what the options already gave: a
+    sensor profile (``--sensor``), a unit (``--amplitude-scale``), or neither. ``what``: more the scanner's unit
+    should come with (``"and saturation level"``)."""
+    more = f" {what}" if what else ""
+    if options.sensor_profile_sha256 is not None:
+        return ("the sensor profile given (--sensor) does not fit this scan: check it was calibrated on this "
+                "scanner at these settings (gain, integration time), calibrate one on this scan's sensor "
+                "(mpi-lidar calibrate), or override its unit with --amplitude-scale")
+    if options.amplitude_scale != AUTO:
+        return (f"the unit given (--amplitude-scale {options.amplitude_scale:g} per V^2) does not fit this scan: "
+                f"check the scanner's unit per V^2{more}, or calibrate a profile (mpi-lidar calibrate, then "
+                "--sensor sensor.toml)")
+    return (f"give the scanner's unit per V^2{more} (a profile from mpi-lidar calibrate: --sensor sensor.toml, or "
+            "mpi-lidar correct --amplitude-scale)")

@@ -25,7 +25,8 @@ def left_alone_sigma_m(sigma_m: NDArray, expected_bias_m: NDArray) -> NDArray[np
 
 
 def corrected_uncertainty_m(card: ModelCard, measured_sigma_m: NDArray, fused_sigma_m: NDArray,
-                            correction_m: NDArray, footprint: FootprintEstimate | None) -> NDArray[np.float32]:
+                            correction_m: NDArray, footprint: FootprintEstimate | None,
+                            inputs: NDArray | None = None) -> NDArray[np.float32]:
     """1-sigma uncertainty [m] of depths corrected by the model of ``card``.
 
     Parameters
@@ -35,11 +36,15 @@ def corrected_uncertainty_m(card: ModelCard, measured_sigma_m: NDArray, fused_si
     fused_sigma_m : The fused depth's sd under the noise model (n,). [m]
     correction_m : The correction, corrected less measured depth (n,). [m]
     footprint : The scan's own footprint estimate (None: the footprint was given).
+    inputs : A geometric model's inputs (n, 2) the model read, equivalent rho_ABA [1] and d_AB [m] (None: not
+        known, the law alone).
 
     Returns
     -------
     The 1-sigma (n,) [m]: with the card's uncertainty model, the model's error as fitted on the validation rows of
-    its training (68 % of their errors within it), from the fused sd and the size of the correction, combined with
+    its training (68 % of their errors within it), from the fused sd and the size of the correction, scaled by the
+    factor of the region of the prior the inputs lie in and, beyond the prior's reach, with the share of the
+    correction the prior leaves out (:func:`~mpi_lidar.learning.error_model.corrected_sigma_m`), combined with
     the share of the correction that the footprint estimate's relative uncertainty leaves open
     (:func:`footprint_left_open`). A card without one (written before it was fitted): the measured sd and that
     share, without the model's own error.
@@ -48,7 +53,8 @@ def corrected_uncertainty_m(card: ModelCard, measured_sigma_m: NDArray, fused_si
     if card.uncertainty_model is None:
         base_m = np.asarray(measured_sigma_m, dtype=np.float64)
     else:
-        base_m = corrected_sigma_m(card.uncertainty_model, fused_sigma_m, correction_m)
+        base_m = corrected_sigma_m(card.uncertainty_model, fused_sigma_m, correction_m, inputs,
+                                   None if inputs is None else card.dataset.prior.multipath_reach())
     return np.hypot(base_m, relative * np.asarray(correction_m, dtype=np.float64)).astype(np.float32)
 
 

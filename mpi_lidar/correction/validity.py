@@ -18,7 +18,7 @@ from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.correction.tiles import PARALLEL_MIN_ROWS, raw_tiles, unwrapped_scan
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.physics.window import window_corrections_m
-from mpi_lidar.scans.scan import Scan
+from mpi_lidar.scans.scan import NOISE_DEVIATIONS, Scan
 from mpi_lidar.threads import on_cores_by_rows
 
 # Pixels whose depth the scene geometry and the model cannot use: the invalid ones, and those of an unknown range.
@@ -51,7 +51,7 @@ def validity_flags(raw: NDArray, options: CorrectionOptions, noise: NoiseModel, 
     flags = np.full(raw.shape[0], Flag.NOT_NEEDED, dtype=np.uint8)
     ambiguous = np.zeros(raw.shape[0], bool) if confidence is None else ~(confidence >= options.min_unwrap_confidence)
     rules = [
-        (Flag.INCONSISTENT, _inconsistent(raw, options, noise)),
+        (Flag.INCONSISTENT, _inconsistent(raw, options, noise) | _below_zero(raw, noise)),
         (Flag.BEYOND_AMBIGUITY, np.zeros(raw.shape[0], bool) if beyond is None else beyond.flags(raw, noise)),
         (Flag.AMBIGUOUS, ambiguous),
         (Flag.SATURATED, (amplitude >= _saturation_levels(saturation_v2, options, f)[None, :]).any(axis=1)),
@@ -95,6 +95,16 @@ def _inconsistent(raw: NDArray, options: CorrectionOptions, noise: NoiseModel) -
                 high, low = np.maximum(high, depth[:, column]), np.minimum(low, depth[:, column])
             inconsistent |= high - low > options.max_depth_spread_m
     return np.asarray(inconsistent)
+
+
+def _below_zero(raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
+    """Rows (n,) whose depth at some frequency lies more than :data:`~mpi_lidar.scans.scan.NOISE_DEVIATIONS` of its
+    own noise (the noise law at its amplitude) below zero: no range a surface can have fits them (a near surface
+    passes zero by its noise, no more)."""
+    f = len(noise.frequencies_hz)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        sigma = noise.depth_sigma_m(raw[:, f:].astype(np.float64))
+        return np.asarray((raw[:, :f] < -NOISE_DEVIATIONS * sigma).any(axis=1))
 
 
 @dataclass(frozen=True)

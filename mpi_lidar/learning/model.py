@@ -137,6 +137,25 @@ class GeometryErrorCard(_Part):
     d_ab_sd_m: float
 
 
+class RegionScales(_Part):
+    """Factors of the uncertainty law per region of the prior (:func:`mpi_lidar.learning.error_model.
+    fit_region_scales`): ``factors[i][j]`` for rows whose equivalent rho_ABA lies in bin i (lower edges
+    ``rho_aba_edges`` [1], the last open) and d_AB in bin j (lower edges ``d_ab_edges_m`` [m], the last open)."""
+
+    rho_aba_edges: tuple[float, ...] = Field(min_length=1)
+    d_ab_edges_m: tuple[float, ...] = Field(min_length=1)
+    factors: tuple[tuple[float, ...], ...]
+
+    @model_validator(mode="after")
+    def _shape(self) -> RegionScales:
+        if len(self.factors) != len(self.rho_aba_edges) or any(len(row) != len(self.d_ab_edges_m)
+                                                                 for row in self.factors):
+            raise ValueError(f"factors must be {len(self.rho_aba_edges)} x {len(self.d_ab_edges_m)}, one per region")
+        if any(not np.isfinite(f) or f <= 0 for row in self.factors for f in row):
+            raise ValueError("factors must be positive and finite")
+        return self
+
+
 class UncertaintyCard(_Part):
     """The corrected depths' 1-sigma uncertainty, fitted on the validation rows of the training
     (:mod:`mpi_lidar.learning.error_model`): sigma^2 = (noise_factor sigma_fused)^2
@@ -153,6 +172,9 @@ class UncertaintyCard(_Part):
     validation_rows: int = Field(ge=0)
     validation_coverage: float = Field(ge=0, le=1)
     """Share of the validation rows whose error lies within this sigma. [1]"""
+    region_scales: RegionScales | None = None
+    """A geometric model's factors per region of the prior (absent on cards written before them, and for models
+    without geometric inputs: the law alone)."""
 
 
 class MetricsCard(_Part):
@@ -213,6 +235,8 @@ class ModelCard(_Part):
         for optional in ("geometry_error_model", "uncertainty_model"):
             if data[optional] is None:
                 del data[optional]
+        if data.get("uncertainty_model") and data["uncertainty_model"].get("region_scales") is None:
+            del data["uncertainty_model"]["region_scales"]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
 
 

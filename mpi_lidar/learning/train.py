@@ -189,7 +189,8 @@ def train_dask(
 def validation_error_terms(client: Client, booster: xgb.Booster, spec: FeatureSpec, lazy: dataset.LazyDataset,
                            validation: da.Array, x_val: da.Array) -> NDArray[np.float64]:
     """:func:`~mpi_lidar.learning.error_model.error_terms` of the validation rows (``validation`` mask over the
-    stored rows, ``x_val`` their model inputs), predicted on the cluster: only the three columns come back."""
+    stored rows, ``x_val`` their model inputs), predicted on the cluster: only the three columns come back, and for
+    a geometric model the two geometric inputs it read (rho_ABA, d_AB), for the fit's regions of the prior."""
     import dask.array as da
     import xgboost.dask as dxgb
 
@@ -200,6 +201,9 @@ def validation_error_terms(client: Client, booster: xgb.Booster, spec: FeatureSp
     terms = da.map_blocks(_error_terms_block, raw, depth[:, None], true_depth[:, None], dtype=np.float64,
                           chunks=(raw.chunks[0], (3,)), frequencies_hz=tuple(spec.frequencies_hz),
                           sensor=config.sensor, noise_scale=config.simulator.noise_scale)
+    if spec.geometric:
+        geometric = x_val[:, -2:].astype(np.float64).rechunk((raw.chunks[0], -1))
+        terms = da.concatenate([terms, geometric], axis=1)
     return np.asarray(client.compute(terms).result())
 
 

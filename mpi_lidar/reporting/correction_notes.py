@@ -67,8 +67,8 @@ def beyond_prior_note(beyond: int, reach: tuple[float, float]) -> str:
     """What a report says of the ``beyond`` corrected pixels whose multipath lies past ``reach``, the largest
     rho_ABA [1] and d_AB [m] of the model's training prior."""
     return (f"{beyond:,} corrected pixels have multipath beyond what the model was trained on (rho_ABA above "
-            f"{reach[0]:g} or d_AB above {reach[1]:g} m, from the scene geometry): the model extrapolates there, "
-            "and their uncertainty may be too small")
+            f"{reach[0]:g} or d_AB above {reach[1]:g} m, from the scene geometry; flag beyond_prior): the model "
+            "extrapolates there, and their uncertainty adds the share of the correction the prior leaves out")
 
 
 def offsets_mm(offsets_m: NDArray | tuple[float, ...]) -> str:

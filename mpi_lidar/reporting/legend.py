@@ -86,6 +86,11 @@ FLAG_LEGEND: dict[Flag, FlagLegend] = {
                                  "light: the depth is the stronger return's, the weaker's range and share are "
                                  "`second_return_depth` and `second_return_share` in corrected.zarr",
                                  "the stronger return's", "#1dd1a1"),
+    Flag.BEYOND_PRIOR: FlagLegend("P", "valid, corrected beyond the training prior; the model's depth",
+                                  "corrected by the model (as flag 0), but the equivalent rho_ABA or d_AB the scene "
+                                  "geometry gives it lies beyond the largest the model was trained on: its "
+                                  "uncertainty adds the share of the correction the prior leaves out",
+                                  "the model's", "#e15f41"),
 }
 
 ESTIMATE_LEGEND: dict[Estimate, str] = {
@@ -94,7 +99,7 @@ ESTIMATE_LEGEND: dict[Estimate, str] = {
                        "flag 9, or a scan whose amplitude unit could not be measured; for flag 12 the stronger "
                        "return's range",
     Estimate.FUSED: "the frequencies' depths fused by inverse variance",
-    Estimate.CORRECTED: "the model's (flag 0)",
+    Estimate.CORRECTED: "the model's (flags 0 and 13)",
 }
 
 FLAG_COLOURS = [FLAG_LEGEND[flag].colour for flag in Flag]

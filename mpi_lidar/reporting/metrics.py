@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mpi_lidar.correction import INVALID_FLAGS, Correction, Flag
+from mpi_lidar.correction import INVALID_FLAGS, MODEL_FLAGS, Correction
 from mpi_lidar.reporting.report import Table
 from mpi_lidar.scans.scan import Scan
 
@@ -95,7 +95,7 @@ def applied_correction_mm(scan: Scan, correction: Correction) -> np.ndarray:
     was not corrected (left as measured, or invalid)."""
     with np.errstate(invalid="ignore"):
         applied = 1e3 * (correction.depth.astype(np.float64) - measured_depth(scan, correction))
-    return np.where(correction.flags == Flag.CORRECTED, applied, np.nan)
+    return np.where(np.isin(correction.flags, MODEL_FLAGS), applied, np.nan)
 
 
 def metrics_table(metrics: dict[str, dict[str, float]]) -> Table:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import StrEnum
 
 from mpi_lidar.errors import MpiLidarError
@@ -41,3 +42,42 @@ def covers(written: str | None, wanted: str) -> bool:
     before output levels existed, that is everything)."""
     written = written if written in OUTPUT_LEVELS else OutputLevel.FULL
     return OUTPUT_LEVELS.index(written) <= OUTPUT_LEVELS.index(check_outputs(wanted))
+
+
+@dataclass(frozen=True)
+class OutputFile:
+    """A file of a scan's outputs: its ``name``, the lowest ``level`` that writes it (every level above writes it
+    too), and what it ``holds``, with when it is left out, as the docs list it."""
+
+    name: str
+    level: OutputLevel
+    holds: str
+
+
+# Every file of a scan's outputs, from the lowest level up: the one list the docs' file lists are made from
+# (docs/output_files.py). The point clouds are those of the level's default formats (--point-cloud picks others).
+OUTPUT_FILES = (
+    OutputFile("corrected.zarr", OutputLevel.DATA, "the corrected depth, per-pixel flags, the expected multipath "
+               "bias, and the scan, model and options hashes; see [stores](reference/stores.md)"),
+    OutputFile("metrics.json", OutputLevel.DATA, "counts, metrics, notes and the files written"),
+    OutputFile("report.md", OutputLevel.LIGHT, "the report"),
+    OutputFile("report.html", OutputLevel.LIGHT, "the report; at `full` with an interactive 3-D view: one "
+               "`plotly.min.js` shared by the batch, in the output folder, no network needed"),
+    OutputFile("thumbnail.png", OutputLevel.LIGHT, "corrected depth and flags, at most 512 pixels wide, over a "
+               "colour key"),
+    OutputFile("corrected.laz", OutputLevel.LIGHT, "the point cloud, with scan geometry; see [point clouds]"
+               "(reference/point-clouds.md)"),
+    OutputFile("maps.png", OutputLevel.FULL, "raw and corrected depth, amplitude, the applied correction, the "
+               "expected multipath bias, error maps where there is a reference, flags; axes in degrees"),
+    OutputFile("error_hist.png", OutputLevel.FULL, "the depth errors before and after correction; with a "
+               "reference depth"),
+    OutputFile("point_cloud.png", OutputLevel.FULL, "the point cloud's top and side views; with scan geometry"),
+    OutputFile("raw.ply", OutputLevel.FULL, "the measured point cloud; with scan geometry"),
+    OutputFile("corrected.ply", OutputLevel.FULL, "the corrected point cloud; with scan geometry"),
+)
+
+
+def level_files(outputs: str) -> tuple[OutputFile, ...]:
+    """The files of the outputs at level ``outputs``: its own and those of every level below it
+    (:data:`OUTPUT_FILES`), in their order."""
+    return tuple(file for file in OUTPUT_FILES if covers(outputs, file.level))

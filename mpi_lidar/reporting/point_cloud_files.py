@@ -14,12 +14,14 @@ docs/reference/point-clouds.md."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.correction import Correction, Flag
+from mpi_lidar.correction import MODEL_FLAGS, Correction, Flag
+from mpi_lidar.correction.mixed import SecondReturns
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.reporting.legend import FLAG_LEGEND, estimate_record, flag_record
 from mpi_lidar.reporting.metrics import measured_depth
@@ -70,15 +72,23 @@ SCANNER_FRAME = {
     "column": "index of the scan's azimuth_rad (or of its ray_directions' second axis)",
     "rays": "a scan stored with ray_directions uses those unit vectors as they are",
 }
+# How a pixel resolved into two returns (flag two_returns) lies in the files that hold its second return.
+TWO_RETURNS_RECORD = ("a pixel resolved into two returns (flag 12) is two points at its two ranges, return 1 (the "
+                      "nearer) and return 2 (the farther) of 2; corrected_range_m is each point's range and "
+                      "return_share its share of the two returns' light; every other point is return 1 of 1, share 1")
 CORRECTED_RGB = np.array([1.0, 0.62, 0.15])  # amber, times the amplitude's grey level
 _PERCENTILE_SAMPLE = 100_000  # amplitudes the colour scale's 99th percentile is taken on
 
 
 def flag_description() -> str:
     """The LAS ``flag`` description: each code with its letter of :data:`FLAG_LETTERS` ("0C 1N 2F ..."),
-    without spaces if they do not fit 31 characters."""
+    without spaces if they do not fit 31 characters, and as the letters in code order ("flags 0-13: CNF...")
+    if even that does not fit (the codes run 0, 1, 2, ... without a gap)."""
     spaced = " ".join(f"{int(flag)}{FLAG_LETTERS[flag]}" for flag in Flag)
-    return spaced if len(spaced) <= LAS_DESCRIPTION_CHARS else spaced.replace(" ", "")
+    for text in (spaced, spaced.replace(" ", "")):
+        if len(text) <= LAS_DESCRIPTION_CHARS:
+            return text
+    return f"flags 0-{len(Flag) - 1}: " + "".join(FLAG_LETTERS[flag] for flag in sorted(Flag))
 
 
 def frame_record(frame: str = PointCloudFrame.SCANNER) -> dict[str, str]:
@@ -103,12 +113,13 @@ def cloud_placement(frame: str = PointCloudFrame.SCANNER, no_return_range_m: flo
     return f"frame {frame}; pixels without a range withheld at {no_return_range_m:g} m"
 
 
-def point_cloud_metadata(frame: str = PointCloudFrame.SCANNER, no_return_range_m: float | None = None
-                         ) -> dict[str, object]:
-    """What the LAS/LAZ JSON record adds to the writer's own: the flag codes, the estimates and the frame, and where
-    withheld points lie."""
+def point_cloud_metadata(frame: str = PointCloudFrame.SCANNER, no_return_range_m: float | None = None,
+                         two_returns: bool = False) -> dict[str, object]:
+    """What the LAS/LAZ JSON record adds to the writer's own: the flag codes, the estimates and the frame, where
+    withheld points lie and, where some pixel was resolved into two returns (``two_returns``), what its points are."""
     placed = ("left out" if no_return_range_m is None
               else f"withheld at {no_return_range_m:g} m on their ray (raw_range_m keeps what was measured)")
+    returns = {"returns": TWO_RETURNS_RECORD} if two_returns else {}
     return {
         "flags": flag_record(),
         "estimates": estimate_record(),
@@ -116,6 +127,7 @@ def point_cloud_metadata(frame: str = PointCloudFrame.SCANNER, no_return_range_m
         "withheld_points": {"saturated, inconsistent": "withheld at their measured range where it is positive, "
                                                        "else as not finite",
                             "not finite, no return, beyond ambiguity": placed},
+        **returns,
     }
 
 
@@ -130,6 +142,28 @@ def point_cloud_fields(scan: Scan, correction: Correction, rows: slice = slice(N
                              amplitude, None if uncertainty is None else uncertainty[rows])
 
 
+def two_return_fields(second: SecondReturns, fields: dict[str, NDArray], rows: slice = slice(None)
+                      ) -> tuple[dict[str, NDArray], NDArray[np.float32], dict[str, NDArray]]:
+    """The point-cloud fields of a correction that resolved some pixel into two returns (``second``, the
+    correction's :attr:`~mpi_lidar.correction.Correction.second_returns`): the pixels' ``fields`` (those of
+    :func:`point_cloud_fields` for ``rows``) with each one's return number, number of returns (the nearer return
+    is 1 of 2, a single one 1 of 1) and ``return_share`` of the light added; the second returns' ranges (h, W) [m]
+    (NaN where a pixel has none); and their fields (the pixel's, at the second range, its uncertainty unknown).
+    A correction without a resolved pixel has none of these: its files hold what they always did."""
+    ranges = np.asarray(second.depth_m[rows], dtype=np.float32)
+    share = np.asarray(second.share[rows], dtype=np.float32)
+    resolved = np.isfinite(ranges)
+    second_nearer = resolved & (ranges < fields["corrected_range_m"])
+    count = np.where(resolved, 2, 1).astype(np.uint8)
+    first = {**fields, "return_number": np.where(second_nearer, 2, 1).astype(np.uint8), "number_of_returns": count,
+             "return_share": np.where(resolved, 1 - share, 1).astype(np.float32)}
+    uncertainty = np.full(ranges.shape, np.nan, np.float32) if "uncertainty_m" in fields else None
+    other = {**correction_fields(fields["raw_range_m"], ranges, fields["flag"], fields["amplitude_v2"], uncertainty),
+             "return_number": np.where(second_nearer, 1, 2).astype(np.uint8), "number_of_returns": count,
+             "return_share": np.where(resolved, share, np.nan).astype(np.float32)}
+    return first, ranges, other
+
+
 def point_cloud_colors(flags: NDArray, amplitude: NDArray) -> NDArray[np.uint8]:
     """Colours (H, W, 3) uint8: the amplitude's grey level (square root of its share of the 99th percentile,
     from 40 to 255), amber where the pixel was corrected."""
@@ -140,7 +174,7 @@ def point_cloud_colors(flags: NDArray, amplitude: NDArray) -> NDArray[np.uint8]:
     share = np.clip(np.nan_to_num(values / top if top > 0 else np.ones_like(values), nan=0.0), 0.0, 1.0)
     grey = (40 + 215 * np.sqrt(share)).astype(np.float32)
     rgb = np.repeat(grey[..., None], 3, axis=-1)
-    corrected = np.asarray(flags) == Flag.CORRECTED
+    corrected = np.isin(np.asarray(flags), MODEL_FLAGS)
     rgb[corrected] *= CORRECTED_RGB.astype(np.float32)
     return np.rint(rgb).astype(np.uint8)
 
@@ -182,25 +216,16 @@ def write_point_clouds(directory: Path, formats: tuple[PointCloudFormat, ...], r
         raise MpiLidarError(f"no_return_range_m must be a positive number of metres, got {no_return_range_m!r}")
     written = []
     if PointCloudFormat.PLY in formats:
-        fields = point_cloud_fields(scan, correction)
-        valid = np.isfinite(fields["corrected_range_m"])
-        whole_rays = rays[:]  # a RayRows builds every row
-        colors = point_cloud_colors(fields["flag"], fields["amplitude_v2"])
-        comments = (f"scalar_flag codes: {flag_description()} (docs/reference/point-clouds.md)",
-                    f"frame: {frame_record(frame)['handedness']}")
-        for name, depth in zip(POINT_CLOUD_FILES[PointCloudFormat.PLY],
-                               (np.where(valid, fields["raw_range_m"], np.nan), fields["corrected_range_m"]),
-                               strict=True):
-            write_ply(directory / name, in_frame(point_cloud(depth, whole_rays), frame), fields, colors, comments)
-            written.append(name)
+        written += _write_ply_files(directory, rays[:], scan, correction, frame)  # a RayRows builds every row
     las_formats = [fmt for fmt in (PointCloudFormat.LAS, PointCloudFormat.LAZ) if fmt in formats]
     if las_formats:
-        band = _las_band(rays, scan, correction, frame, no_return_range_m)
+        band, second = _las_bands(rays, scan, correction, frame, no_return_range_m)
         for fmt in las_formats:
             (name,) = POINT_CLOUD_FILES[fmt]
             write_las_bands(directory / name, np.shape(correction.flags), band, compress=fmt == PointCloudFormat.LAZ,
                             descriptions={"flag": flag_description()},
-                            metadata=point_cloud_metadata(frame, no_return_range_m))
+                            metadata=point_cloud_metadata(frame, no_return_range_m, second is not None),
+                            second=second)
             written.append(name)
     return [name for fmt in formats for name in POINT_CLOUD_FILES[fmt] if name in written]
 
@@ -218,13 +243,41 @@ def las_ranges(fields: dict[str, NDArray], no_return_range_m: float | None = Non
     return ranges, ~valid & np.isfinite(ranges)
 
 
-def _las_band(rays: NDArray | RayRows, scan: Scan, correction: Correction, frame: str,
-              no_return_range_m: float | None) -> Callable[[slice], LasBand]:
-    """The LAS/LAZ file's points a band of rows at a time, placed as :func:`las_ranges` says."""
+def _write_ply_files(directory: Path, rays: NDArray, scan: Scan, correction: Correction, frame: str) -> list[str]:
+    """``raw.ply`` (the valid pixels at their raw range) and ``corrected.ply`` (at their corrected range, with the
+    second returns of the pixels resolved into two, as :func:`two_return_fields` gives them); their names."""
+    fields = point_cloud_fields(scan, correction)
+    valid = np.isfinite(fields["corrected_range_m"])
+    colors = point_cloud_colors(fields["flag"], fields["amplitude_v2"])
+    comments = (f"scalar_flag codes: {flag_description()} (docs/reference/point-clouds.md)",
+                f"frame: {frame_record(frame)['handedness']}")
+    raw_name, corrected_name = POINT_CLOUD_FILES[PointCloudFormat.PLY]
+    write_ply(directory / raw_name, in_frame(point_cloud(np.where(valid, fields["raw_range_m"], np.nan), rays),
+                                             frame), fields, colors, comments)
+    second = None
+    if correction.second_returns is not None:
+        fields, ranges, other = two_return_fields(correction.second_returns, fields)
+        second = (in_frame(point_cloud(ranges, rays), frame), other)
+    write_ply(directory / corrected_name, in_frame(point_cloud(fields["corrected_range_m"], rays), frame), fields,
+              colors, comments, second)
+    return [raw_name, corrected_name]
+
+
+def _las_bands(rays: NDArray | RayRows, scan: Scan, correction: Correction, frame: str,
+               no_return_range_m: float | None) -> tuple[Callable[[slice], LasBand], Callable[[slice], LasBand] | None]:
+    """The LAS/LAZ file's points a band of rows at a time, placed as :func:`las_ranges` says, and the second
+    returns' (None where no pixel was resolved into two: :func:`two_return_fields`)."""
+    resolved = correction.second_returns
 
     def band(rows: slice) -> LasBand:
         fields = point_cloud_fields(scan, correction, rows)
         ranges, withheld = las_ranges(fields, no_return_range_m)
+        if resolved is not None:
+            fields = two_return_fields(resolved, fields, rows)[0]
         return in_frame(point_cloud(ranges, rays[rows]), frame), fields, withheld
 
-    return band
+    def second(rows: slice, resolved: SecondReturns) -> LasBand:
+        _, ranges, other = two_return_fields(resolved, point_cloud_fields(scan, correction, rows), rows)
+        return in_frame(point_cloud(ranges, rays[rows]), frame), other, None
+
+    return band, None if resolved is None else partial(second, resolved=resolved)

@@ -86,7 +86,7 @@ def depth_error_histogram(store: str | Path, png: str | Path, frequency_index: i
     ax.hist(error_mm, bins=120, range=(0, upper), color="#3b6ea5")
     ax.axvline(error_mm.mean(), color="#c0392b", lw=1.5, label=f"MAE {error_mm.mean():.3f} mm")
     ax.set_xlabel(f"absolute depth error at {frequency / 1e6:g} MHz [mm]")
-    ax.set_ylabel("samples")
+    ax.set_ylabel("samples (count)")
     ax.set_title(f"Raw depth error, {error_mm.size:,} samples (99.5% shown)")
     legend_below(fig)
     return save_figure(fig, png)
@@ -231,7 +231,7 @@ def legend_below(fig: Figure) -> None:
         fig.legend(handles, labels, loc="outside lower center", ncols=min(len(handles), 3), frameon=False)
 
 
-def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> Figure:
+def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str, ylabel: str = "samples (count)") -> Figure:
     """Overlaid histograms of signed errors (e.g. before and after correction), MAE in the legend below them.
 
     An estimate without a finite error is named in the legend as such; without any, the axes say so."""
@@ -251,7 +251,7 @@ def error_histogram_figure(errors_mm: dict[str, np.ndarray], xlabel: str) -> Fig
     if not every.size:
         ax.text(0.5, 0.5, "no pixel with a finite error", ha="center", va="center", transform=ax.transAxes)
     ax.set_xlabel(xlabel)
-    ax.set_ylabel("samples")
+    ax.set_ylabel(ylabel)
     legend_below(fig)
     return fig
 

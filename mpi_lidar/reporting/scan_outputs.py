@@ -77,7 +77,7 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
     with atomic_path(target, replace=True, what="scan outputs") as staging, ThreadPoolExecutor(1) as beside:
         staging.mkdir()
         # The thumbnail needs nothing of the store: it is drawn on a thread beside the store's writing.
-        thumbnail = (beside.submit(_thread_cpu, _write_thumbnail, staging, correction)
+        thumbnail = (beside.submit(_thread_cpu, _write_thumbnail, staging, correction, azimuth_rises(scan))
                      if level != OutputLevel.DATA else None)
         started = time.process_time()
         write_corrected_store(staging / "corrected.zarr", scan, correction, identity, options, outputs)
@@ -92,12 +92,13 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
         if level == OutputLevel.FULL:
             with _cpu(cpu_s, "figures"):
                 figures["maps.png"] = maps_figure(scan, correction)
-                if scan.reference_depth is not None:
-                    where = metric_regions(scan, correction)["whole map"]
+                where = metric_regions(scan, correction).get("whole map")
+                if scan.reference_depth is not None and where is not None and where.any():
                     figures["error_hist.png"] = error_histogram_figure(
                         {f"raw {scan.frequencies_hz[-1] / 1e6:g} MHz":
                          1e3 * (measured_depth(scan, correction) - scan.reference_depth)[where],
-                         "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]")
+                         "corrected": 1e3 * (correction.depth - scan.reference_depth)[where]}, "depth error [mm]",
+                        "pixels (count)")
         # Whole rays where level full draws its views or PLY files are written; LAS and LAZ take a band at a time.
         whole = level == OutputLevel.FULL or PointCloudFormat.PLY in formats
         rays = scan.rays() if whole else None
@@ -107,7 +108,8 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
             with _cpu(cpu_s, "write"):
                 files += write_point_clouds(staging, formats, cloud_rays, scan, correction, frame=point_cloud_frame,
                                             no_return_range_m=no_return_range_m)
-            if level == OutputLevel.FULL and rays is not None:
+            # Views of no point would be empty axes: a scan without a corrected depth has its maps only.
+            if level == OutputLevel.FULL and rays is not None and np.isfinite(correction.depth).any():
                 with _cpu(cpu_s, "figures"):
                     raw_points = geometry.point_cloud(np.where(np.isfinite(correction.depth), measured, np.nan), rays)
                     corrected_points = geometry.point_cloud(correction.depth, rays)
@@ -140,11 +142,25 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
     return notes
 
 
-def _write_thumbnail(staging: Path, correction: Correction) -> tuple[float, float]:
-    """``thumbnail.png`` of the correction in ``staging``; returns the depth limits of its colour scale [m]."""
-    image, depth_limits = thumbnail_image(correction)
+def _write_thumbnail(staging: Path, correction: Correction, mirror: bool = False) -> tuple[float, float]:
+    """``thumbnail.png`` of the correction in ``staging`` (its columns right to left where ``mirror``); returns the
+    depth limits of its colour scale [m]."""
+    image, depth_limits = thumbnail_image(correction, mirror=mirror)
     write_png(staging / "thumbnail.png", with_key(image, correction.flags, depth_limits))
     return depth_limits
+
+
+def azimuth_rises(scan: Scan) -> bool:
+    """Whether the scan's azimuth grows along its columns (its rays turn towards +x, the scanner's left): its
+    thumbnail then runs its columns right to left, so the scanner's left is on the left, as the maps show it."""
+    h, w = scan.shape
+    if scan.azimuth_rad is not None and np.size(scan.azimuth_rad) == w and w > 1:
+        azimuth = np.asarray(scan.azimuth_rad, dtype=np.float64)
+        return bool(azimuth[-1] > azimuth[0])
+    if scan.ray_directions is not None and w > 1:
+        middle = np.asarray(scan.ray_directions[h // 2, [0, -1], 0], dtype=np.float64)
+        return bool(middle[1] > middle[0])
+    return False
 
 
 def _thread_cpu(work: Callable[..., T], *args: object) -> tuple[T, float]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mpi_lidar.correction import INVALID_FLAGS, Correction
+from mpi_lidar.correction import INVALID_FLAGS, MODEL_FLAGS, Correction
 from mpi_lidar.correction.corrected_store import footprint_record
 from mpi_lidar.reporting.metrics import metrics_table
 from mpi_lidar.reporting.output_levels import OutputLevel
@@ -50,8 +50,9 @@ def scan_report(scan: Scan, correction: Correction, metrics: dict[str, dict[str,
                                                     "report.md"])
     more = _MORE[OutputLevel(outputs)]
     blocks += [*notes, f"Outputs (level {outputs}): {', '.join(files)}.{more}"]
-    # Without a valid pixel every map, histogram and view would be empty: the words above say why instead.
-    for name in figures if valid else []:
+    # The figures that were drawn (a scan without a valid pixel has its maps of what was measured and no views);
+    # the 3-D view only where there are points.
+    for name in figures:
         blocks += [captions[name]] if captions and name in captions else []
         blocks.append(Path(name))
     blocks += (embeds or []) if valid else []
@@ -81,10 +82,11 @@ def _in_words(counts: dict[str, int]) -> list[str]:
     invalid = tuple(flag.name.lower() for flag in INVALID_FLAGS)
     if not _valid_pixels(counts):
         return [f"**No valid pixel**: every pixel was flagged invalid ({_named(counts, invalid)}), so nothing was "
-                "corrected and there are no maps, errors or point clouds to show. Check the scan's amplitudes "
-                "(their unit and saturation) and depths."]
-    if not counts.get("corrected"):
-        left = tuple(name for name in counts if name not in invalid and name != "corrected")
+                "corrected and there are no errors or point clouds to show; the maps, where written, show what was "
+                "measured. Check the scan's amplitudes (their unit and saturation) and depths."]
+    model = tuple(flag.name.lower() for flag in MODEL_FLAGS)
+    if not any(counts.get(name) for name in model):
+        left = tuple(name for name in counts if name not in invalid and name not in model)
         return [f"**No pixel was corrected**: the model corrected none of the {_valid_pixels(counts):,} valid "
                 f"pixels ({_named(counts, left)})."]
     return []

@@ -16,6 +16,7 @@ from mpi_lidar.reporting.legend import FLAG_COLOURS as FLAG_COLOURS  # the regis
 KEY_ROW_PX = 14  # one line of the colour key under the panels [px]
 THUMBNAIL_PX = 512  # longest side of thumbnail.png [px]
 THUMBNAIL_GAP_PX = 4
+THUMBNAIL_ZOOM = 8  # most times a small scan's pixel is repeated in the thumbnail
 # matplotlib's viridis, its 256 colours as RGB bytes (tests/reporting/test_thumbnail.py checks them against it).
 VIRIDIS_RGB = np.frombuffer(bytes.fromhex(
     '44015444025544035745055845065a45085b46095c460b5e460c5f460e61470f6247116347126547146647156747166947186a48196b481a'
@@ -40,14 +41,22 @@ def viridis(scaled: np.ndarray) -> np.ndarray:
     return VIRIDIS_RGB[np.clip((scaled * 256).astype(np.int64), 0, 255)]
 
 
-def thumbnail_image(correction: Correction, limit: int = THUMBNAIL_PX) -> tuple[np.ndarray, tuple[float, float]]:
+def thumbnail_image(correction: Correction, limit: int = THUMBNAIL_PX,
+                    mirror: bool = False) -> tuple[np.ndarray, tuple[float, float]]:
     """RGB image (h, w, 3) uint8, at most ``limit`` pixels on its longest side: the corrected depth (left,
     viridis between its 1 and 99 % quantiles, invalid pixels white) and the flags (right, :data:`FLAG_COLOURS`),
-    every ``step``-th pixel of each. Returns the image and the depth range of the colours [m]."""
+    every ``step``-th pixel of each, or each pixel repeated as often as fits (up to :data:`THUMBNAIL_ZOOM` times)
+    where the scan is small. ``mirror``: columns right to left (a scan whose azimuth grows along its columns
+    shows the scanner's left on the left, as seen from behind it). Returns the image and the depth range of the
+    colours [m]."""
     h, w = correction.flags.shape
     panel = max(1, (limit - THUMBNAIL_GAP_PX) // 2)
     step = max(1, -(-h // limit), -(-w // panel))
-    depth, flags = correction.depth[::step, ::step], correction.flags[::step, ::step]
+    zoom = max(1, min(THUMBNAIL_ZOOM, limit // h, panel // w)) if step == 1 else 1
+    columns = slice(None, None, -step) if mirror else slice(None, None, step)
+    depth, flags = correction.depth[::step, columns], correction.flags[::step, columns]
+    if zoom > 1:
+        depth, flags = (np.repeat(np.repeat(a, zoom, axis=0), zoom, axis=1) for a in (depth, flags))
     finite = depth[np.isfinite(depth)]
     low, high = (float(v) for v in np.quantile(finite, [0.01, 0.99])) if finite.size else (0.0, 1.0)
     scaled = np.clip((np.nan_to_num(depth, nan=low) - low) / max(high - low, 1e-9), 0.0, 1.0)

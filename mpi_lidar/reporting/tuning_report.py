@@ -22,7 +22,7 @@ def history_figure(study: optuna.Study) -> Figure:
     ax.scatter(numbers, values, s=14, label="trial")
     if values.size:
         ax.step(numbers, np.minimum.accumulate(values), where="post", color="#c0392b", label="best so far")
-    ax.set_xlabel("trial")
+    ax.set_xlabel("trial (number)")
     ax.set_ylabel("validation MAE [mm]")
     ax.set_title(f"Optimisation history of {study.study_name}")
     legend_below(fig)
@@ -38,7 +38,7 @@ def importance_figure(study: optuna.Study) -> Figure | None:
     ax = fig.subplots()
     names = list(importances)[::-1]
     ax.barh(names, [importances[n] for n in names], color="#3b6ea5")
-    ax.set_xlabel("importance (fANOVA)")
+    ax.set_xlabel("importance, fANOVA [share of variance]")
     ax.set_title("Hyperparameter importance")
     return fig
 

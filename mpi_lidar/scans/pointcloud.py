@@ -11,16 +11,19 @@ with its unit in the description (31 characters at most). ``intensity`` holds th
 amplitude [V^2]) on one fixed scale, :data:`INTENSITY_PER_COUNT_V2` per count, the same in every file (so
 intensities compare across an archive); the scale is in that field's description and in the JSON record. Points
 marked ``withheld`` (an invalid pixel) carry the Withheld bit and classification 7 (low point, noise); the others
-classification 1 (unclassified). The header's bounds are those of the points written. One variable-length record
-(user :data:`LAS_METADATA_USER_ID`, record :data:`LAS_METADATA_RECORD_ID`) holds a JSON object: the generator, each
-field's description, the intensity scale, what withheld means, and whatever ``metadata`` the caller adds (the flag
-codes, the scanner frame). The header names mpi-lidar and its version as the generating software. LAZ (laspy's lazrs
+classification 1 (unclassified). The header's bounds are those of the points written. Every point is return
+1 of 1, unless the fields :data:`RETURN_FIELDS` give its return number and number of returns (a pixel's second
+return, written with :func:`write_las_bands`'s ``second``, is its own point); the header counts points by return.
+One variable-length record (user
+:data:`LAS_METADATA_USER_ID`, record :data:`LAS_METADATA_RECORD_ID`) holds a JSON object: the generator, each field's
+description, the intensity scale, what withheld means, and whatever ``metadata`` the caller adds (the flag codes,
+the scanner frame). The header names mpi-lidar and its version as the generating software. LAZ (laspy's lazrs
 backend) is the same, compressed, its chunks on every core (:func:`mpi_lidar.threads.cores`).
 
 PLY: binary little-endian, float32 ``x``, ``y``, ``z`` [m], optional uchar ``red``, ``green``, ``blue`` (what
 Open3D reads as positions and colours) and one property ``scalar_<field>`` per field (CloudCompare loads
-properties with the ``scalar_`` prefix as scalar fields named after the rest). PLY has no withheld bit: the
-caller leaves invalid pixels out.
+properties with the ``scalar_`` prefix as scalar fields named after the rest); second returns are vertices of
+their own after the first returns'. PLY has no withheld bit: the caller leaves invalid pixels out.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ FIELD_DESCRIPTIONS = {
     "flag": "mpi-lidar correction flag",
     "amplitude_v2": "amplitude [V^2]",
     "uncertainty_m": "corrected range 1-sigma [m]",
+    "return_share": "return's share of the light [1]",
     "row": "pixel row of the scan grid",
     "column": "pixel column of the scan grid",
 }
@@ -75,12 +79,18 @@ LAS_METADATA_RECORD_ID = 1
 PLY_SCALAR_PREFIX = "scalar_"  # CloudCompare reads properties so named as scalar fields
 _NUMERIC_KINDS = "biuf"
 _RETURN_BITS = 0x11  # return 1 of 1 (LAS 1.4 point format 6: return number, bits 0-3; number of returns, 4-7)
+# Fields a LAS/LAZ file holds in each point's return bits, not as extra bytes (a PLY holds them as properties):
+# where a band has them, every point's return number and number of returns are theirs (uint8, 1-15).
+RETURN_FIELDS = ("return_number", "number_of_returns")
 _WITHHELD_BIT = 0x04  # LAS 1.4 point format 6 classification flags: synthetic 1, key point 2, withheld 4
 # Pixels of the scan grid a LAS file is built from at a time: a band's points, fields and records take about
 # 100 MB, whatever the scan's size (a 4000 x 4000 scan built whole took 2.5 GB more).
 LAS_BAND_PIXELS = 1 << 20
 # One band of a scan's rows for a LAS file: points (h, W, 3) [m], fields name -> (h, W), withheld (h, W) or None.
 LasBand = tuple[NDArray, Mapping[str, NDArray], NDArray | None]
+# A further return of some pixels, for a PLY file: points (H, W, 3) [m] (not finite where a pixel has none) and
+# the same fields as the first returns'.
+PlyReturns = tuple[NDArray, Mapping[str, NDArray]]
 
 
 def generator() -> str:
@@ -197,14 +207,18 @@ def write_las(path: str | Path, points: NDArray, fields: Mapping[str, NDArray], 
 def write_las_bands(path: str | Path, shape: tuple[int, ...], band: Callable[[slice], LasBand],
                     intensity_per_count: float = INTENSITY_PER_COUNT_V2, compress: bool | None = None, *,
                     descriptions: Mapping[str, str] | None = None,
-                    metadata: Mapping[str, object] | None = None) -> Path:
+                    metadata: Mapping[str, object] | None = None,
+                    second: Callable[[slice], LasBand] | None = None) -> Path:
     """Write a LAS 1.4 file (LAZ when ``compress``, by default when the suffix is ``.laz``) of a scan grid of
     ``shape`` (H, W), a band of rows at a time, so that memory stays that of a band of :data:`LAS_BAND_PIXELS`
     pixels whatever the scan's size: ``band(rows)`` gives those rows' points, fields and withheld marks
     (:data:`LasBand`), the same fields in every band. ``intensity_per_count``: the :data:`INTENSITY_FIELD` value
     of one intensity count (:data:`INTENSITY_PER_COUNT_V2`). The header's bounds are the written points'.
     Coordinates are stored in :data:`LAS_SCALE_M` steps from the scanner at the origin (int32: 214 km either
-    way). ``descriptions`` and ``metadata`` as :func:`write_las` takes them.
+    way). ``descriptions`` and ``metadata`` as :func:`write_las` takes them. ``second(rows)``: those rows'
+    second returns (points not finite where a pixel has none, the same fields), written after each band's points;
+    the fields :data:`RETURN_FIELDS`, where given, fill each point's return bits, and the header counts the points
+    by return.
     """
     import laspy  # here, not at the top: laspy takes 0.2 s to import, which a run without LAS files never pays
 
@@ -215,16 +229,19 @@ def write_las_bands(path: str | Path, shape: tuple[int, ...], band: Callable[[sl
             ExitStack() as open_writer:
         writer = None
         for rows in _row_bands(shape[0], shape[1]):
-            points, fields, withheld = band(rows)
-            xyz, values, keep = _points_and_fields(points, fields, rows.start)
-            if writer is None:  # the header needs the fields' types: those of the first band
-                header = _las_header({name: v.dtype for name, v in values.items()}, intensity_per_count,
-                                     descriptions, metadata)
-                writer = open_writer.enter_context(laspy.open(stream, mode="w", header=header, do_compress=compress,
-                                                              laz_backend=backend if compress else None,
-                                                              closefd=False))
-            marked = np.zeros(xyz.shape[0], bool) if withheld is None else np.asarray(withheld, bool).reshape(-1)[keep]
-            writer.write_points(_las_records(writer.header, xyz, values, marked, intensity_per_count))
+            for layer in (band,) if second is None else (band, second):
+                points, fields, withheld = layer(rows)
+                xyz, values, keep = _points_and_fields(points, fields, rows.start)
+                if writer is None:  # the header needs the fields' types: those of the first band
+                    header = _las_header({name: v.dtype for name, v in values.items()}, intensity_per_count,
+                                         descriptions, metadata)
+                    writer = open_writer.enter_context(laspy.open(stream, mode="w", header=header,
+                                                                  do_compress=compress,
+                                                                  laz_backend=backend if compress else None,
+                                                                  closefd=False))
+                marked = (np.zeros(xyz.shape[0], bool) if withheld is None
+                          else np.asarray(withheld, bool).reshape(-1)[keep])
+                writer.write_points(_las_records(writer.header, xyz, values, marked, intensity_per_count))
     return path
 
 
@@ -241,7 +258,7 @@ def _las_header(dtypes: Mapping[str, np.dtype], per_count: float, descriptions: 
     import laspy
 
     described = {**FIELD_DESCRIPTIONS, **(descriptions or {})}
-    described = {name: described.get(name, name) for name in dtypes}
+    described = {name: described.get(name, name) for name in dtypes if name not in RETURN_FIELDS}
     record: dict[str, object] = {"generator": generator(), "fields": described}
     if INTENSITY_FIELD in dtypes:
         described[INTENSITY_FIELD] = f"{described[INTENSITY_FIELD]} = {per_count:.2e} * I"
@@ -259,7 +276,7 @@ def _las_header(dtypes: Mapping[str, np.dtype], per_count: float, descriptions: 
     header.offsets = np.zeros(3)
     header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=dtype,
                                                   description=described[name][:LAS_DESCRIPTION_CHARS])
-                           for name, dtype in dtypes.items()])
+                           for name, dtype in dtypes.items() if name not in RETURN_FIELDS])
     header.vlrs.append(laspy.VLR(user_id=LAS_METADATA_USER_ID, record_id=LAS_METADATA_RECORD_ID,
                                  description="JSON metadata", record_data=json.dumps(record).encode()))
     return header
@@ -275,12 +292,16 @@ def _las_records(header: Any, xyz: NDArray, values: dict[str, NDArray], withheld
     for axis, name in enumerate("XYZ"):
         records[name] = np.rint((xyz[:, axis] - header.offsets[axis]) / LAS_SCALE_M)
     records["bit_fields"] = _RETURN_BITS
+    if all(name in values for name in RETURN_FIELDS):
+        numbers, counts = (np.asarray(values[name], dtype=np.uint8) & 0x0F for name in RETURN_FIELDS)
+        records["bit_fields"] = numbers | (counts << 4)
     if INTENSITY_FIELD in values:
         records["intensity"] = intensity_counts(values[INTENSITY_FIELD], scale)
     records["classification_flags"] = np.where(withheld, _WITHHELD_BIT, 0)
     records["classification"] = np.where(withheld, LAS_CLASS_LOW_NOISE, LAS_CLASS_UNCLASSIFIED)
     for name, v in values.items():
-        records[name] = v
+        if name not in RETURN_FIELDS:
+            records[name] = v
     return laspy.PackedPointRecord(records, header.point_format)
 
 
@@ -296,13 +317,21 @@ def las_metadata(path: str | Path) -> dict[str, object]:
 
 
 def write_ply(path: str | Path, points: NDArray, fields: Mapping[str, NDArray], colors: NDArray | None = None,
-              comments: tuple[str, ...] = ()) -> Path:
+              comments: tuple[str, ...] = (), second: PlyReturns | None = None) -> Path:
     """Write a binary little-endian PLY: float32 x, y, z [m], uchar red, green, blue when ``colors`` (H, W, 3)
     uint8 are given, and one property ``scalar_<name>`` per field; ``comments`` go to the header after the
-    generator's. ``points`` (H, W, 3) [m], ``fields`` name -> (H, W) array; see the module docstring.
+    generator's. ``points`` (H, W, 3) [m], ``fields`` name -> (H, W) array; ``second``: some pixels' second
+    returns (:data:`PlyReturns`), vertices after the first returns', coloured as their pixel; see the module
+    docstring.
     """
     path = Path(path)
     xyz, values, keep = _points_and_fields(points, fields)
+    if second is not None:
+        more_xyz, more_values, more_keep = _points_and_fields(*second)
+        if set(more_values) != set(values):
+            raise ValueError(f"the second returns' fields {sorted(more_values)} must be the first's {sorted(values)}")
+        xyz = np.concatenate([xyz, more_xyz])
+        values = {name: np.concatenate([v, more_values[name].astype(v.dtype)]) for name, v in values.items()}
     wide = sorted(name for name, v in values.items() if v.dtype.kind in "iu" and v.dtype.itemsize > 4)
     if wide:
         raise ValueError(f"fields {wide} are 64-bit integers, which PLY cannot hold; convert them to 32 bits")
@@ -319,6 +348,8 @@ def write_ply(path: str | Path, points: NDArray, fields: Mapping[str, NDArray], 
         records[name] = xyz[:, axis]
     if colors is not None:
         kept_colours = colors.reshape(-1, 3)[keep]
+        if second is not None:
+            kept_colours = np.concatenate([kept_colours, colors.reshape(-1, 3)[more_keep]])
         for channel, name in enumerate(colour_names):
             records[name] = kept_colours[:, channel]
     for name, v in values.items():

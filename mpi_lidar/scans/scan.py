@@ -41,10 +41,13 @@ SPEED_OF_LIGHT_BOUNDS_M_PER_S = (2.9e8, 3.1e8)
 # How far a wrapped depth may pass its frequency's wrap period before the period is wrong: a relative share of
 # the period [1] plus an absolute margin [m] (float32 rounding and a phase of 2 pi read back as one of 0).
 WRAP_TOLERANCE = (1e-3, 1e-3)
-# The lowest depth a scan may hold [m], by how its depths were measured: a phase's depth is never negative (float32
-# rounding aside); a range the scanner unwrapped may pass zero by its noise, three deviations of the noisiest return
-# a scanner reports (decimetres at the lowest frequencies), never by more.
-MIN_DEPTH_M = {True: -WRAP_TOLERANCE[1], False: -1.0}
+# A near surface's depth passes zero by its noise, wrapped or not (a scanner's own zero-range offset removed):
+# correction flags each pixel more than NOISE_DEVIATIONS of its own noise below zero (the validity stage, under the
+# scan's noise law). What no noise explains refuses the scan where it is read: a depth below NOISE_DEVIATIONS
+# deviations of the noisiest return a scan keeps, one at the lowest frequency whose amplitude is
+# WEAKEST_RETURN_SNR times its noise (the no-return threshold's default), whose phase deviates by 1 / SNR [rad].
+NOISE_DEVIATIONS = 3.0
+WEAKEST_RETURN_SNR = 5.0
 # The scan grid's angles [rad]: an azimuth within one turn either way, an elevation within the poles.
 ANGLE_LIMITS_RAD = {"azimuth_rad": 2 * np.pi, "elevation_rad": np.pi / 2}
 # How far a ray direction's length may be from 1 (float32 rounding of a unit vector).
@@ -280,18 +283,24 @@ def check_speed_of_light(c: object, source: str) -> float:
     return float(c)
 
 
+def lowest_depth_m(frequencies_hz: tuple[float, ...], c: float) -> float:
+    """The lowest depth any pixel of a scan may hold [m]: :data:`NOISE_DEVIATIONS` deviations below zero of the
+    noisiest return it keeps, c / (4 pi f) / :data:`WEAKEST_RETURN_SNR` at its lowest frequency f [Hz] (1.15 m at
+    12.5 MHz). Each pixel is held to its own noise by correction."""
+    return -NOISE_DEVIATIONS * c / (4 * np.pi * min(frequencies_hz)) / WEAKEST_RETURN_SNR
+
+
 def check_wrap_periods(scan: Scan, source: str) -> None:
-    """Refuse depths outside what a scanner measures: below :data:`MIN_DEPTH_M` (a negative range), and, in a
-    wrapped scan, a finite depth at some frequency past that frequency's wrap period c / 2f (beyond
-    :data:`WRAP_TOLERANCE`): its depths are unwrapped already, or were converted with another c."""
+    """Refuse depths outside what a scanner measures: below :func:`lowest_depth_m` (a negative range no noise
+    explains), and, in a wrapped scan, a finite depth at some frequency past that frequency's wrap period c / 2f
+    (beyond :data:`WRAP_TOLERANCE`): its depths are unwrapped already, or were converted with another c."""
     lowest = min((float(part[np.isfinite(part)].min(initial=np.inf)) for part in _parts(scan.depth)),
                  default=np.inf)
-    floor = MIN_DEPTH_M[scan.depth_wrapped]
+    floor = lowest_depth_m(scan.frequencies_hz, scan.speed_of_light_m_per_s)
     if lowest < floor:
-        measured = "a phase's depth is never negative" if scan.depth_wrapped else (
-            f"a range passes zero by its noise, never by more than {-floor:g} m")
-        raise ScanError(f"{source}: its depth reaches {lowest:.4g} m: {measured}; import the scanner's ranges "
-                        "(distances from the scanner, in metres) as they are")
+        raise ScanError(f"{source}: its depth reaches {lowest:.4g} m: a range passes zero by its noise, never by more "
+                        f"than {-floor:.3g} m ({NOISE_DEVIATIONS:g} deviations of its noisiest return); import the "
+                        "scanner's ranges (distances from the scanner, in metres) as they are")
     if not scan.depth_wrapped:
         return
     relative, absolute = WRAP_TOLERANCE

@@ -185,7 +185,9 @@ def read_scan(path: str | Path, c: float = TABLE_SPEED_OF_LIGHT_M_PER_S, stored_
     files = _store_files(where)
     try:
         # Each array's own metadata, not the consolidated copy: that is what the chunks were written with.
-        group = zarr.open_group(store=zarr_store(where), mode="r", use_consolidated=False)
+        # In an object store, v3 only: zarr would otherwise look for v2 metadata too, four requests more.
+        group = zarr.open_group(store=zarr_store(where), mode="r", use_consolidated=False,
+                                zarr_format=None if where.is_local else 3)
         attrs: dict[str, Any] = dict(group.attrs)  # JSON as stored: checked where it is used
         arrays = dict(group.arrays())  # opened together: one round trip to the store, not one per array
         members = set(arrays)

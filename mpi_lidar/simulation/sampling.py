@@ -21,22 +21,29 @@ def _uniform(rng: np.random.Generator, interval: tuple[float, float], n: int) ->
     return rng.uniform(interval[0], interval[1], n)
 
 
-def _d_as(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
-    """n direct depths d_AS from ``prior.d_as_m`` as ``prior.d_as_distribution`` says. [m]
-
-    Both take one uniform draw of n values, so a uniform prior draws exactly the numbers it always drew.
-    """
-    if prior.d_as_distribution == "uniform":
-        return _uniform(rng, prior.d_as_m, n)
-    low, high = prior.d_as_m
+def _log_uniform(rng: np.random.Generator, interval: tuple[float, float], n: int) -> NDArray[np.float64]:
+    """n values of density 1 / (x ln(high / low)) over ``interval`` (low > 0): as many in every octave."""
+    low, high = interval
     # exp(ln x) may round one ulp past an end; the clip keeps every draw inside the prior's support.
     return np.clip(np.exp(rng.uniform(np.log(low), np.log(high), n)), low, high)
+
+
+def _drawn(rng: np.random.Generator, interval: tuple[float, float], n: int, distribution: str
+           ) -> NDArray[np.float64]:
+    """n values over ``interval``, uniform or log-uniform. Both take one uniform draw of n values, so a uniform
+    prior draws exactly the numbers it always drew."""
+    return _uniform(rng, interval, n) if distribution == "uniform" else _log_uniform(rng, interval, n)
+
+
+def _d_as(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """n direct depths d_AS from ``prior.d_as_m`` as ``prior.d_as_distribution`` says. [m]"""
+    return _drawn(rng, prior.d_as_m, n, prior.d_as_distribution)
 
 
 def _reciprocal(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
     d_as, d_ab = _d_as(prior, n, rng), _uniform(rng, prior.d_ab_m, n)
     albedo_a, albedo_b = _uniform(rng, prior.albedo, n), _uniform(rng, prior.albedo, n)
-    coupling = _uniform(rng, prior.coupling, n)
+    coupling = _drawn(rng, prior.coupling, n, prior.coupling_distribution)
     return np.column_stack([d_as, d_ab, albedo_a, albedo_a, coupling * albedo_b, albedo_a])
 
 
@@ -62,9 +69,10 @@ def sample_theta(prior: PriorConfig, n: int, rng: np.random.Generator) -> NDArra
     """Draw n scene parameter vectors, shape (n, 6), columns :data:`THETA_NAMES`. [m, m, 1, 1, 1, 1]
 
     d_AS is uniform or log-uniform over ``prior.d_as_m`` (``prior.d_as_distribution``), drawn first in every
-    scheme. With ``prior.no_multipath_fraction`` > 0 each row independently loses its multipath (rho_ABA = 0)
-    with that probability, drawn after the scheme's columns (a fraction of 0 draws nothing more, so the
-    paper's prior gives the same rows as before).
+    scheme; the reciprocal scheme's coupling is uniform or log-uniform over ``prior.coupling``
+    (``prior.coupling_distribution``). With ``prior.no_multipath_fraction`` > 0 each row independently loses its
+    multipath (rho_ABA = 0) with that probability, drawn after the scheme's columns (a fraction of 0 draws nothing
+    more, so the paper's prior gives the same rows as before).
     """
     theta = SCHEMES[prior.scheme](prior, n, rng)
     if prior.no_multipath_fraction > 0:

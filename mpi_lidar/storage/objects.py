@@ -42,7 +42,7 @@ from mpi_lidar.errors import MpiLidarError, StoreError
 from mpi_lidar.locations import Location
 from mpi_lidar.storage.integrity import MAX_METADATA_BYTES, IntegrityError
 from mpi_lidar.storage.manifest import MANIFEST_FILE, manifest_entries
-from mpi_lidar.storage.publication import LOCK_FILE, OutputLock
+from mpi_lidar.storage.publication import LOCK_FILE, OutputLock, counted_hold
 
 if TYPE_CHECKING:
     from fsspec import AbstractFileSystem
@@ -60,10 +60,22 @@ def filesystem(where: Location) -> AbstractFileSystem:
     import fsspec
 
     try:
-        return fsspec.filesystem(where.scheme, use_listings_cache=False)
+        return fsspec.filesystem(where.scheme, **storage_options(where))
     except ImportError as exc:
         raise MpiLidarError(f"{where}: the {where.scheme}:// store needs a library that is not installed "
                             f"({exc.name}); install it (s3fs, gcsfs or adlfs)") from None
+
+
+# s3fs asks an object's size (a HEAD request) before every whole read, to split one larger than its block
+# (50 MiB) into concurrent ranged reads. Chunks, manifests and metadata are far smaller, so that would double the
+# requests of every read; zarr reads a store's chunks concurrently itself.
+_SCHEME_OPTIONS: dict[str, dict[str, object]] = {"s3": {"max_concurrency": 1}}
+
+
+def storage_options(where: Location) -> dict[str, object]:
+    """The options every file system and zarr store of ``where``'s scheme is opened with: listings never cached
+    (each sees what other processes published), whole objects read in one request."""
+    return {"use_listings_cache": False, **_SCHEME_OPTIONS.get(where.scheme, {})}
 
 
 def zarr_store(where: Location, read_only: bool = True) -> str | FsspecStore:
@@ -72,7 +84,7 @@ def zarr_store(where: Location, read_only: bool = True) -> str | FsspecStore:
         return where.path
     from zarr.storage import FsspecStore
 
-    return FsspecStore.from_url(where.url, storage_options={"use_listings_cache": False}, read_only=read_only)
+    return FsspecStore.from_url(where.url, storage_options=storage_options(where), read_only=read_only)
 
 
 def store_error(where: Location, exc: BaseException, doing: str) -> MpiLidarError:
@@ -208,6 +220,18 @@ def publish_directory(local_dir: Path, where: Location) -> list[str]:
     return names
 
 
+def publish_store(local_store: Path, where: Location) -> None:
+    """Publish a Zarr store built in ``local_store`` at ``where``: every object but the root ``zarr.json``, then
+    that last by a conditional create, so the store exists for every reader (which opens it by that object) only
+    once whole, and never over one there. Refused with one line if a store is there already."""
+    upload_files(local_store, where, skip=("zarr.json",))
+    try:
+        write_object(where.joinpath("zarr.json"), (local_store / "zarr.json").read_bytes(), create=True)
+    except FileExistsError:
+        raise MpiLidarError(f"{where} already exists (written meanwhile by another process); remove it to write it "
+                            "again") from None
+
+
 def published_damage(where: Location) -> str | None:
     """None where ``where`` is published (its manifest there) and every object it lists is there with its size
     (one listing and one read: a resume checks manifests, not bytes); else why not."""
@@ -274,18 +298,10 @@ class ObjectOutputLock(OutputLock):
 
     @contextmanager
     def _hold(self) -> Iterator[None]:
-        key = (self.lock.url, threading.get_ident())
-        with _held_lock:
-            nested = key in _held
-            _held[key] = _held.get(key, 0) + 1
-        if nested:
-            try:
+        with counted_hold(self.lock.url) as outermost:
+            if not outermost:
                 yield
-            finally:
-                with _held_lock:
-                    _held[key] -= 1
-            return
-        try:
+                return
             etag = self._take()
             stop = threading.Event()
             renewer = threading.Thread(target=self._renew, args=(etag, stop), daemon=True)
@@ -296,9 +312,6 @@ class ObjectOutputLock(OutputLock):
                 stop.set()
                 renewer.join()
                 self._release()
-        finally:
-            with _held_lock:
-                del _held[key]
 
     def _record(self) -> bytes:
         started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
@@ -360,6 +373,3 @@ def _stale(info: dict[str, object]) -> bool:
             return False
     return False
 
-
-_held: dict[tuple[str, int], int] = {}
-_held_lock = threading.Lock()

@@ -80,40 +80,44 @@ def output_lock(out_dir: str | Path) -> AbstractContextManager[None]:
     return LocalOutputLock(out_dir).hold()
 
 
-_held: dict[tuple[str, int], int] = {}  # (real path, thread) -> depth of nesting, of the holds of this process
-_held_lock = threading.Lock()
+_depths: dict[tuple[str, int], int] = {}  # (location, thread) -> depth of nesting, of the holds of this process
+_depths_lock = threading.Lock()
+
+
+@contextmanager
+def counted_hold(name: str) -> Iterator[bool]:
+    """Count one hold of the location ``name`` by this thread for the block's duration; yields whether it is
+    the outermost one, which alone takes and releases the location (the re-entrance every
+    :class:`OutputLock` guarantees). Holds by other threads are counted apart, so they are refused."""
+    key = (name, threading.get_ident())
+    with _depths_lock:
+        outermost = key not in _depths
+        _depths[key] = _depths.get(key, 0) + 1
+    try:
+        yield outermost
+    finally:
+        with _depths_lock:
+            _depths[key] -= 1
+            if not _depths[key]:
+                del _depths[key]
 
 
 @contextmanager
 def _hold(out_dir: Path) -> Iterator[None]:
     """:meth:`LocalOutputLock.hold`: the flock, taken once per thread however deeply the holds nest."""
-    key = (os.path.realpath(out_dir), threading.get_ident())
-    with _held_lock:
-        if key in _held:
-            _held[key] += 1
-            nested = True
-        else:
-            nested = False
-    if nested:
+    with counted_hold(os.path.realpath(out_dir)) as outermost:
+        if not outermost:
+            yield
+            return
+        path = out_dir / LOCK_FILE
+        descriptor = _take_lock(path, out_dir)
         try:
             yield
         finally:
-            with _held_lock:
-                _held[key] -= 1
-        return
-    path = out_dir / LOCK_FILE
-    descriptor = _take_lock(path, out_dir)
-    with _held_lock:
-        _held[key] = 1
-    try:
-        yield
-    finally:
-        with _held_lock:
-            del _held[key]
-        try:
-            path.unlink(missing_ok=True)  # while still held: a run waiting on this file retries on a fresh one
-        finally:
-            os.close(descriptor)  # releases the flock
+            try:
+                path.unlink(missing_ok=True)  # while still held: a run waiting on this file retries on a fresh one
+            finally:
+                os.close(descriptor)  # releases the flock
 
 
 def _take_lock(path: Path, out_dir: Path) -> int:

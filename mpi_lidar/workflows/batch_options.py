@@ -16,7 +16,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 from mpi_lidar.config import describe_validation_error
 from mpi_lidar.correction.options import FAIL_ON, USER_OPTIONS, CorrectionOptions, ScanStatus, UserOption
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OutputLevel
+from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS, OutputLevel, level_files
 from mpi_lidar.scans.pointcloud import PointCloudFormat, PointCloudFrame
 
 
@@ -29,6 +29,20 @@ def _fails_a_batch(status: ScanStatus) -> ScanStatus:
 # A status that --fail-on names (FAIL_ON): its schema lists those alone.
 FailOn = Annotated[ScanStatus, AfterValidator(_fails_a_batch),
                    WithJsonSchema({"type": "string", "enum": [status.value for status in FAIL_ON]})]
+
+
+def _level_files_said() -> str:
+    """Each output level's files beyond the level below it, from the registry (:data:`OUTPUT_FILES`)."""
+    said: list[str] = []
+    below: set[str] = set()
+    for level in reversed(OUTPUT_LEVELS):  # from the least
+        added = [file.name for file in level_files(level) if file.name not in below]
+        full = level == OutputLevel.FULL
+        added += ["a 3-D view in report.html"] if full else []
+        names = ", ".join(added[:-1]) + f" and {added[-1]}" if len(added) > 1 else added[0]
+        said.append(f"{'also ' if below else ''}{names} ({level}{', several times slower' if full else ''})")
+        below |= set(added)
+    return "; ".join(said)
 
 
 # The farthest a no-return pixel may be placed [m]: beyond any AMCW scanner's ambiguity range.
@@ -54,10 +68,8 @@ class BatchOptions(BaseModel):
         "Do not fail the batch when the model cannot serve a scan (status unserved: out of its range, amplitudes in "
         "another unit, no geometry for a geometric model); its outputs keep the pixels as measured."))
     outputs: OutputLevel = Field(OutputLevel(DEFAULT_OUTPUTS), description=(
-        "What each scan writes: corrected.zarr, metrics.json, report, corrected.laz and a small thumbnail (light); "
-        "only corrected.zarr and metrics.json (data); or also maps, error histogram, point-cloud views, a 3-D view "
-        "and the PLY point clouds (full, several times slower). A scan already corrected at a lower level is "
-        "corrected again to add the rest."))
+        f"What each scan writes: {_level_files_said()}. A scan already corrected at a lower level is corrected "
+        "again to add the rest."))
     point_clouds: tuple[PointCloudFormat, ...] | None = Field(None, description=(
         "Write the corrected point cloud in this format at any --outputs level; repeatable: corrected.las / "
         "corrected.laz (LAS 1.4, the raw range an extra dimension) or raw.ply and corrected.ply, each with named "

@@ -27,7 +27,7 @@ from mpi_lidar.locations import Location, location
 from mpi_lidar.reporting.output_levels import covers
 from mpi_lidar.reporting.point_cloud_files import cloud_placement
 from mpi_lidar.storage.manifest import MANIFEST_FILE, verify_manifest
-from mpi_lidar.storage.objects import exists, list_files, published_damage, read_bytes, zarr_store
+from mpi_lidar.storage.objects import list_files, published_damage, read_bytes, zarr_store
 from mpi_lidar.workflows.archive_paths import SUMMARY_NAME
 
 
@@ -35,7 +35,8 @@ def has_outputs(target: Path | Location) -> bool:
     """Whether anything of a scan's outputs is at ``target`` (its ``corrected.zarr``, or in a store a manifest)."""
     if isinstance(target, Path):
         return (target / "corrected.zarr").exists()
-    return exists(target.joinpath(MANIFEST_FILE)) or exists(target.joinpath("corrected.zarr", "zarr.json"))
+    present = list_files(target)  # one listing of the scan's folder answers both (an absent object costs two)
+    return MANIFEST_FILE in present or "corrected.zarr/zarr.json" in present
 
 
 def has_files(target: Path | Location, names: list[str]) -> bool:

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
 from mpi_lidar.correction import ScanOutcome
 from mpi_lidar.locations import Location, location
 from mpi_lidar.reporting.batch_report import write_batch_report
-from mpi_lidar.storage.objects import exists, publish_directory, write_object
+from mpi_lidar.storage.objects import exists, publish_directory, publish_store, write_object
 
 
 @contextmanager
@@ -62,3 +62,34 @@ def write_summary(outcomes: list[ScanOutcome], wall_s: float, out_dir: str | Pat
         summary = write_batch_report(seen, wall_s, root)
         publish_directory(summary, out.joinpath(summary.name))
     return str(out.joinpath(summary.name))
+
+
+ImportPlan = list[tuple[Path, Path]]
+
+
+def import_into_store(files: Sequence[Path], out: Location, run: Callable[[ImportPlan], object]
+                      ) -> tuple[list[tuple[Path, Location]], list[tuple[Path, Location]]]:
+    """Import ``files`` into scan stores below (or at) ``out`` in an object store: (imported, already there),
+    each (source, store).
+
+    The stores are written by ``run`` (:func:`mpi_lidar.scans.importers.import_files` of the plan: every file
+    read and checked first, all stores or none) into a temporary directory laid out as ``out``, then each is
+    published (:func:`~mpi_lidar.storage.objects.publish_store`: its root metadata last, by a conditional create).
+    A store already in the bucket is not written again; where all are, the import is refused with one line.
+    """
+    from mpi_lidar.scans.importers import plan_import
+    from mpi_lidar.scans.scan import ScanError
+
+    with tempfile.TemporaryDirectory(prefix="mpi-lidar-import-") as temporary:
+        local_out = Path(temporary) / out.name
+        plan = plan_import(files, local_out)
+        there = {target: out if target == local_out else out.joinpath(target.name) for _, target in plan}
+        existing = [(source, target) for source, target in plan if exists(there[target].joinpath("zarr.json"))]
+        if existing and len(existing) == len(plan):
+            raise ScanError(f"{there[existing[0][1]]} already exists, so {existing[0][0]} was not imported; nothing "
+                            "was new: remove a store to import its file again, or choose another --out")
+        todo = [pair for pair in plan if pair not in existing]
+        run(todo)
+        for _, target in todo:
+            publish_store(target, there[target])
+    return [(s, there[t]) for s, t in todo], [(s, there[t]) for s, t in existing]

@@ -243,7 +243,7 @@ def test_simulate__bad_command_line_override(tmp_path, monkeypatch, capsys):
     code, _, stderr = call_main(monkeypatch, capsys, "simulate", "--out", tmp_path / "d.zarr",
                                 "--samples", 0, "--workers", 0)
     assert code == 2
-    assert_one_error_line(stderr, "command line: dataset.samples")
+    assert_one_error_line(stderr, "invalid value for '--samples': 0 is not in the range 1<=x")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -274,7 +274,7 @@ def test_correct_scan__says_how_many_corrected_pixels_lie_beyond_the_model_s_pri
     said = [note for note in correction_notes(sharp) if "beyond what the model was trained on" in note]
     assert len(said) == 1, correction_notes(sharp)
     beyond = int(said[0].split(" corrected pixels")[0].replace(",", ""))
-    assert 0 < beyond <= sharp.counts()["corrected"]
+    assert 0 < beyond == sharp.counts()["beyond_prior"], "each has its own flag"
     wall = correct_scan(render(flat_wall(20.0, height=40, width=64), Config(), np.random.default_rng(2)), model,
                         CorrectionOptions(gate="all", footprint_area_m2=0.041))
     assert not any("beyond what the model" in note for note in correction_notes(wall)), \
@@ -312,9 +312,10 @@ def test_geometry_gate__scan_without_geometry_falls_back_and_says_so(pixelwise_m
 
 @pytest.mark.unit
 def test_flag__existing_codes_are_stable():
-    assert [int(f) for f in Flag] == list(range(13))
+    assert [int(f) for f in Flag] == list(range(14))
     assert Flag.NO_MULTIPATH == 7 and Flag.OUT_OF_RANGE == 6 and Flag.CORRECTED == 0 and Flag.UNCALIBRATED == 8
     assert Flag.AMBIGUOUS == 9 and Flag.BEYOND_AMBIGUITY == 10 and Flag.MIXED == 11 and Flag.TWO_RETURNS == 12
+    assert Flag.BEYOND_PRIOR == 13
 
 
 @pytest.mark.unit

@@ -75,3 +75,57 @@ def test_read_sensor__a_plateau_of_clipped_amplitudes_is_saturation_and_nothing_
     assert reading.saturation_v2[-1] == pytest.approx(float(level), rel=1e-5)
     given = read_sensor(scan, SENSOR, CorrectionOptions(saturation_amplitude_v2=0.5))
     np.testing.assert_array_equal(given.saturation_v2, 0.5)
+
+
+def _sensor_scan(range_m: np.ndarray, albedo: float, read_scale: float, shot_scale: float, seed: int = 0):
+    """A scan of surfaces facing the scanner at ``range_m`` (H, W) [m] from a sensor whose law is (read_scale,
+    shot_scale) x the sensor model's, wrapped with the physical speed of light, amplitudes in V^2."""
+    from mpi_lidar.constants import SPEED_OF_LIGHT_M_PER_S
+    from mpi_lidar.physics.noise import NoiseModel
+    from mpi_lidar.scans.scan import Scan
+
+    frequencies = Config().frequencies_hz
+    reference = NoiseModel.for_sensor(SENSOR, frequencies)
+    law = NoiseModel(frequencies, SPEED_OF_LIGHT_M_PER_S, read_scale * reference.read_variance_v4,
+                     shot_scale * reference.shot_variance_v2, 1.0, SENSOR)
+    rng = np.random.default_rng(seed)
+    f, (h, w) = len(frequencies), range_m.shape
+    light = np.repeat((SENSOR.gamma_r_v2 * albedo / range_m**2).reshape(1, -1), f, axis=0).T  # (n, F)
+    amplitude = np.abs(light + rng.standard_normal(light.shape) * law.quadrature_sigma_v2(light))
+    depth = range_m.reshape(-1, 1) + rng.standard_normal(light.shape) * law.depth_sigma_m(light)
+    period = SPEED_OF_LIGHT_M_PER_S / (2 * np.asarray(frequencies))
+    wrapped = np.mod(depth, period).T.reshape(f, h, w).astype(np.float32)
+    return Scan(name="made", frequencies_hz=frequencies, depth=wrapped,
+                amplitude=amplitude.T.reshape(f, h, w).astype(np.float32), azimuth_rad=np.linspace(-0.15, 0.15, w),
+                elevation_rad=np.linspace(-0.15, 0.15, h), speed_of_light_m_per_s=SPEED_OF_LIGHT_M_PER_S)
+
+
+@pytest.mark.parametrize("ranges", ["wall at 12 m", "ramp 0.5-23 m"])
+def test_read_sensor__a_read_noise_sensor_in_a_hundredfold_smaller_unit_is_quieter_than_any_sensor(ranges):
+    range_m = np.full((32, 32), 12.0) if ranges.startswith("wall") else np.repeat(
+        np.linspace(0.5, 23.0, 32)[None], 32, axis=0)
+    scan = _sensor_scan(range_m, 0.7, 2.0, 0.3)
+    assert read_sensor(scan, SENSOR, CorrectionOptions()).unit_trusted
+    # amplitude x range^2 reads as a dark surface (0.007) near by, or as a plausible one past the 24 m ambiguity:
+    # only the noise tells, 70 times below the sensor model's no-light noise
+    small = read_sensor(replace(scan, amplitude=scan.amplitude * np.float32(0.01)), SENSOR, CorrectionOptions())
+    assert not small.unit_trusted and "quieter than any sensor's" in small.unit_contradiction
+
+
+@pytest.mark.parametrize(("range_m", "albedo", "law"), [(26.0, 0.9, (0.0, 6.25)), (30.0, 0.9, (1.0, 1.0)),
+                                                        (40.0, 0.3, (1.0, 1.0)), ("0.5-4", 0.03, (0.0, 6.25))])
+def test_read_sensor__dark_scenes_in_v2_read_as_v2_even_without_read_noise(range_m, albedo, law):
+    """Past the 24 m ambiguity (surfaces read as 1.5-15 % albedo near by) or dark near by (3 %), from a sensor
+    without read noise (2.5 x the model's shot noise) or the model's own: V^2."""
+    ranges = np.repeat(np.linspace(0.5, 4.0, 32)[None], 32, axis=0) if range_m == "0.5-4" else np.full(
+        (32, 32), range_m)
+    reading = read_sensor(_sensor_scan(ranges, albedo, *law), SENSOR, CorrectionOptions())
+    assert reading.unit_trusted, reading.unit_contradiction
+
+
+def test_read_sensor__a_sensor_ten_times_noisier_reads_as_v2_and_a_unit_4000_times_larger_does_not():
+    scan = _sensor_scan(np.full((32, 32), 8.0), 0.7, 200.0, 30.0)  # ten times a read-dominated law's sd
+    reading = read_sensor(scan, SENSOR, CorrectionOptions())
+    assert reading.unit_trusted and reading.noise_over_reference > 10, reading.unit_contradiction
+    counts = read_sensor(replace(scan, amplitude=scan.amplitude * np.float32(4000)), SENSOR, CorrectionOptions())
+    assert not counts.unit_trusted

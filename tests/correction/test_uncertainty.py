@@ -10,7 +10,7 @@ import pytest
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, correct_scan
 from mpi_lidar.correction.footprint import FootprintEstimate
-from mpi_lidar.correction.options import Estimate
+from mpi_lidar.correction.options import Estimate, Flag
 from mpi_lidar.correction.uncertainty import corrected_uncertainty_m, footprint_left_open
 from mpi_lidar.learning.error_model import corrected_sigma_m
 from mpi_lidar.learning.model import UncertaintyCard, load_model
@@ -68,7 +68,8 @@ def test_correct_scan__corrected_pixels_take_the_cards_uncertainty_model(geometr
     scan = render(corner(90.0, 2.0, 0.8, height=24, width=48), Config(), np.random.default_rng(3))
     options = CorrectionOptions(footprint_area_m2=0.05)  # a given footprint: no share of its own
     correction = correct_scan(scan, _with_uncertainty(geometric_model), options)
-    corrected = correction.estimate == Estimate.CORRECTED
+    # Within the prior the law alone (the card has no region factors); beyond it the test of test_beyond_prior.py.
+    corrected = correction.flags == Flag.CORRECTED
     assert corrected.sum() > 50
     raw = scan.raw_pixels()[corrected.ravel()]
     assert correction.reading is not None
@@ -77,5 +78,5 @@ def test_correct_scan__corrected_pixels_take_the_cards_uncertainty_model(geometr
     np.testing.assert_allclose(correction.uncertainty_m[corrected], expected, rtol=1e-5)
     old = correct_scan(scan, geometric_model, options)
     np.testing.assert_array_equal(old.depth, correction.depth)
-    others = ~corrected
+    others = correction.estimate != Estimate.CORRECTED
     np.testing.assert_array_equal(old.uncertainty_m[others], correction.uncertainty_m[others])

@@ -25,11 +25,16 @@ from mpi_lidar.physics.demod import unambiguous_range
 from mpi_lidar.physics.moments import MomentSensor
 from mpi_lidar.simulation.sampling import sample_theta
 
+# The multipath of the paper's prior: under the default's wider one the sampler's effective sample size at
+# pool 300 falls below these tests' 100 (about 80; docs/results/prior.md).
+PAPER_MULTIPATH = {"d_ab_m": (0.0, 0.15), "coupling": (0.0, 1.0), "coupling_distribution": "uniform"}
+
 
 @pytest.mark.unit
 @pytest.mark.parametrize("albedo, coupling", [((0.14, 1.0), (0.0, 1.0)), ((0.3, 0.6), (0.2, 0.9))])
 def test_log_coupling_density__integrates_to_one_and_matches_samples(albedo, coupling):
-    prior = Config().prior.model_copy(update={"albedo": albedo, "coupling": coupling})
+    prior = Config().prior.model_copy(update={"albedo": albedo, "coupling": coupling,
+                                              "coupling_distribution": "uniform"})
     upper = albedo[1] * coupling[1]
     total, _ = integrate.quad(lambda q: np.exp(log_coupling_density(np.array([q]), prior))[0], 0, upper,
                               points=[albedo[0] * coupling[1], albedo[1] * coupling[0]], limit=200)
@@ -110,7 +115,7 @@ def test_bayes_limit__high_snr_posterior_median_is_the_truth(round_photons, tole
 
 @pytest.mark.unit
 def test_bayes_limit__beats_raw_depth_at_table_i_noise():
-    result = bayes_limit(Config(), 60, np.random.default_rng(2), pool=300)
+    result = bayes_limit(Config().replace(prior=PAPER_MULTIPATH), 60, np.random.default_rng(2), pool=300)
     raw_error = result.raw[:, 3] - result.theta[:, 0]
     assert np.all(np.isfinite(result.posterior_median_m)) and np.all(np.isfinite(result.posterior_mean_m))
     assert result.mae_m < 0.7 * result.raw_mae_m
@@ -133,7 +138,7 @@ def test_bayes_limit__rejects_unsupported_configurations():
 
 # --- the d_AS prior and ranges past the unambiguous range ------------------------------------------------------
 
-WIDE = {"d_as_m": (0.5, 12.0), "d_as_distribution": "log_uniform"}
+WIDE = {"d_as_m": (0.5, 12.0), "d_as_distribution": "log_uniform", **PAPER_MULTIPATH}
 
 
 @pytest.mark.unit

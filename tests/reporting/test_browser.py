@@ -46,14 +46,16 @@ window.addEventListener("load", () => setTimeout(() => {
   const width = document.documentElement.clientWidth;
   const box = el => el.getBoundingClientRect();
   const images = [...document.images].map(img => ({src: img.getAttribute("src"), loaded: img.complete &&
-    img.naturalWidth > 0, right: box(img).right}));
+    img.naturalWidth > 0, right: box(img).right, shown: box(img).width, natural: img.naturalWidth}));
   const tables = [...document.querySelectorAll("table")].map(t => ({width: box(t).width, right: box(t).right,
     scrolls: t.scrollWidth > t.clientWidth + 1 || t.parentElement.scrollWidth > t.parentElement.clientWidth + 1}));
   const plots = [...document.querySelectorAll(".js-plotly-plot")].map(p => ({right: box(p).right,
     height: box(p).height, svg: p.querySelectorAll(".main-svg").length}));
   const out = document.createElement("pre");
   out.id = "probe";
-  out.textContent = JSON.stringify({width, images, tables, plots, problems: window.__problems,
+  const body = getComputedStyle(document.body);
+  const content = document.body.clientWidth - parseFloat(body.paddingLeft) - parseFloat(body.paddingRight);
+  out.textContent = JSON.stringify({width, content, images, tables, plots, problems: window.__problems,
                                     text: document.body.innerText,
                                     scrollWidth: document.documentElement.scrollWidth});
   document.body.appendChild(out);
@@ -200,7 +202,9 @@ def test_batch__one_shared_plotly_bundle_linked_relatively(reports):
 def test_scan_reports__no_valid_or_no_corrected_pixel_said_in_words(reports):
     dark = reports["scan-no-valid-pixel"].read_text()
     assert "No valid pixel" in dark and not re.search(r"\bnan\b", dark.lower())
-    assert '<img src="maps.png"' not in dark and PLOTLY_JS not in dark  # no empty panels, no 3-D view
+    # the maps of what was measured, no empty views and no 3-D view; never "no maps" beside the maps
+    assert '<img src="maps.png"' in dark and "point_cloud.png" not in dark and PLOTLY_JS not in dark
+    assert "no maps" not in dark
     flat = reports["scan-flat-wall"].read_text()
     assert "No pixel was corrected" in flat
 
@@ -220,7 +224,8 @@ def test_reports__every_kind_fits_a_1280_pixel_window_in_chromium(chromium, repo
             assert plot["svg"] and plot["right"] <= width + 1 and plot["height"] >= 400, (kind, plot)
         assert "nan" not in re.findall(r"[a-z]+", findings["text"].lower()), kind
     assert seen["scan-full"]["plots"] and seen["scan-full"]["images"], "the full report shows its figures"
-    assert not seen["scan-no-valid-pixel"]["images"] and not seen["scan-no-valid-pixel"]["plots"]
+    assert {image["src"] for image in seen["scan-no-valid-pixel"]["images"]} == {"maps.png", "thumbnail.png"}
+    assert not seen["scan-no-valid-pixel"]["plots"]
 
 
 def test_batch_summary__four_scans_one_unserved_fit_1280_by_800(chromium, reports, tmp_path):

@@ -78,8 +78,13 @@ def test_flag_description__every_code_in_31_characters():
     assert len(text) <= 31
     assert set(FLAG_LETTERS) == set(FLAG_LEGEND) == set(Flag), "a new flag needs its letter and meaning"
     assert len(set(FLAG_LETTERS.values())) == len(Flag)
+    assert sorted(int(flag) for flag in Flag) == list(range(len(Flag))), "flag codes run 0, 1, 2, ... without a gap"
+    letters = text.split(": ", 1)[1] if text.startswith("flags ") else None
     for flag in Flag:
-        assert f"{int(flag)}{FLAG_LETTERS[flag]}" in text
+        if letters is None:
+            assert f"{int(flag)}{FLAG_LETTERS[flag]}" in text
+        else:
+            assert letters[int(flag)] == FLAG_LETTERS[flag]
 
 
 def test_write_point_clouds__laz_intensity_withheld_record_and_generator(tmp_path, corrected):

@@ -135,9 +135,10 @@ def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, l
 def test_thumbnail__written_at_level_light_with_its_legend(level_outputs):
     outcome = level_outputs("light")
     image = matplotlib.image.imread(Path(outcome.output) / "thumbnail.png")
-    # small scans are shown at full size, over a colour key with a line per few flags (at least 220 pixels wide)
-    assert image.shape[1] == max(2 * 56 + 4, 220) and image.shape[0] > 40 + 2 * KEY_ROW_PX
-    flags = np.asarray(image[40:, :, :3] * 255).round().astype(int).reshape(-1, 3)
+    # a small scan (40 x 56) is shown 4 times its size (each panel at most 254 pixels wide), over a colour key with
+    # a line per few flags
+    assert image.shape[1] == 2 * 4 * 56 + 4 and image.shape[0] > 4 * 40 + 2 * KEY_ROW_PX
+    flags = np.asarray(image[4 * 40:, :, :3] * 255).round().astype(int).reshape(-1, 3)
     swatch = tuple(int(FLAG_COLOURS[0][i:i + 2], 16) for i in (1, 3, 5))
     assert (flags == swatch).all(axis=1).any(), "the key shows the corrected flag's colour"
     report = (Path(outcome.output) / "report.md").read_text()

@@ -40,3 +40,16 @@ def test_write_png__matplotlib_reads_back_the_same_pixels(tmp_path):
     back = imread(tmp_path / "t.png")
     assert back.shape == image.shape
     assert np.array_equal(np.round(back * 255).astype(np.uint8), image)
+
+
+def test_thumbnail_image__a_small_scan_zoomed_a_mirrored_one_right_to_left():
+    flags = np.full((24, 96), Flag.NO_MULTIPATH, dtype=np.uint8)
+    flags[:, :10] = Flag.CORRECTED  # the first columns: the scanner's right where azimuth grows along them
+    depth = np.tile(np.linspace(1.0, 3.0, 96, dtype=np.float32), (24, 1))
+    plain, _ = thumbnail_image(Correction(depth=depth, flags=flags))
+    assert plain.shape == (2 * 24, 2 * (2 * 96) + 4, 3)  # 2 x: each panel at most (512 - 4) / 2 pixels wide
+    mirrored, _ = thumbnail_image(Correction(depth=depth, flags=flags), mirror=True)
+    assert np.array_equal(mirrored[:, :192], plain[:, 191::-1])  # each panel's columns right to left
+    assert np.array_equal(mirrored[:, -192:], plain[:, :-193:-1])
+    corrected = tuple(int(FLAG_COLOURS[Flag.CORRECTED][i:i + 2], 16) for i in (1, 3, 5))
+    assert tuple(mirrored[0, -1]) == corrected and tuple(plain[0, -1]) != corrected

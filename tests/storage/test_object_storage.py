@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import json
-import logging
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -23,13 +21,11 @@ from mpi_lidar.storage.manifest import MANIFEST_FILE
 from mpi_lidar.workflows.archive_paths import expand_archive
 from tests.cli_runner import call_main
 from tests.scan_factory import two_path_scan
+from tests.storage.conftest import BUCKET, SECRET, versioned_bucket, versions_written
 
 pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
-SECRET = "p@ss:w/rd+S3cr3t"  # the secret access key: '@', ':' and '/' in it
-KEY_ID = "AKIAMPILIDARTEST"
-BUCKET = "archive"
 # Outputs that name where they came from and when: the only bytes allowed to differ from a local run.
 PROVENANCE = ("report.md", "report.html", "metrics.json", MANIFEST_FILE, "corrected.zarr/zarr.json")
 TIMES = re.compile(rb"[0-9.]+ s\b|[0-9]+\.[0-9]+ (?:s|scans/s)")
@@ -46,32 +42,6 @@ def untimed(data: object) -> object:
     if isinstance(data, list):
         return [untimed(v) for v in data]
     return data
-
-
-@pytest.fixture(scope="module")
-def s3_server() -> Iterator[str]:
-    """moto's S3 server on a free port of 127.0.0.1, and the standard AWS variables pointing at it."""
-    from moto.server import ThreadedMotoServer
-
-    logging.getLogger("werkzeug").setLevel(logging.ERROR)
-    probe = socket.socket()
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    saved = {k: os.environ.get(k) for k in ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY",
-                                            "AWS_DEFAULT_REGION")}
-    os.environ.update(AWS_ENDPOINT_URL=f"http://127.0.0.1:{port}", AWS_ACCESS_KEY_ID=KEY_ID,
-                      AWS_SECRET_ACCESS_KEY=SECRET, AWS_DEFAULT_REGION="us-east-1")
-    objects.filesystem(location(f"s3://{BUCKET}")).mkdir(BUCKET)
-    yield f"http://127.0.0.1:{port}"
-    server.stop()
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
 
 
 @pytest.fixture(scope="module")
@@ -181,16 +151,56 @@ def test_publish_directory__second_writer_cannot_publish(s3_server, tmp_path):
         objects.write_object(target.joinpath(MANIFEST_FILE), b"{}", create=True)
 
 
-def test_correct__two_dask_workers_write_the_bucket(archive, pixelwise_model, tmp_path, monkeypatch, capsys):
-    _, url = archive
-    code, stdout, err = call_main(monkeypatch, capsys, "correct", url, "--model", pixelwise_model,
-                                  "--out", f"s3://{BUCKET}/workers", "--workers", "2")
-    assert code == 0, stdout + err
-    assert call_main(monkeypatch, capsys, "verify", *(f"s3://{BUCKET}/workers/scan{k}" for k in range(3)))[0] == 0
-    a, b = files_of(download(f"s3://{BUCKET}/workers", tmp_path / "w")), None
-    b = files_of(download(f"s3://{BUCKET}/out", tmp_path / "o")) if objects.exists(location(f"s3://{BUCKET}/out")) \
-        else a
-    assert {n: v for n, v in a.items() if "/c/" in n} == {n: v for n, v in b.items() if "/c/" in n}
+@pytest.mark.slow
+def test_correct__killed_dask_worker_resumes_publishing_each_scan_once(archive, pixelwise_model, tmp_path):
+    """Two Dask workers read the scans from and publish to a bucket that keeps every version of every object;
+    one is killed (kill -9) while it corrects a scan. The scheduler runs its scans again on the other: every
+    scan is published exactly once (one version of each manifest), verifies, and its chunks are those of the
+    scans corrected in this process."""
+    from mpi_lidar.workflows.cluster import dask_client
+    from mpi_lidar.workflows.correct_archive import correct_archive
+    from mpi_lidar.workflows.verify import verify_store
+
+    local, _ = archive
+    bucket = versioned_bucket("killed-worker")
+    fs = objects.filesystem(location(f"s3://{bucket}"))
+    fs.put(str(local) + "/", f"{bucket}/scans", recursive=True)
+    for k in range(3, 6):  # six scans: a worker is still busy when the first is published
+        write_scan(two_path_scan(f"scan{k}", seed=k), tmp_path / "more" / f"scan{k}.scan.zarr")
+    fs.put(str(tmp_path / "more") + "/", f"{bucket}/scans", recursive=True)
+    out = f"s3://{bucket}/out"
+    with dask_client(None, 2) as client:
+        pids = client.run(os.getpid)
+        killed: dict[str, int] = {}
+        watcher = threading.Thread(target=_kill_a_busy_worker, args=(client, pids, fs, f"{bucket}/out", killed))
+        watcher.start()
+        outcomes = correct_archive([f"s3://{bucket}/scans"], pixelwise_model, out, client=client, outputs="data")
+        watcher.join()
+    assert killed and 1 <= killed["published"] < 6, killed  # killed mid-batch, while correcting a scan
+    assert [o.status.value for o in outcomes if o.status.value == "failed"] == [], [o.reason for o in outcomes]
+    for k in range(6):
+        assert versions_written(bucket, f"out/scan{k}/{MANIFEST_FILE}") == 1, k
+        verify_store(f"{out}/scan{k}")  # the manifest's every object, and the store's every chunk
+    in_process = correct_archive([str(local)], pixelwise_model, tmp_path / "here", outputs="data")
+    assert all(o.status.value != "failed" for o in in_process)
+    here = files_of(tmp_path / "here")
+    there = files_of(download(out, tmp_path / "there"))
+    chunks = {n for n in here if "/c/" in n}
+    assert chunks and {n: here[n] for n in chunks} == {n: there[n] for n in chunks}
+
+
+def _kill_a_busy_worker(client, pids: dict[str, int], fs, out_key: str, killed: dict[str, int]) -> None:
+    """Once the first scan is published, kill -9 a worker that is correcting another; what it did, in
+    ``killed`` (how many scans were published then)."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        published = fs.glob(f"{out_key}/scan*/{MANIFEST_FILE}")
+        busy = [address for address, keys in client.processing().items() if keys and address in pids]
+        if published and busy:
+            killed.update(published=len(published), pid=pids[busy[0]])
+            os.kill(pids[busy[0]], signal.SIGKILL)
+            return
+        time.sleep(0.02)
 
 
 @pytest.mark.slow

@@ -42,7 +42,8 @@ def test_scenes_benchmark__baselines_print_a_row_per_scene_with_shares_summing_t
     for cells in rows:
         shares = [float(share) for share in cells[6].split("/")]
         assert sum(shares) == pytest.approx(100.0, abs=0.2), f"{cells[0]}: shares {shares}"
-        assert 0.0 < float(cells[7]) <= 100.0
+        # A strong room shrunk to 12 x 16 pixels has no geometry to correct by: none of its errors within 1 sigma.
+        assert 0.0 <= float(cells[7]) <= 100.0
     walls = [cells for cells in rows if cells[0].strip().startswith("flat wall")]
     for cells in walls:
         raw, fused = (float(mae) for mae in cells[2].split("/"))

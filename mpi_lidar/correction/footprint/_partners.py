@@ -52,6 +52,8 @@ GRADING_M = 0.05
 # Within the view a patch counts where it lies no nearer than this [m] in front of what the scan measured
 # there (the multipath moves the measured surface by centimetres near an edge).
 FRONT_TOLERANCE_M = 0.05
+# A surface's plane hides what lies behind it up to this many times its visible size from its visible centre.
+HIDING_REACH = 1.25
 # Above this many pixel-patch pairs the coupling is summed in chunks (memory stays near 100 MB).
 PAIRS_PER_CHUNK = 2_000_000
 
@@ -204,11 +206,18 @@ class PlanePartners:
         return candidate
 
     def _behind_a_partner(self, points: NDArray, surface: int) -> NDArray[np.bool_]:
-        """Points (n,) on ``surface``'s plane that lie behind the plane of a surface facing it."""
+        """Points (n,) on ``surface``'s plane that lie behind the plane of a surface facing it, where the ray to
+        the point meets that plane within :data:`HIDING_REACH` times the partner's visible size from its centre.
+
+        A partner is a surface of finite size: a box's face on a floor hides the floor behind it, not the floor
+        beside it, which lies behind its plane as well (and every such floor pixel would otherwise be given the
+        face's plane, and no light from the walls it faces)."""
         behind = np.zeros(points.shape[0], dtype=bool)
+        rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
         for partner in self.facing[surface]:
             plane = self.planes[partner]
-            behind |= (points - plane.centre) @ plane.normal < 0
+            within = np.linalg.norm(_on_plane(rays, plane) - plane.centre, axis=1) <= HIDING_REACH * plane.visible_m
+            behind |= ((points - plane.centre) @ plane.normal < 0) & within
         return behind
 
     def near_other_surface(self, coordinates: tuple[NDArray, NDArray], surface: NDArray, labels: NDArray

@@ -6,6 +6,9 @@ uniforms, p(q) = ln(hi(q) / lo(q)) / ((b1 - b0)(k1 - k0)) with lo = max(b0, q / 
 With ``no_multipath_fraction`` = pi0 > 0 the prior also puts mass pi0 on q = 0 (one path); that component
 gets its own proposal and the two are mixed with equal probability.
 
+With a log-uniform coupling kappa ~ 1 / (kappa ln(k1 / k0)) (``PriorConfig.coupling_distribution``),
+p(q) = (hi(q) - lo(q)) / ((b1 - b0) q ln(k1 / k0)) with the same lo and hi.
+
 d_AS prior: uniform over ``d_as_m``, or log-uniform (density 1 / (d ln(high / low)),
 ``PriorConfig.d_as_distribution``).
 """
@@ -30,7 +33,8 @@ def check_supported(config: Config) -> None:
 
 
 def log_coupling_density(q: NDArray[np.float64], prior: PriorConfig) -> NDArray[np.float64]:
-    """Log prior density of rho_ABA = kappa * b for kappa ~ U(coupling), b ~ U(albedo). [log 1/1]"""
+    """Log prior density of rho_ABA = kappa * b for b ~ U(albedo) and kappa ~ U(coupling), or log-uniform over it
+    (``prior.coupling_distribution``). [log 1/1]"""
     b0, b1 = prior.albedo
     k0, k1 = prior.coupling
     q = np.asarray(q, dtype=np.float64)
@@ -39,13 +43,21 @@ def log_coupling_density(q: NDArray[np.float64], prior: PriorConfig) -> NDArray[
     with np.errstate(divide="ignore", invalid="ignore"):
         lo = np.maximum(b0, q / k1)
         hi = np.minimum(b1, q / k0) if k0 > 0 else np.full_like(q, b1)
-        dens = np.log(hi / lo) / ((b1 - b0) * (k1 - k0))
+        if prior.coupling_distribution == "log_uniform":
+            dens = (hi - lo) / ((b1 - b0) * q * np.log(k1 / k0))
+        else:
+            dens = np.log(hi / lo) / ((b1 - b0) * (k1 - k0))
         out = np.where((q > 0) & (hi > lo), np.log(np.maximum(dens, 1e-300)), -np.inf)
     return out
 
 
 def sample_coupling(prior: PriorConfig, shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np.float64]:
-    return rng.uniform(*prior.coupling, shape) * rng.uniform(*prior.albedo, shape)
+    if prior.coupling_distribution == "log_uniform":
+        low, high = prior.coupling
+        kappa = np.exp(rng.uniform(np.log(low), np.log(high), shape))
+    else:
+        kappa = rng.uniform(*prior.coupling, shape)
+    return kappa * rng.uniform(*prior.albedo, shape)
 
 
 def log_uniform(x: NDArray[np.float64], interval: tuple[float, float]) -> NDArray[np.float64]:

@@ -79,7 +79,7 @@ def build_layout(path: Path, config: Config) -> None:
     consolidate(path)  # for xarray; this package's readers read each array's own metadata
 
 
-def check_layout(path: Path, group: zarr.Group, attrs: Mapping[str, Any]) -> None:
+def check_layout(path: str | Path, group: zarr.Group, attrs: Mapping[str, Any]) -> None:
     """Every array (the fingerprints ``chunk_sha256`` included: every dataset of this schema has them) of the
     shape, dtype and row chunks the attributes give, which are within the configuration's bounds; checked from
     the metadata alone, before anything is read or allocated."""

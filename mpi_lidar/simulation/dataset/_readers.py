@@ -13,10 +13,12 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
 from mpi_lidar.errors import StoreError
+from mpi_lidar.locations import location
 from mpi_lidar.simulation.dataset._chunks import SPLIT_CODES
 from mpi_lidar.simulation.dataset._layout import DATA_ARRAYS, store_array
 from mpi_lidar.simulation.dataset._store import chunk_fingerprints, completed_chunks, open_store, store_config
 from mpi_lidar.storage.integrity import check_fingerprint, read_chunk
+from mpi_lidar.storage.objects import zarr_store
 
 if TYPE_CHECKING:
     import dask.array as da
@@ -112,7 +114,7 @@ def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArr
     info = block_info[None]
     where = tuple(slice(start, stop) for start, stop in info["array-location"])
     index = info["chunk-location"][0]
-    group = zarr.open_group(store=path, mode="r", use_consolidated=False)
+    group = zarr.open_group(store=zarr_store(location(path)), mode="r", use_consolidated=False)
     values = read_chunk(store_array(group, array_name), where, path, array_name, index)
     if fingerprints is not None:
         check_fingerprint(values, fingerprints[index, k], path, array_name, index)

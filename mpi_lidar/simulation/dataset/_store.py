@@ -5,6 +5,8 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+import tempfile
+from contextlib import suppress
 from pathlib import Path
 from typing import Literal
 
@@ -15,6 +17,7 @@ from numpy.typing import NDArray
 from mpi_lidar import __version__
 from mpi_lidar.config import Config, config_from_json, config_sha256
 from mpi_lidar.errors import StoreError
+from mpi_lidar.locations import Location, location
 from mpi_lidar.simulation.dataset._chunks import SamplingPlan, simulate_chunk
 from mpi_lidar.simulation.dataset._layout import (
     ARRAYS,
@@ -27,6 +30,7 @@ from mpi_lidar.simulation.dataset._layout import (
 from mpi_lidar.simulation.sampling import THETA_NAMES
 from mpi_lidar.storage.atomic import atomic_path
 from mpi_lidar.storage.integrity import check_chunk_files, check_store_files, fingerprint, read_chunk
+from mpi_lidar.storage.objects import zarr_store
 
 
 def create_store(path: str | Path, config: Config) -> zarr.Group:
@@ -34,9 +38,13 @@ def create_store(path: str | Path, config: Config) -> zarr.Group:
 
     The layout is built under a temporary name beside ``path`` and renamed into place, so a crash never
     leaves a half-made store. A store made from another configuration, or anything at ``path`` that is
-    not a dataset store (other than an empty directory), is refused with :class:`StoreError`.
+    not a dataset store (other than an empty directory), is refused with :class:`StoreError`. ``path`` may be
+    an object-store URL (``s3://bucket/prefix/d.zarr``): see :func:`_create_in_object_store`.
     """
-    path = Path(path)
+    where = location(path)
+    if not where.is_local:
+        return _create_in_object_store(where, config)
+    path = where.local_path()
     if path.exists() and not _is_empty_dir(path):
         group = open_store(path)
         _check_same_config(path, group, config)
@@ -46,6 +54,29 @@ def create_store(path: str | Path, config: Config) -> zarr.Group:
     with atomic_path(path, replace=True, what="dataset store", error=StoreError) as staging:
         build_layout(staging, config)
     return zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
+
+
+def _create_in_object_store(where: Location, config: Config) -> zarr.Group:
+    """The dataset store at ``where`` in an object store, created where there is none.
+
+    An object store has no rename: the layout is built in a temporary directory and uploaded, the root
+    ``zarr.json`` last by a conditional create (``If-None-Match: *``), so the store exists for every reader only
+    once whole, and of two processes creating it at once one makes it and the other reopens it. Each chunk's
+    rows and its completion mark are then objects of their own (one per chunk: workers never write the same
+    object), the mark written last (:func:`write_chunk`).
+    """
+    from mpi_lidar.storage.objects import exists, upload_files, write_object
+
+    if not exists(where.joinpath("zarr.json")):
+        with tempfile.TemporaryDirectory(prefix="mpi-lidar-dataset-") as temporary:
+            staging = Path(temporary) / "layout.zarr"
+            build_layout(staging, config)
+            upload_files(staging, where, skip=("zarr.json",))
+            with suppress(FileExistsError):  # made by another process meanwhile: reopened and checked below
+                write_object(where.joinpath("zarr.json"), (staging / "zarr.json").read_bytes(), create=True)
+    group = open_store(where.url)
+    _check_same_config(where.url, group, config)
+    return zarr.open_group(store=zarr_store(where, read_only=False), mode="r+", use_consolidated=False)
 
 
 def _check_free_space(path: Path, config: Config) -> None:
@@ -63,7 +94,7 @@ def _is_empty_dir(path: Path) -> bool:
     return path.is_dir() and not any(path.iterdir())
 
 
-def _check_same_config(path: Path, group: zarr.Group, config: Config) -> None:
+def _check_same_config(path: str | Path, group: zarr.Group, config: Config) -> None:
     found = group.attrs.get("config_sha256")
     if found != config_sha256(config):
         raise StoreError(
@@ -73,23 +104,41 @@ def _check_same_config(path: Path, group: zarr.Group, config: Config) -> None:
 
 
 def open_store(path: str | Path, mode: Literal["r", "r+"] = "r") -> zarr.Group:
-    """Open a dataset store after checking its schema and arrays; :class:`StoreError` on anything else."""
-    path = Path(path)
-    if not path.exists():
-        raise StoreError(f"dataset store {path} does not exist; create it with 'mpi-lidar simulate --out {path}'")
+    """Open a dataset store (a path or an object-store URL) after checking its schema and arrays;
+    :class:`StoreError` on anything else."""
+    where = location(path)
+    shown = where.url if not where.is_local else path
     # Links, FIFOs and devices inside the store, and oversized metadata, are refused before zarr opens a file.
-    files = check_store_files(path) if path.is_dir() else {}
+    files = _store_files(where, shown)
     try:
-        group = zarr.open_group(store=str(path), mode=mode, use_consolidated=False)
+        group = zarr.open_group(store=zarr_store(where, read_only=mode == "r"), mode=mode, use_consolidated=False,
+                                zarr_format=None if where.is_local else 3)
         attrs = dict(group.attrs)
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
-        raise StoreError(f"{path} is not a readable Zarr store ({type(exc).__name__}: {exc})") from None
+        raise StoreError(f"{shown} is not a readable Zarr store ({type(exc).__name__}: {exc})") from None
     if attrs.get("schema") != SCHEMA:
-        raise StoreError(f"{path} is not an mpi-lidar dataset (schema {attrs.get('schema')!r}, "
+        raise StoreError(f"{shown} is not an mpi-lidar dataset (schema {attrs.get('schema')!r}, "
                          f"expected {SCHEMA!r})")
-    check_layout(path, group, attrs)
-    check_chunk_files(path, files, {name: store_array(group, name) for name in ARRAYS})
+    check_layout(shown, group, attrs)
+    check_chunk_files(shown, files, {name: store_array(group, name) for name in ARRAYS})
     return group
+
+
+def _store_files(where: Location, shown: str | Path) -> dict[str, int]:
+    """Every file (object) of a store with its size, links and oversized metadata refused (one listing in an
+    object store); a store that is not there is refused with one line."""
+    if where.is_local:
+        path = where.local_path()
+        if not path.exists():
+            raise StoreError(f"dataset store {path} does not exist; create it with "
+                             f"'mpi-lidar simulate --out {path}'")
+        return check_store_files(path) if path.is_dir() else {}
+    from mpi_lidar.storage.objects import list_files
+
+    files = list_files(where)
+    if "zarr.json" not in files:
+        raise StoreError(f"dataset store {shown} does not exist; create it with 'mpi-lidar simulate --out {shown}'")
+    return files
 
 
 def store_config(group: zarr.Group) -> Config:
@@ -131,7 +180,7 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
     Returns True when the chunk was written, False when it was already complete. The completion mark is
     written after the data, so a chunk interrupted part-way is redone on the next run.
     """
-    group = zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
+    group = zarr.open_group(store=zarr_store(location(path), read_only=False), mode="r+", use_consolidated=False)
     if store_array(group, "chunk_done")[index]:
         return False
     chunk = simulate_chunk(config, index)

@@ -7,8 +7,9 @@ keeping the exact reference depth. :data:`SCENES` names the scenes after the pap
 :func:`scan_from_phasors` and :func:`scan_from_transient` take externally rendered light instead.
 
 The parts, each private: ``_geometry`` (surfaces, the scene, first hits), ``_transport`` (the light
-transport and its derivation), ``_render`` (the sensor and the reference), ``_catalogue`` (the named
-scenes) and ``_external`` (external renders).
+transport and its derivation), ``_multibounce`` (multi-bounce light transport with occlusion, for scenes whose
+notes ask for ``bounces``), ``_render`` (the sensor and the reference), ``_catalogue`` (the named scenes),
+``_room`` (room corners: walls, floor, ceiling and a box) and ``_external`` (external renders).
 """
 
 from __future__ import annotations
@@ -34,12 +35,13 @@ from mpi_lidar.simulation.scenes._catalogue import (
 from mpi_lidar.simulation.scenes._external import scan_from_phasors, scan_from_transient
 from mpi_lidar.simulation.scenes._geometry import Cylinder, Rectangle, Scene, Sphere, Surface, first_hits, prism
 from mpi_lidar.simulation.scenes._render import DEFAULT_PATCH_SPACING_M, render, sense, simple_region_mask
+from mpi_lidar.simulation.scenes._room import room_with_box, turned_room_with_box
 from mpi_lidar.simulation.scenes._transport import light_transport
 
 __all__ = [
     "DEFAULT_COUPLING_GAIN", "DEFAULT_FOOTPRINT_RADIUS_M", "DEFAULT_PATCH_SPACING_M", "DEMO_SCENES", "SCENES",
     "Cylinder", "Rectangle", "Scene", "Sphere", "Surface", "alcove", "box_on_floor", "corner", "cornered_board",
     "cylinder_scene", "first_hits", "flat_wall", "floor_meets_wall", "light_transport", "multi_object",
-    "pitch_rotation", "prism", "render", "render_scenes", "room_corner", "scan_from_phasors", "scan_from_transient",
-    "sense", "simple_region_mask", "sphere_scene", "wooden_corner",
+    "pitch_rotation", "prism", "render", "render_scenes", "room_corner", "room_with_box", "scan_from_phasors",
+    "scan_from_transient", "sense", "simple_region_mask", "sphere_scene", "turned_room_with_box", "wooden_corner",
 ]

@@ -13,6 +13,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes._geometry import Cylinder, Rectangle, Scene, Sphere, prism
 from mpi_lidar.simulation.scenes._render import render
+from mpi_lidar.simulation.scenes._room import room_with_box, turned_room_with_box
 
 
 def _grid(height: int, width: int, half_width_rad: float, half_height_rad: float,
@@ -160,6 +161,7 @@ SCENES: dict[str, Callable[..., Scene]] = {
     "cornered_board": cornered_board, "multi_object": multi_object, "wooden_corner": wooden_corner,
     "flat_wall": flat_wall, "corner": corner, "cylinder": cylinder_scene, "sphere": sphere_scene,
     "room_corner": room_corner, "alcove": alcove, "box_on_floor": box_on_floor, "floor_meets_wall": floor_meets_wall,
+    "room_box": room_with_box, "room_box_turned": turned_room_with_box,  # multi-bounce, with occlusion
 }
 DEMO_SCENES = ("cornered_board", "multi_object", "flat_wall")
 

@@ -180,6 +180,9 @@ class Scene:
     azimuth_rad: NDArray[np.float64]
     elevation_rad: NDArray[np.float64]
     notes: dict[str, float] = field(default_factory=dict)  # e.g. angle_deg, patch_spacing_m; copied to the scan
+    # Where surfaces meet [m]: concave folds (segments between two points) and tri-corners (three surfaces).
+    folds: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
+    tri_corners: tuple[tuple[float, float, float], ...] = ()
 
 
 def first_hits(scene: Scene) -> tuple[NDArray, NDArray]:

@@ -17,16 +17,19 @@ DEFAULT_PATCH_SPACING_M = 0.02
 
 
 def render(scene: Scene, config: Config, rng: np.random.Generator, *,
-           footprint_radius_m: float = DEFAULT_FOOTPRINT_RADIUS_M,
+           footprint_radius_m: float | None = None,
            patch_spacing_m: float | None = None, coupling_gain: float = DEFAULT_COUPLING_GAIN,
            truth_out: dict[str, NDArray] | None = None) -> Scan:
     """Render a scan: exact reference depth, two-path-per-patch light transport, then the sensor model.
 
-    ``patch_spacing_m`` defaults to the scene's own (large scenes use coarser patches) or 2 cm. A dict passed
+    ``patch_spacing_m`` defaults to the scene's own (large scenes use coarser patches) or 2 cm, and
+    ``footprint_radius_m`` to the scene's own (its notes) or :data:`DEFAULT_FOOTPRINT_RADIUS_M`. A dict passed
     as ``truth_out`` receives the render's true multipath per pixel (:func:`light_transport`'s
     ``coupling_out``).
     """
     patch_spacing_m = patch_spacing_m or float(scene.notes.get("patch_spacing_m", DEFAULT_PATCH_SPACING_M))
+    if footprint_radius_m is None:
+        footprint_radius_m = float(scene.notes.get("footprint_radius_m", DEFAULT_FOOTPRINT_RADIUS_M))
     phasor, dc = light_transport(scene, config, footprint_radius_m, patch_spacing_m, coupling_gain, truth_out)
     depth, amplitude = sense(phasor, dc, config, rng)
     h, w = scene.elevation_rad.size, scene.azimuth_rad.size
@@ -38,8 +41,8 @@ def render(scene: Scene, config: Config, rng: np.random.Generator, *,
         azimuth_rad=scene.azimuth_rad, elevation_rad=scene.elevation_rad,
         reference_depth=reference.astype(np.float32), reference_mask=simple_region_mask(scene, which.reshape(h, w)),
         speed_of_light_m_per_s=config.sensor.speed_of_light_m_per_s,
-        scene={"scene": scene.name, "surfaces": len(scene.surfaces), "footprint_radius_m": footprint_radius_m,
-               "coupling_gain": coupling_gain, **scene.notes, "patch_spacing_m": patch_spacing_m},
+        scene={"scene": scene.name, "surfaces": len(scene.surfaces), "coupling_gain": coupling_gain, **scene.notes,
+               "footprint_radius_m": footprint_radius_m, "patch_spacing_m": patch_spacing_m},
     )
 
 

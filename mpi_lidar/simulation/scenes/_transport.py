@@ -27,6 +27,7 @@ from mpi_lidar.physics.coupling import footprint_area, footprint_coupling, pair_
 from mpi_lidar.physics.transport import path_phasor
 from mpi_lidar.scans.scan import grid_rays
 from mpi_lidar.simulation.scenes._geometry import Scene, Surface, first_hits
+from mpi_lidar.simulation.scenes._multibounce import multibounce_transport
 
 PIXEL_BLOCK = 512
 
@@ -45,7 +46,13 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     ``d_ab_m`` (H*W,), the ratio-weighted mean A-B distance [m] (NaN without multipath), and ``bias_m``
     (H*W, F), the depth bias the multipath alone gives each frequency, without noise [m] (NaN where no surface
     is hit).
+
+    A scene whose notes name its ``bounces`` is rendered with up to that many bounces and with occlusion
+    (:func:`._multibounce.multibounce_transport`), which gives ``coupling_out`` more.
     """
+    if "bounces" in scene.notes:
+        return multibounce_transport(scene, config, footprint_radius_m, patch_spacing_m, coupling_gain, coupling_out,
+                                     bounces=int(scene.notes["bounces"]))
     s = config.sensor
     c = s.speed_of_light_m_per_s
     freqs = np.asarray(config.frequencies_hz)
