@@ -7,6 +7,7 @@ point, and its tessellation into small patches, the patches B of the light trans
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -193,3 +194,18 @@ def first_hits(scene: Scene) -> tuple[NDArray, NDArray]:
     which = np.argmin(ts, axis=0)
     t = ts[which, np.arange(rays.shape[0])]
     return t, np.where(np.isfinite(t), which, -1)
+
+
+def surface_hits(scene: Scene, rays: NDArray, d_as: NDArray, which: NDArray, block_pixels: int
+                 ) -> Iterator[tuple[int, Surface, NDArray, NDArray, NDArray, NDArray]]:
+    """Every surface's first hits (:func:`first_hits`), ``block_pixels`` pixels at a time: the surface's index,
+    the surface, the block's pixel indices, their points (n, 3) [m], the surface's unit normals there turned
+    towards the scanner (n, 3), and the cosine of incidence (n,)."""
+    for index, surface in enumerate(scene.surfaces):
+        pixels = np.flatnonzero(which == index)
+        for start in range(0, pixels.size, block_pixels):
+            block = pixels[start:start + block_pixels]
+            points = rays[block] * d_as[block, None]
+            normals = surface.normal_at(points)
+            normals = np.where((normals * rays[block]).sum(1, keepdims=True) > 0, -normals, normals)
+            yield index, surface, block, points, normals, -(normals * rays[block]).sum(1)

@@ -35,7 +35,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.physics.coupling import footprint_area, pair_geometry
 from mpi_lidar.physics.transport import path_phasor
 from mpi_lidar.scans.scan import grid_rays
-from mpi_lidar.simulation.scenes._geometry import Rectangle, Scene, first_hits
+from mpi_lidar.simulation.scenes._geometry import Rectangle, Scene, first_hits, surface_hits
 
 DEFAULT_BOUNCES = 3
 # Every single-bounce patch grows by its finest side (the patch spacing) for every GRADING_M [m] it lies from
@@ -295,20 +295,13 @@ def multibounce_transport(scene: Scene, config: Config, footprint_radius_m: floa
     higher = np.zeros((n, f + 1), dtype=np.complex128)
     magnitude, moment = np.zeros((n, surfaces)), np.zeros((n, surfaces))
     kappa, gamma_d, cos_i_all = np.zeros(n), np.zeros(n), np.ones(n)
-    for index, surface in enumerate(scene.surfaces):
-        pixels = np.flatnonzero(which == index)
-        for start in range(0, pixels.size, PIXEL_BLOCK):
-            block = pixels[start:start + PIXEL_BLOCK]
-            points = rays[block] * d_as[block, None]
-            normals = surface.normal_at(points)
-            normals = np.where((normals * rays[block]).sum(1, keepdims=True) > 0, -normals, normals)
-            cos_i = -(normals * rays[block]).sum(1)
-            found = multibounce_ratios(scene, points, normals, which[block], cos_i, area_m2, near, far, transfer,
-                                       occluders, wavenumbers)
-            single[block], higher[block], kappa[block] = found.single, found.higher, found.kappa
-            magnitude[block], moment[block] = found.single_magnitude, found.single_moment_m
-            gamma_d[block] = s.gamma_r_v2 * surface.albedo * cos_i / d_as[block] ** 2  # eq 12
-            cos_i_all[block] = cos_i
+    for _, surface, block, points, normals, cos_i in surface_hits(scene, rays, d_as, which, PIXEL_BLOCK):
+        found = multibounce_ratios(scene, points, normals, which[block], cos_i, area_m2, near, far, transfer,
+                                   occluders, wavenumbers)
+        single[block], higher[block], kappa[block] = found.single, found.higher, found.kappa
+        magnitude[block], moment[block] = found.single_magnitude, found.single_moment_m
+        gamma_d[block] = s.gamma_r_v2 * surface.albedo * cos_i / d_as[block] ** 2  # eq 12
+        cos_i_all[block] = cos_i
     # Energy: A cannot get back more than all its light through B (kappa <= 1, as in the prior).
     scale = 1.0 / np.maximum(kappa, 1.0)
     single *= scale[:, None, None]

@@ -26,7 +26,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.physics.coupling import footprint_area, footprint_coupling, pair_geometry
 from mpi_lidar.physics.transport import path_phasor
 from mpi_lidar.scans.scan import grid_rays
-from mpi_lidar.simulation.scenes._geometry import Scene, Surface, first_hits
+from mpi_lidar.simulation.scenes._geometry import Scene, Surface, first_hits, surface_hits
 from mpi_lidar.simulation.scenes._multibounce import multibounce_transport
 
 PIXEL_BLOCK = 512
@@ -66,40 +66,33 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
     true_d_ab = np.full(rays.shape[0], np.nan)
     true_bias = np.full((rays.shape[0], freqs.size), np.nan)
     effective_footprint = footprint_area(footprint_radius_m, coupling_gain)
-    for index, surface in enumerate(scene.surfaces):
-        pixels = np.flatnonzero(which == index)
-        for start in range(0, pixels.size, PIXEL_BLOCK):
-            block = pixels[start:start + PIXEL_BLOCK]
-            points = rays[block] * d_as[block, None]
-            normals = surface.normal_at(points)
-            normals = np.where((normals * rays[block]).sum(1, keepdims=True) > 0, -normals, normals)
-            cos_i = -(normals * rays[block]).sum(1)
-            gamma_d = s.gamma_r_v2 * surface.albedo * cos_i / d_as[block] ** 2  # eq 12
-            multipath = np.zeros((block.size, freqs.size), dtype=np.complex128)
-            multipath_dc = np.zeros(block.size)
-            kappa = np.zeros(block.size)
-            ratio_r = np.zeros(block.size)
-            for other, (centres, patch_normals, areas) in enumerate(patches):
-                if other == index:
-                    continue  # planar and convex surfaces do not see themselves
-                ratio, r = patch_coupling(points, normals, cos_i, surface.albedo, scene.surfaces[other],
-                                           centres, patch_normals, areas, effective_footprint, patch_spacing_m)
-                wave = path_phasor(1.0, r[:, :, None], freqs[None, None, :], c)  # eq 15: d_AS + r
-                multipath += np.einsum("nm,nmf->nf", ratio, wave)  # eq 13, 15: one term per patch
-                multipath_dc += ratio.sum(1)
-                kappa += ratio.sum(1) / (surface.albedo * scene.surfaces[other].albedo)
-                ratio_r += (ratio * r).sum(1)
-            # Energy: A cannot get back more than all its light through B (kappa <= 1, as in the prior).
-            scale = 1.0 / np.maximum(kappa, 1.0)
-            true_kappa[block] = kappa * scale
-            true_rho_aba[block] = scale * multipath_dc / (surface.albedo * cos_i)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                true_d_ab[block] = np.where(multipath_dc > 0, ratio_r / multipath_dc, np.nan)
-            direct = path_phasor(gamma_d[:, None], d_as[block, None], freqs[None, :], c)  # eq 12, 14
-            both_paths = 1 + scale[:, None] * multipath  # per unit of the direct path
-            true_bias[block] = np.angle(both_paths) * c / (4 * np.pi * freqs)
-            phasor[block] = direct * both_paths
-            dc[block] = gamma_d[:, None] * (1 + scale * multipath_dc)[:, None]
+    for index, surface, block, points, normals, cos_i in surface_hits(scene, rays, d_as, which, PIXEL_BLOCK):
+        gamma_d = s.gamma_r_v2 * surface.albedo * cos_i / d_as[block] ** 2  # eq 12
+        multipath = np.zeros((block.size, freqs.size), dtype=np.complex128)
+        multipath_dc = np.zeros(block.size)
+        kappa = np.zeros(block.size)
+        ratio_r = np.zeros(block.size)
+        for other, (centres, patch_normals, areas) in enumerate(patches):
+            if other == index:
+                continue  # planar and convex surfaces do not see themselves
+            ratio, r = patch_coupling(points, normals, cos_i, surface.albedo, scene.surfaces[other],
+                                       centres, patch_normals, areas, effective_footprint, patch_spacing_m)
+            wave = path_phasor(1.0, r[:, :, None], freqs[None, None, :], c)  # eq 15: d_AS + r
+            multipath += np.einsum("nm,nmf->nf", ratio, wave)  # eq 13, 15: one term per patch
+            multipath_dc += ratio.sum(1)
+            kappa += ratio.sum(1) / (surface.albedo * scene.surfaces[other].albedo)
+            ratio_r += (ratio * r).sum(1)
+        # Energy: A cannot get back more than all its light through B (kappa <= 1, as in the prior).
+        scale = 1.0 / np.maximum(kappa, 1.0)
+        true_kappa[block] = kappa * scale
+        true_rho_aba[block] = scale * multipath_dc / (surface.albedo * cos_i)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            true_d_ab[block] = np.where(multipath_dc > 0, ratio_r / multipath_dc, np.nan)
+        direct = path_phasor(gamma_d[:, None], d_as[block, None], freqs[None, :], c)  # eq 12, 14
+        both_paths = 1 + scale[:, None] * multipath  # per unit of the direct path
+        true_bias[block] = np.angle(both_paths) * c / (4 * np.pi * freqs)
+        phasor[block] = direct * both_paths
+        dc[block] = gamma_d[:, None] * (1 + scale * multipath_dc)[:, None]
     if coupling_out is not None:
         coupling_out.update(coupling=true_kappa, rho_aba=true_rho_aba, d_ab_m=true_d_ab, bias_m=true_bias)
     return phasor, dc
