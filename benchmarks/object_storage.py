@@ -53,6 +53,7 @@ from mpi_lidar.workflows.correct_archive import correct_archive
 
 BUCKET = "benchmark"
 # Outputs that name where they came from or the seconds taken: the only files that may differ from disk's.
+AWS_VARIABLES = ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_DEFAULT_REGION")
 PROVENANCE = ("report.md", "report.html", "metrics.json", MANIFEST_FILE, "corrected.zarr/zarr.json")
 OPERATIONS = ("ListObjectsV2", "HeadObject", "GetObject", "PutObject", "DeleteObjects")
 SHOWN = {"ListObjectsV2": "LIST", "HeadObject": "HEAD", "GetObject": "GET", "PutObject": "PUT",
@@ -153,11 +154,6 @@ def s3_server() -> Iterator[str]:
     server = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     endpoint = f"http://127.0.0.1:{port}"
-    saved = {k: os.environ.get(k) for k in ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY",
-                                            "AWS_DEFAULT_REGION")}
-    os.environ.update(AWS_ENDPOINT_URL=endpoint, AWS_ACCESS_KEY_ID="benchmark", AWS_SECRET_ACCESS_KEY="benchmark",
-                      AWS_DEFAULT_REGION="us-east-1")
-    forget_s3_clients()
     try:
         deadline = time.monotonic() + 30
         while True:
@@ -168,10 +164,24 @@ def s3_server() -> Iterator[str]:
                 if time.monotonic() > deadline or server.poll() is not None:
                     raise RuntimeError("moto's S3 server did not start") from None
                 time.sleep(0.1)
-        yield endpoint
+        with aws_environment(endpoint, "benchmark", "benchmark"):
+            yield endpoint
     finally:
         server.terminate()
         server.wait(timeout=10)
+
+
+@contextmanager
+def aws_environment(endpoint: str, key_id: str, secret: str) -> Iterator[None]:
+    """The standard AWS variables pointing at ``endpoint`` with these keys inside the block (processes started in
+    it inherit them), and put back as they were after it."""
+    saved = {k: os.environ.get(k) for k in AWS_VARIABLES}
+    os.environ.update(AWS_ENDPOINT_URL=endpoint, AWS_ACCESS_KEY_ID=key_id, AWS_SECRET_ACCESS_KEY=secret,
+                      AWS_DEFAULT_REGION="us-east-1")
+    forget_s3_clients()
+    try:
+        yield
+    finally:
         for key, value in saved.items():
             if value is None:
                 os.environ.pop(key, None)

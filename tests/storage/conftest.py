@@ -7,18 +7,16 @@ afterwards), so each module's tests, and the Dask workers they start, reach it a
 from __future__ import annotations
 
 import logging
-import os
 import socket
 from collections.abc import Iterator
 
 import pytest
 
-from benchmarks.object_storage import forget_s3_clients
+from benchmarks.object_storage import aws_environment
 
 SECRET = "p@ss:w/rd+S3cr3t"  # the secret access key: '@', ':' and '/' in it
 KEY_ID = "AKIAMPILIDARTEST"
 BUCKET = "archive"
-AWS_VARIABLES = ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_DEFAULT_REGION")
 
 
 @pytest.fixture(scope="session")
@@ -43,20 +41,11 @@ def s3_server(moto_endpoint: str) -> Iterator[str]:
     from mpi_lidar.locations import location
     from mpi_lidar.storage import objects
 
-    saved = {k: os.environ.get(k) for k in AWS_VARIABLES}
-    os.environ.update(AWS_ENDPOINT_URL=moto_endpoint, AWS_ACCESS_KEY_ID=KEY_ID, AWS_SECRET_ACCESS_KEY=SECRET,
-                      AWS_DEFAULT_REGION="us-east-1")
-    forget_s3_clients()
-    fs = objects.filesystem(location(f"s3://{BUCKET}"))
-    if not fs.exists(BUCKET):
-        fs.mkdir(BUCKET)
-    yield moto_endpoint
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
-    forget_s3_clients()
+    with aws_environment(moto_endpoint, KEY_ID, SECRET):
+        fs = objects.filesystem(location(f"s3://{BUCKET}"))
+        if not fs.exists(BUCKET):
+            fs.mkdir(BUCKET)
+        yield moto_endpoint
 
 
 def versioned_bucket(name: str) -> str:
