@@ -15,10 +15,11 @@ run: $(VENV)/.installed
 # pytest exits 5 when it collected no test: a failure here, said out loud (CI must never pass or fail on nothing).
 NO_TESTS = { rc=$$?; [ $$rc -ne 5 ] || echo "pytest collected no tests (exit 5): check testpaths and markers" >&2; exit $$rc; }
 
-# Two worker processes, each taking whole files (a module's fixtures stay in one process): the integration tests
-# wait on servers, subprocesses and browsers, so two cores run the suite in about three quarters of the time.
+# Two worker processes, each taking whole files (a module's fixtures stay in one process) in collection order, the
+# files with slow tests first (tests/conftest.py): the integration tests wait on servers, subprocesses and
+# browsers, so two cores run the suite in about three quarters of the time.
 test: $(VENV)/.installed system-deps
-	$(VENV)/bin/python -m pytest -n 2 --dist loadfile || $(NO_TESTS)
+	$(VENV)/bin/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder || $(NO_TESTS)
 
 # The unit tests only (every test is marked unit or integration; tests/conftest.py refuses one that is not).
 test-quick: $(VENV)/.installed

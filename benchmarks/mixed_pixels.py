@@ -2,13 +2,16 @@
 
 Run: .venv/bin/python -m benchmarks.mixed_pixels [--model DIR] [--work DIR] [--quick]
 
-The scenes: the issue's three, a sweep of gaps (0.2-10 m) and albedo pairs (0.05-20) with the plate at 2 m, and the
-plate at 1, 5 and 10 m with gaps of 0.2-5 m. Each is a fronto-parallel plate before a fronto-parallel wall, both
-Lambertian, seen on a small scan grid; each pixel's footprint is 4 x 4 sub-rays, each hitting the plate (inside a
-rectangle whose edges fall between pixel centres) or the wall, and the pixel's phasor at each frequency is the sum
-of its sub-rays' (amplitude Gamma_R albedo cos / r^2, phase 4 pi f r / c), through the sensor model with its noise
-(:func:`mpi_lidar.simulation.scenes.scan_from_phasors`). A mixed pixel is one whose sub-rays hit both. The scans are
-corrected with default options (:func:`mpi_lidar.correction.correct_scan`) and the benchmark prints, per scene:
+The scenes: the issue's three, a sweep of gaps (0.2-10 m) and albedo pairs (0.05-20) with the plate at 2 m, the
+plate at 1, 5 and 10 m with gaps of 0.2-5 m, and the plate at 2 and 5 m with its right edge turned 30 or 45 degrees
+from the vertical, or seen with footprints twice the pixels' pitch (two pixels in a row straddle its edge). Each is
+a fronto-parallel plate before a fronto-parallel wall, both Lambertian, seen on a small scan grid; each pixel's
+footprint is 4 x 4 sub-rays per pitch it spans, each hitting the plate (inside a rectangle whose edges fall between
+pixel centres, or that rectangle with its right edge turned) or the wall, and the pixel's phasor at each frequency is
+the sum of its sub-rays' (amplitude Gamma_R albedo cos / r^2, phase 4 pi f r / c), through the sensor model with its
+noise (:func:`mpi_lidar.simulation.scenes.scan_from_phasors`). A mixed pixel is one whose sub-rays hit both. The
+scans are corrected with default options (:func:`mpi_lidar.correction.correct_scan`) and the benchmark prints, per
+scene:
 
 - the mixed pixels, and of them: reported as one valid depth more than 5 cm from both surfaces (the target: at most
   2 %), of those the ones also more than 3 times their own uncertainty (the corrected depth's 1-sigma) from both,
@@ -42,7 +45,7 @@ from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import corner, cornered_board, flat_wall, render, scan_from_phasors
 
-SUB = 4  # sub-rays per pixel side
+SUB = 4  # sub-rays per pixel pitch, along each side of a footprint
 NOISE_SIGMAS = 3.0  # a flying point in units of the noise: this many of its uncertainty from both surfaces
 HEIGHT, WIDTH = 48, 64
 HALF_FOV_RAD = 0.12
@@ -50,16 +53,21 @@ HALF_FOV_RAD = 0.12
 
 @dataclass(frozen=True)
 class PlateScene:
-    """A plate of ``plate_albedo`` at ``plate_m`` before a wall of ``wall_albedo`` at ``wall_m``."""
+    """A plate of ``plate_albedo`` at ``plate_m`` before a wall of ``wall_albedo`` at ``wall_m``; its right edge
+    turned ``edge_deg`` from the vertical, each pixel's footprint ``footprint`` times the pixels' pitch wide."""
 
     plate_m: float
     plate_albedo: float
     wall_m: float
     wall_albedo: float
+    edge_deg: float = 0.0
+    footprint: int = 1
 
     @property
     def label(self) -> str:
-        return f"{self.plate_albedo:g} at {self.plate_m:g} m | {self.wall_albedo:g} at {self.wall_m:g} m"
+        shape = "".join((f", edge {self.edge_deg:g} deg" if self.edge_deg else "",
+                         f", footprint {self.footprint} px" if self.footprint > 1 else ""))
+        return f"{self.plate_albedo:g} at {self.plate_m:g} m{shape} | {self.wall_albedo:g} at {self.wall_m:g} m"
 
 
 ISSUE_SCENES = (PlateScene(1.5, 0.05, 3.0, 1.0), PlateScene(1.5, 0.9, 3.0, 0.3), PlateScene(2.0, 0.1, 9.0, 1.0))
@@ -79,6 +87,16 @@ def range_sweep(quick: bool) -> tuple[PlateScene, ...]:
     return tuple(PlateScene(r, p, r + g, wa) for r in ranges for g in gaps for p, wa in pairs)
 
 
+def edge_sweep(quick: bool) -> tuple[PlateScene, ...]:
+    """Diagonal edges (30 and 45 degrees) and footprints twice the pitch: the plate at 2 and 5 m, gaps of 0.5 and
+    2 m, a dark plate before a bright wall and equal albedos."""
+    shapes = ((45.0, 1), (0.0, 2)) if quick else ((30.0, 1), (45.0, 1), (0.0, 2), (30.0, 2), (45.0, 2))
+    ranges, gaps = ((5.0,), (0.5,)) if quick else ((2.0, 5.0), (0.5, 2.0))
+    pairs = ((0.5, 0.5),) if quick else ((0.05, 1.0), (0.5, 0.5))
+    return tuple(PlateScene(r, p, r + g, wa, edge, footprint) for edge, footprint in shapes for r in ranges
+                 for g in gaps for p, wa in pairs)
+
+
 @dataclass(frozen=True)
 class Truth:
     """Per pixel (H, W): the plate's and the wall's range [m] and the plate's share of the sub-rays [1]."""
@@ -94,13 +112,18 @@ def render_plate(scene: PlateScene, config: Config, rng: np.random.Generator) ->
     az = np.linspace(-HALF_FOV_RAD, HALF_FOV_RAD, WIDTH)
     el = np.linspace(-HALF_FOV_RAD * HEIGHT / WIDTH, HALF_FOV_RAD * HEIGHT / WIDTH, HEIGHT)
     step = az[1] - az[0]
-    offsets = (np.arange(SUB) + 0.5) / SUB - 0.5
-    sub_az = (az[None, :, None, None] + step * offsets[None, None, None, :])  # (1, W, 1, SUB)
-    sub_el = (el[:, None, None, None] + step * offsets[None, None, :, None])  # (H, 1, SUB, 1)
+    sub = SUB * scene.footprint
+    offsets = scene.footprint * ((np.arange(sub) + 0.5) / sub - 0.5)
+    sub_az = (az[None, :, None, None] + step * offsets[None, None, None, :])  # (1, W, 1, sub)
+    sub_el = (el[:, None, None, None] + step * offsets[None, None, :, None])  # (H, 1, sub, 1)
     tan_x, tan_y = np.tan(sub_az), np.tan(sub_el)
-    # The plate: a rectangle in angle whose edges fall between pixel centres, left part of the view.
-    on_plate = (tan_x < np.tan(0.0133)) & (tan_y > np.tan(-0.0571)) & (tan_y < np.tan(0.0493))
-    on_plate = np.broadcast_to(on_plate, (HEIGHT, WIDTH, SUB, SUB))
+    # The plate: a rectangle in angle, left part of the view; its right edge turned about its middle by edge_deg,
+    # and moved half a pitch per pitch the footprint spans beyond one, so that a footprint two pitches wide sees it
+    # in two pixels of a row.
+    edge_rad = 0.0133 + (scene.footprint - 1) * step / 2
+    right = np.tan(edge_rad) + np.tan(np.deg2rad(scene.edge_deg)) * (tan_y - np.tan(-0.0039))
+    on_plate = (tan_x < right) & (tan_y > np.tan(-0.0571)) & (tan_y < np.tan(0.0493))
+    on_plate = np.broadcast_to(on_plate, (HEIGHT, WIDTH, sub, sub))
     cosine = 1.0 / np.sqrt(1.0 + tan_x**2 + tan_y**2)  # incidence on a fronto-parallel plane
     freqs = np.asarray(config.frequencies_hz)
     c = config.sensor.speed_of_light_m_per_s
@@ -109,7 +132,7 @@ def render_plate(scene: PlateScene, config: Config, rng: np.random.Generator) ->
     for name, depth, albedo, where in (("plate", scene.plate_m, scene.plate_albedo, on_plate),
                                        ("wall", scene.wall_m, scene.wall_albedo, ~on_plate)):
         r = depth / cosine
-        amp = np.where(where, config.sensor.gamma_r_v2 * albedo * cosine / r**2, 0.0) / SUB**2
+        amp = np.where(where, config.sensor.gamma_r_v2 * albedo * cosine / r**2, 0.0) / sub**2
         light[name] = amp.sum(axis=(2, 3))
         for k, f in enumerate(freqs):
             phasor[k] += (amp * np.exp(1j * 4 * np.pi * f * r / c)).sum(axis=(2, 3))
@@ -223,7 +246,7 @@ def report(model: CorrectionModel, quick: bool) -> str:
     lines = ["| plate | wall | mixed | single > 5 cm | single > 5 cm, 3 sigma | flagged mixed | resolved | "
              "inconsistent | near error median / max [mm] | far error median / max [mm] | error / CRB | "
              "surface > 5 cm |", "|" + "---|" * 12]
-    for i, scene in enumerate(ISSUE_SCENES + sweep(quick) + range_sweep(quick)):
+    for i, scene in enumerate(ISSUE_SCENES + sweep(quick) + range_sweep(quick) + edge_sweep(quick)):
         r = evaluate(scene, model, config, seed=100 + i)
         share = 100 * r.single_far / max(r.mixed, 1)
         ratio = f"{np.median(r.crb_ratios):.2f}" if r.crb_ratios.size else "-"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 from prefect import task
 from prefect.artifacts import create_markdown_artifact
@@ -38,7 +37,7 @@ def train_task(data: str, out: str, spec: FeatureSpec, params: dict[str, object]
 
 @task(name="publish-card", cache_policy=NO_CACHE)
 def publish_card_task(model_dir: str) -> str:
-    card = read_card(Path(model_dir) / CARD_FILE)
+    card = read_card(f"{model_dir}/{CARD_FILE}")  # a URL's text too: a Path would fold its s3:// to s3:/
     shown = {"feature_set": card.feature_set, "target_mode": card.target_mode, "geometric": card.geometric,
              "num_boost_round": card.num_boost_round, "metrics": card.metrics.model_dump(),
              "training": card.training.model_dump(), "params": card.params}

@@ -31,6 +31,7 @@ from mpi_lidar.config import Config, PriorConfig
 POSTGRES_ADMIN_URL = os.environ.get("MPI_LIDAR_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/postgres")
 
 KINDS = ("unit", "integration")
+FLOWS_DIRECTORY = "tests/flows"  # node ids are relative to the root directory
 
 
 def marker_kind(item: pytest.Item) -> str:
@@ -74,6 +75,34 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     if refused:
         shown = "\n".join(refused[:20]) + (f"\n... and {len(refused) - 20} more" if len(refused) > 20 else "")
         raise pytest.UsageError(f"{len(refused)} test(s) without exactly one of unit/integration:\n{shown}")
+    items[:] = slow_files_first(items)
+
+
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """With ``--dist loadfile`` (``make test``), whole files go to a worker, and tests/flows/ as one: its files
+    share the session's Prefect API server (tests/flows/conftest.py), which a second worker would start again."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedServerFiles(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = super()._split_scope(nodeid)
+            return FLOWS_DIRECTORY if path.startswith(f"{FLOWS_DIRECTORY}/") else path
+
+    return SharedServerFiles(config, log)
+
+
+def slow_files_first(items: list[pytest.Item]) -> list[pytest.Item]:
+    """The items of files holding a ``slow`` test first, each file's items together and in their order.
+
+    ``make test`` hands whole files to two worker processes in collection order (``--no-loadscope-reorder``),
+    the next file to whichever is free: with the long files started first, the short ones fill the gaps at the
+    end instead of one worker finishing a long file while the other waits.
+    """
+    slow_paths = {item.path for item in items if item.get_closest_marker("slow")}
+    return sorted(items, key=lambda item: item.path not in slow_paths)  # stable: the order within each group stays
 
 
 @pytest.fixture

@@ -360,6 +360,7 @@ def test_path_fault__a_path_past_the_limit_is_one_short_line(tmp_path, monkeypat
 # --- flows fail like the command line --------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 @pytest.mark.parametrize(("args", "fragment"), [
     (["nope"], "unknown flow 'nope'"),

@@ -77,6 +77,7 @@ def test_correct_cli__a_refused_batch_shows_no_progress_line(batch, tmp_path):
     assert "correcting scans" not in result.stdout, result.stdout
 
 
+@pytest.mark.slow
 def test_correct_cli__piped_shows_progress_lines_plain_tables_and_a_quiet_stderr(batch, tmp_path):
     result = run_cli("correct", batch / "scans", "--model", batch / "model", "--out", tmp_path / "out",
                      "--allow-unserved", cwd=tmp_path)
@@ -119,6 +120,7 @@ def test_cli__without_debug_asyncio_teardown_errors_stay_off_stderr(tmp_path):
     assert quiet.returncode == 0 and quiet.stderr == ""
 
 
+@pytest.mark.slow
 def test_train_cli__xgboost_says_nothing_on_stderr(tmp_path):
     # Training through xgboost.dask joins its workers; each one's native "Task ... got rank N" line went to stderr.
     (tmp_path / "small.toml").write_text("[dataset]\nsamples = 2000\nchunk_rows = 2000\nseed = 3\n")

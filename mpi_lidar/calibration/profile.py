@@ -45,6 +45,7 @@ from mpi_lidar.correction.options import (
 )
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CARD_FILE, read_card
+from mpi_lidar.locations import location
 from mpi_lidar.safe_files import read_small_text
 from mpi_lidar.scans.scan import SPEED_OF_LIGHT_BOUNDS_M_PER_S
 from mpi_lidar.storage.atomic import atomic_path
@@ -249,7 +250,7 @@ def profile_options(path: str | Path | None, model_dir: str | Path | None = None
     profile = read_profile(path)
     if model_dir is not None:
         try:
-            card = read_card(Path(model_dir) / CARD_FILE)
+            card = read_card(str(location(model_dir) / CARD_FILE))  # a URL stays whole
         except MpiLidarError:
             card = None
         if card is not None:

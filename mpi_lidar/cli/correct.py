@@ -30,10 +30,11 @@ def declared() -> list[click.Parameter]:
 
 @click.command(cls=DeclaredCommand, declared=declared)
 @click.argument("scans", nargs=-1, required=True)
-@click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
+@click.option("--model", "model_dir", required=True, metavar="PATH|URL",
+              help="Model directory, or its object-store URL (s3://bucket/models/m).")
 @click.option("--out", "out_dir", required=True, metavar="PATH|URL",
               help="Output directory, or an object-store URL (s3://bucket/prefix).")
-def correct(scans: tuple[str, ...], model_dir: Path, out_dir: str, **given: object) -> None:
+def correct(scans: tuple[str, ...], model_dir: str, out_dir: str, **given: object) -> None:
     """Correct scans (stores, directories or globs) in batch; one report per scan and a batch summary.
 
     \b

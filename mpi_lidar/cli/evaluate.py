@@ -10,12 +10,13 @@ from mpi_lidar.terminal import Display, print_table
 
 
 @click.command()
-@click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
-@click.option("--model", "model_dir", type=click.Path(path_type=Path), required=True, help="Model directory.")
+@click.option("--data", required=True, metavar="PATH|URL", help="Dataset store (.zarr): a path or an s3:// URL.")
+@click.option("--model", "model_dir", required=True, metavar="PATH|URL",
+              help="Model directory, or its object-store URL (s3://bucket/models/m).")
 @click.option("--out", "--report", "report_dir", type=click.Path(path_type=Path), required=True,
               help="Report directory (--report is the older name).")
 @click.option("--split", type=click.Choice(["test", "train"]), default="test", show_default=True)
-def evaluate(data: Path, model_dir: Path, report_dir: Path, split: str) -> None:
+def evaluate(data: str, model_dir: str, report_dir: Path, split: str) -> None:
     """Evaluate a model on a dataset split: metrics table, error histogram, report files.
 
     \b

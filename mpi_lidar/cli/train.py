@@ -8,19 +8,21 @@ import click
 
 from mpi_lidar.cli._common import cluster_options, feature_spec, model_options
 from mpi_lidar.errors import MpiLidarError
+from mpi_lidar.locations import location
 from mpi_lidar.terminal import Display, plural
 
 
 @click.command()
-@click.option("--data", required=True, help="Dataset store (.zarr): a path or an s3:// URL.")
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="Model directory to create.")
+@click.option("--data", required=True, metavar="PATH|URL", help="Dataset store (.zarr): a path or an s3:// URL.")
+@click.option("--out", required=True, metavar="PATH|URL",
+              help="Model directory to create: a path or an s3:// URL (published whole, never over a model there).")
 @click.option("--params", "params_file", type=click.Path(path_type=Path), help="JSON or TOML file of parameters.")
 @click.option("--study", "study_name", help="Take the best parameters of this Optuna study.")
 @click.option("--storage", help="Optuna storage URL of --study (default: $MPI_LIDAR_STORAGE_URL, else sqlite file "
                                 "beside the dataset).")
 @model_options
 @cluster_options
-def train(data: str, out: Path, params_file: Path | None, study_name: str | None, storage: str | None,
+def train(data: str, out: str, params_file: Path | None, study_name: str | None, storage: str | None,
           feature_set: str | None, target_mode: str | None, geometric: bool | None, workers: int,
           scheduler: str | None) -> None:
     """Train the final XGBoost model through xgboost.dask on the whole train split.
@@ -30,6 +32,7 @@ def train(data: str, out: Path, params_file: Path | None, study_name: str | None
       mpi-lidar train --data runs/d.zarr --out runs/model --study xgboost
     """
     from mpi_lidar.learning import tune as tuning
+    from mpi_lidar.learning.model import staged_model
     from mpi_lidar.learning.train import DEFAULT_ROUNDS, train_and_save
     from mpi_lidar.workflows.cluster import dask_client
 
@@ -44,10 +47,12 @@ def train(data: str, out: Path, params_file: Path | None, study_name: str | None
         geometric = settings.get("geometric", False) if geometric is None else geometric
         params = tuning.best_params(study)
     spec = feature_spec(data, feature_set, target_mode, geometric)
-    with (Display() as display, dask_client(scheduler, workers) as client,
+    # A model in an object store is refused there before the training, and published once trained.
+    with (staged_model(out) as target, Display() as display, dask_client(scheduler, workers) as client,
           display.step(f"training on {data} (early-stopped, up to {DEFAULT_ROUNDS} rounds)")):
-        out_dir, result = train_and_save(client, data, out, spec, params)
-    click.echo(f"model written to {out_dir}: {plural(result.best_iteration + 1, 'tree')}, validation MAE "
+        out_dir, result = train_and_save(client, data, target, spec, params)
+    written = out_dir if location(out).is_local else location(out)
+    click.echo(f"model written to {written}: {plural(result.best_iteration + 1, 'tree')}, validation MAE "
                f"{1e3 * result.validation_mae_m:.3f} mm, {result.fit_rows:,} rows in {result.wall_s:.1f} s")
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from mpi_lidar.cli._common import cluster_options, feature_spec, model_options
@@ -13,9 +11,9 @@ from mpi_lidar.workflows.job_options import Trials, TuneRows
 
 
 @click.command()
-@click.option("--data", type=click.Path(path_type=Path), required=True, help="Dataset store (.zarr).")
+@click.option("--data", required=True, metavar="PATH|URL", help="Dataset store (.zarr): a path or an s3:// URL.")
 @click.option("--storage", help="Optuna storage URL (default: $MPI_LIDAR_STORAGE_URL, else sqlite file optuna.db "
-                                "beside the dataset).")
+                                "beside a dataset on disk; a dataset in a bucket needs one).")
 @click.option("--study", "study_name", default="xgboost", show_default=True, help="Study name in the storage.")
 @click.option("--trials", type=bounded(Trials), default=30, show_default=True,
               help="Finished trials the study should hold; a re-run resumes or extends it.")
@@ -23,7 +21,7 @@ from mpi_lidar.workflows.job_options import Trials, TuneRows
               help="Train rows each trial learns from.")
 @model_options
 @cluster_options
-def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_rows: int, feature_set: str | None,
+def tune(data: str, storage: str | None, study_name: str, trials: int, tune_rows: int, feature_set: str | None,
          target_mode: str | None, geometric: bool | None, workers: int, scheduler: str | None) -> None:
     """Tune XGBoost with Optuna TPE, trials running in parallel on Dask workers.
 
@@ -35,7 +33,7 @@ def tune(data: Path, storage: str | None, study_name: str, trials: int, tune_row
     from mpi_lidar.workflows.cluster import dask_client
 
     storage = tuning.storage_url(storage, data)
-    settings = tuning.TuneSettings(str(data), feature_spec(data, feature_set, target_mode, geometric),
+    settings = tuning.TuneSettings(data, feature_spec(data, feature_set, target_mode, geometric),
                                    tune_rows=tune_rows)
     study = tuning.open_study(storage, study_name, settings)
     todo = max(0, trials - tuning.count(study, *tuning.FINISHED))

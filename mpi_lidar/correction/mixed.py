@@ -23,8 +23,12 @@ grazing surface is the neighbourhood two pixels out: at a depth edge the pixel l
 neighbour's depth close to its own next neighbour's and far from the pixel's, where a surface, however grazing or
 curved, steps by similar amounts from pixel to pixel (:func:`_stepped`; a corner's pixel has one flat side at
 most). Its jumps need ``STEP_SIGMAS`` of the noise, fewer than a lone edge's ``EDGE_SIGMAS``: two flat sides make
-such a step rarer. The amplitude's level tells little here: a mixture's lies between its neighbours' as a grazing
-surface's does.
+such a step rarer. It reads the frequencies' fused depth (about 0.68 of the highest frequency's noise) and each
+side's median across the direction, so that a dark plate's few per cent of the light, which move the depth by a few
+sigmas, and a noisy dark side are seen; a side's flatness must hold beyond its noise, as a grazing surface's noisy
+steps look flat now and then. One side may begin a pixel further out, past a pixel that lies between: two mixed
+pixels in a row, where an edge runs diagonally or the footprint is wider than the pixels' pitch. The amplitude's
+level tells little here: a mixture's lies between its neighbours' as a grazing surface's does.
 
 A clean surface passes the first test but for a share ``MIXED_P_VALUE`` of its pixels, and only those beside a
 jump of several centimetres (a grazing surface's) can be flagged. Where the phasors fit two returns within the
@@ -33,9 +37,10 @@ squares at others), at least ``MIN_GAP_M`` apart with the weaker holding at leas
 pixel is TWO_RETURNS instead: its depth is the stronger return's and the weaker's range and share are kept
 (:class:`SecondReturns`).
 
-The neighbourhood tests read the validity stage's measured depths, which exist whole; the raw measurements are
-read again only for the rows of the tiles that hold a candidate (a pixel beside a jump of ``MIN_EDGE_M``), with
-``MARGIN_ROWS`` rows either side. A scan without such a pixel is left exactly as the gate left it.
+The candidates are found on the validity stage's measured depths, which exist whole; the raw measurements (and
+the fused depth the step test reads) are read again only for the rows of the tiles that hold a candidate (a pixel
+beside a jump of ``MIN_EDGE_M``), with ``MARGIN_ROWS`` rows either side. A scan without such a pixel is left
+exactly as the gate left it.
 """
 
 from __future__ import annotations
@@ -57,7 +62,8 @@ MIXED_P_VALUE = 1e-3  # the frequencies' chi-square p-value below which a pixel 
 AMPLITUDE_P_VALUE = 1e-4
 EDGE_SIGMAS = 10.0  # a depth edge: a neighbour's depth this many noise sigmas away...
 MIN_EDGE_M = 0.05  # ...and this many metres [m]
-FLAT_SHARE = 0.35  # a step's sides are flat: a side's next depth outwards within this share of its jump [1]
+FLAT_SHARE = 0.35  # a step's sides are flat: a side's next depth outwards within this share of its jump [1]...
+FLAT_SIGMAS = 2.0  # ...by this many sigmas of the two depths' noise
 STEP_SIGMAS = 4.0  # ...and its jumps this many noise sigmas: flat sides make a step rarer than a lone jump
 MIN_GAP_M = 2.0  # two returns are resolved only this far apart [m]: nearer, four frequencies cannot tell them
 MIN_SHARE = 0.2  # ...and only where the weaker return holds at least this share of the light
@@ -65,8 +71,14 @@ TWO_RETURN_P_VALUE = 1e-3  # the two-return fit's residual must lie within chi-s
 # The flags a mixed pixel may have had: valid ones, and inconsistent (a depth edge is the better reason).
 CANDIDATE_FLAGS = (Flag.CORRECTED, Flag.NOT_NEEDED, Flag.NO_MULTIPATH, Flag.UNCALIBRATED, Flag.OUT_OF_RANGE,
                    Flag.INCONSISTENT)
-MARGIN_ROWS = 2  # rows read either side of a tile: a step's flat sides reach two pixels out
 NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx)
+# A step's directions, each with the one across it along which a side's three depths are taken.
+ACROSS = {(0, 1): (1, 0), (1, 0): (0, 1), (1, 1): (1, -1), (1, -1): (1, 1)}
+# The median of three alike depths' sd over one's [1] (where they slope across, the middle one's: its noise is
+# understated, and the tests' margins with it).
+ACROSS_SIGMA_SHARE = 0.67
+STEP_REACH = 4  # a step's sides reach three pixels out along a diagonal and one across it
+MARGIN_ROWS = STEP_REACH  # rows read either side of a tile
 
 
 @dataclass(frozen=True)
@@ -189,38 +201,73 @@ def _between(depth: NDArray, sigma: NDArray) -> NDArray[np.bool_]:
 
 
 def _stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDArray[np.bool_]:
-    """Pixels (h, W) at a step: their depth lies between two opposite neighbours' (left and right, above and
-    below, or diagonally), more than ``MIN_EDGE_M`` and ``STEP_SIGMAS`` of the noise from each, while each of those
-    neighbours lies on a flat side, its own next neighbour outwards less than ``FLAT_SHARE`` of its jump to the
-    pixel away. A surface, however grazing or curved, changes its depth by similar steps from pixel to pixel; a
-    footprint on both sides of a depth edge jumps twice between two runs of nearly equal depth, wherever its
-    depth falls between them (the mean of two equally bright returns included, which :func:`_between` misses).
-    ``depth`` (h, W) [m] and ``sigma`` (h, W) [m]; only the pixels ``where`` (h, W) is true are looked at (None:
-    all), so that a band's few candidates cost what they are; pixels within two of the band's border are never
-    found."""
+    """Pixels (h, W) at a step: their depth lies between two opposite sides (left and right, above and below, or
+    diagonally), more than ``MIN_EDGE_M`` and ``STEP_SIGMAS`` of the noise from each, while each side is flat
+    (:func:`_flat_side`). A surface, however grazing or curved, changes its depth by similar steps from pixel to
+    pixel; a footprint on both sides of a depth edge jumps twice between two runs of nearly equal depth, wherever
+    its depth falls between them (the mean of two equally bright returns included, which :func:`_between` misses).
+
+    A side's depth at each distance is the median of the three pixels across the direction (:func:`_across`):
+    two thirds of one pixel's noise along a straight edge, and one pixel of the other side, where the edge runs
+    diagonally, does not move it. One side may begin a pixel further out where the pixel between lies between
+    the two: two mixed pixels in a row, where the edge runs diagonally or the footprint is wider than the pixels'
+    pitch. ``depth`` (h, W) [m] and ``sigma`` (h, W) [m]; only the pixels ``where`` (h, W) is true are looked at
+    (None: all), so that a band's few candidates cost what they are; pixels within ``STEP_REACH`` of the band's
+    border are never found."""
     h, w = depth.shape
     ys, xs = np.nonzero(np.ones((h, w), bool) if where is None else where)
-    padded = np.full((h + 4, w + 4), np.nan, dtype=np.float32)
-    padded[2:-2, 2:-2] = depth
-    noisy = np.zeros((h + 4, w + 4), dtype=np.float32)
-    noisy[2:-2, 2:-2] = sigma
-    own, own_sigma = padded[ys + 2, xs + 2], noisy[ys + 2, xs + 2]
+    reach = STEP_REACH
+    padded = np.full((h + 2 * reach, w + 2 * reach), np.nan, dtype=np.float32)
+    padded[reach:-reach, reach:-reach] = depth
+    noisy = np.zeros((h + 2 * reach, w + 2 * reach), dtype=np.float32)
+    noisy[reach:-reach, reach:-reach] = sigma
+    ys, xs = ys + reach, xs + reach
+    own, own_sigma = padded[ys, xs], noisy[ys, xs]
     found = np.zeros(ys.size, bool)
     with np.errstate(invalid="ignore"):
-        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            jumps, flat = [], np.ones(ys.size, bool)
+        for (dy, dx), across in ACROSS.items():
+            sides = {}
             for sign in (1, -1):
-                near = padded[ys + 2 + sign * dy, xs + 2 + sign * dx]
-                outer = padded[ys + 2 + 2 * sign * dy, xs + 2 + 2 * sign * dx]
-                jump = near - own
-                margin = np.maximum(MIN_EDGE_M, STEP_SIGMAS * np.hypot(own_sigma,
-                                                                       noisy[ys + 2 + sign * dy, xs + 2 + sign * dx]))
-                flat &= (np.abs(jump) > margin) & (np.abs(outer - near) < FLAT_SHARE * np.abs(jump))
-                jumps.append(jump)
-            found |= flat & (jumps[0] * jumps[1] < 0)
+                at = [(ys + k * sign * dy, xs + k * sign * dx) for k in (1, 2, 3)]  # outwards
+                line = [_across(padded, y, x, across) for y, x in at]
+                for gap in (1, 2):  # the side begins at the neighbour, or at the pixel beyond it
+                    sides[sign, gap] = _flat_side(own, own_sigma, line, padded[at[0]], [noisy[a] for a in at], gap)
+            for first, second in ((1, 1), (1, 2), (2, 1)):  # at most one pixel between the pixel and a side
+                (one, one_jump), (other, other_jump) = sides[1, first], sides[-1, second]
+                found |= one & other & (one_jump * other_jump < 0)
     out = np.zeros((h, w), bool)
-    out[ys[found], xs[found]] = True
+    out[ys[found] - reach, xs[found] - reach] = True
     return out
+
+
+def _flat_side(own: NDArray, own_sigma: NDArray, line: list[NDArray], between: NDArray, line_sigma: list[NDArray],
+               gap: int) -> tuple[NDArray[np.bool_], NDArray]:
+    """Whether the side ``gap`` pixels out (1 or 2) of pixels of depth ``own`` (k,) [m] and noise ``own_sigma``
+    (k,) [m] is a flat side of a step, and the jump to it (k,) [m]. ``line`` holds the side's depths (k,) [m] one,
+    two and three pixels out (medians across), ``line_sigma`` a pixel's noise there [m], ``between`` the depth
+    one pixel out (k,) [m]. The side's depth lies ``MIN_EDGE_M`` and ``STEP_SIGMAS`` of the noise from the pixel's;
+    its next depth outwards lies within ``FLAT_SHARE`` of the jump per pixel, by ``FLAT_SIGMAS`` of the two
+    depths' noise (a grazing surface's noisy steps look flat now and then: not beyond their noise); a side two out
+    has the pixel between lying between it and the pixel, within ``STEP_SIGMAS`` of their noise."""
+    near, outer = line[gap - 1], line[gap]
+    near_sigma, outer_sigma = (ACROSS_SIGMA_SHARE * line_sigma[k] for k in (gap - 1, gap))
+    jump = near - own
+    margin = np.maximum(MIN_EDGE_M, STEP_SIGMAS * np.hypot(own_sigma, near_sigma))
+    flat = np.abs(outer - near) + FLAT_SIGMAS * np.hypot(near_sigma, outer_sigma) < FLAT_SHARE * np.abs(jump) / gap
+    side = (np.abs(jump) > margin) & flat
+    if gap == 2:  # the pixel between lies between the pixel and the side, as a second mixed pixel does
+        slack = STEP_SIGMAS * np.hypot(own_sigma, line_sigma[0])
+        side &= (np.sign(jump) * (between - own) > -slack) & (np.sign(jump) * (near - between) > -slack)
+    return side, jump
+
+
+def _across(padded: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], across: tuple[int, int]) -> NDArray:
+    """The median (k,) of the three depths at (``ys``, ``xs``) and one pixel either way ``across`` in ``padded``;
+    the middle one's where any of the three is not finite."""
+    dy, dx = across
+    three = np.sort(np.stack([padded[ys - dy, xs - dx], padded[ys, xs], padded[ys + dy, xs + dx]]), axis=0)
+    middle = padded[ys, xs]
+    return np.where(np.isfinite(three).all(axis=0), three[1], middle)
 
 
 def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
@@ -241,10 +288,14 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
     amplitude = raw[:, f:].reshape(*depth.shape, f)
     amplitude_chi2 = np.zeros(depth.shape)
     amplitude_chi2[ys, xs] = amplitude_spread(amplitude[ys, xs], frequency_gains(amplitude, ys, xs), noise)
+    # The step test reads the frequencies' fused depth, about 0.68 of the highest frequency's noise: the jumps it
+    # looks for are a few sigmas. The lone-edge tests keep the highest frequency's depth their margins were set on.
+    fused_depth = np.where(np.isfinite(depth), fused.depth_m.reshape(depth.shape), np.nan)
+    stepped = _stepped(fused_depth, fused.sigma_m.reshape(depth.shape), candidates)
     with np.errstate(invalid="ignore"):
         edge = np.nan_to_num(_jumps(depth, sigma), nan=0.0).max(axis=0) > MIN_EDGE_M
         disagree = (chi2 > chdtri(f - 1, MIXED_P_VALUE)) | (amplitude_chi2 > chdtri(f - 1, AMPLITUDE_P_VALUE))
-    return np.asarray(candidates & ((edge & disagree) | _between(depth, sigma) | _stepped(depth, sigma, candidates)))
+    return np.asarray(candidates & ((edge & disagree) | _between(depth, sigma) | stepped))
 
 
 def frequency_gains(amplitude: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> NDArray[np.float64]:

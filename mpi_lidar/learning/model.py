@@ -3,17 +3,22 @@
 The card says what the model expects and how it was made: frequencies, raw and model feature names in
 order, feature set and target mode, the dataset it learned from, its parameters, metrics and package
 versions. In code it is a :class:`ModelCard`; on disk the same keys as a JSON object. Loading validates
-the card and checks it against the model file; correction checks it against the data.
+the card and checks it against the model file; correction checks it against the data. A model directory
+may be an object-store URL (``s3://bucket/models/m``): published by its card, written last
+(:func:`staged_model`), and read whole into memory, never through a local copy.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from tempfile import TemporaryDirectory
+from typing import TYPE_CHECKING, Annotated, Literal, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,6 +29,8 @@ from mpi_lidar.config import Config, config_sha256, describe_validation_error, j
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSet, FeatureSpec, TargetMode
 from mpi_lidar.learning.xgboost_import import import_xgboost
+from mpi_lidar.locations import Location, location
+from mpi_lidar.storage import objects
 from mpi_lidar.storage.atomic import atomic_path
 
 if TYPE_CHECKING:
@@ -33,6 +40,9 @@ if TYPE_CHECKING:
 MODEL_SCHEMA = "mpi-lidar/model@1"
 MODEL_FILE = "model.ubj"
 CARD_FILE = "card.json"
+# Read from an object store whole, in memory: anything larger is not one of ours.
+MAX_CARD_BYTES = 2**20
+MAX_MODEL_BYTES = 2**30
 
 
 def package_versions() -> dict[str, str]:
@@ -240,25 +250,39 @@ class ModelCard(_Part):
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
 
 
-def read_card(card_path: Path) -> ModelCard:
-    """The validated card in ``card_path``; :class:`MpiLidarError` (one line naming the file) if it is not one."""
+def read_card(card_path: str | Path) -> ModelCard:
+    """The validated card in ``card_path`` (a path, or an object-store URL); :class:`MpiLidarError` (one line
+    naming the file) if it is not one."""
+    where = location(card_path)
+    if not where.is_local:
+        found = objects.read_bytes(where, MAX_CARD_BYTES)
+        if found is None:
+            raise MpiLidarError(f"{where} cannot be read: it does not exist")
+        return card_from_bytes(found, str(where))
     try:
-        text = card_path.read_text()
-        found = json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise MpiLidarError(f"{card_path} is not valid JSON ({exc}); the model directory is damaged") from None
+        data = where.local_path().read_bytes()
     except OSError as exc:
         raise MpiLidarError(f"{card_path} cannot be read: {exc.strerror or exc}") from None
+    return card_from_bytes(data, str(card_path))
+
+
+def card_from_bytes(data: bytes, name: str) -> ModelCard:
+    """The validated card of ``card.json``'s bytes, read from ``name`` (for messages)."""
+    try:
+        text = data.decode()
+        found = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise MpiLidarError(f"{name} is not valid JSON ({exc}); the model directory is damaged") from None
     if not isinstance(found, dict):
-        raise MpiLidarError(f"{card_path} holds a JSON {json_kind(found)}, not an object; the model directory "
+        raise MpiLidarError(f"{name} holds a JSON {json_kind(found)}, not an object; the model directory "
                             "is damaged")
     if found.get("schema") != MODEL_SCHEMA:
-        raise MpiLidarError(f"{card_path} has schema {found.get('schema')!r}, expected {MODEL_SCHEMA!r}")
+        raise MpiLidarError(f"{name} has schema {found.get('schema')!r}, expected {MODEL_SCHEMA!r}")
     try:
         return ModelCard.model_validate_json(text, strict=True)
     except ValidationError as exc:
         problems = describe_validation_error(exc, "the card", shown=3, keys=True)
-        raise MpiLidarError(f"{card_path} is not a valid model card: {problems}; the model directory is damaged or "
+        raise MpiLidarError(f"{name} is not a valid model card: {problems}; the model directory is damaged or "
                             "from another mpi-lidar version") from None
 
 
@@ -334,14 +358,32 @@ def _mhz(frequencies_hz: tuple[float, ...] | list[float]) -> str:
     return ", ".join(f"{f / 1e6:g}" for f in frequencies_hz) + " MHz"
 
 
-def save_model(out_dir: str | Path, booster: xgb.Booster, card: ModelCard) -> Path:
-    """Write model.ubj and card.json into a new directory, atomically (built beside it, then renamed).
+@overload
+def save_model(out_dir: Path, booster: xgb.Booster, card: ModelCard) -> Path: ...
+
+
+@overload
+def save_model(out_dir: str | Path, booster: xgb.Booster, card: ModelCard) -> str | Path: ...
+
+
+def save_model(out_dir: str | Path, booster: xgb.Booster, card: ModelCard) -> str | Path:
+    """Write model.ubj and card.json into a new directory (a path, or an object-store URL), whole or not at all.
 
     The saved booster carries the card's feature names (predictions are unchanged); the card written records
     the SHA-256 of the model file and this environment's package versions. An existing directory is never
-    overwritten: choose a new ``out_dir`` or remove the old one.
+    overwritten: choose a new ``out_dir`` or remove the old one. On a local file system the directory is built
+    beside ``out_dir`` and renamed; in an object store it is built locally and published there
+    (:func:`staged_model`).
     """
-    out_dir = Path(out_dir)
+    where = location(out_dir)
+    if where.is_local:
+        return _save_local(where.local_path(), booster, card)
+    with staged_model(where.url) as staging:
+        _save_local(staging, booster, card)
+    return where.url
+
+
+def _save_local(out_dir: Path, booster: xgb.Booster, card: ModelCard) -> Path:
     if booster.num_features() != len(card.feature_names):
         raise MpiLidarError(f"the booster has {booster.num_features()} inputs but its card lists "
                             f"{len(card.feature_names)} features; not saving {out_dir}")
@@ -356,13 +398,49 @@ def save_model(out_dir: str | Path, booster: xgb.Booster, card: ModelCard) -> Pa
     return out_dir
 
 
+@contextmanager
+def staged_model(out_dir: str | Path) -> Iterator[Path]:
+    """The local directory to write a model into that is to end at ``out_dir``.
+
+    A local ``out_dir`` is given back as it is (:func:`save_model` publishes it by a rename). For an
+    object-store URL, a model already there is refused before the block runs (so before a training), the
+    block writes a new local directory, and when it ends without error that directory is published at
+    ``out_dir``: ``model.ubj`` first, then ``card.json`` by a conditional create. A reader needs the card, so
+    it sees the model whole or not at all, and of two trainings publishing at once only one succeeds. A
+    ``model.ubj`` without its card (a publication killed midway) is no model and is written over.
+    """
+    where = location(out_dir)
+    if where.is_local:
+        yield where.local_path()
+        return
+    objects.check_writable(where)
+    refuse_existing_model(where)
+    with TemporaryDirectory(prefix="mpi-lidar-model-") as temporary:
+        staging = Path(temporary) / "model"
+        yield staging
+        if not (staging / CARD_FILE).is_file():
+            raise MpiLidarError(f"no model was written for {where}; nothing published")
+        objects.publish_whole(staging, where, CARD_FILE)
+
+
+def refuse_existing_model(where: Location) -> None:
+    """Refuse an object-store location that holds anything but an unpublished ``model.ubj`` (one listing)."""
+    there = objects.list_files(where)
+    if set(there) - {MODEL_FILE}:
+        raise MpiLidarError(f"model directory {where} already exists; choose another --out or remove it")
+
+
 # The first geometric input of models trained before the equivalent rho_ABA replaced it.
 EARLIER_GEOMETRIC_NAME = "geometric_coupling"
 
 
 def load_model(model_dir: str | Path) -> CorrectionModel:
-    """Load a model directory after checking its card: keys and types, schema, file hash and features."""
-    model_dir = Path(model_dir)
+    """Load a model directory (a path, or an object-store URL) after checking its card: keys and types,
+    schema, file hash and features. Only XGBoost's own format is read, never a pickle."""
+    where = location(model_dir)
+    if not where.is_local:
+        return _load_from_store(where)
+    model_dir = where.local_path()
     card_path, model_path = model_dir / CARD_FILE, model_dir / MODEL_FILE
     if not card_path.is_file() or not model_path.is_file():
         raise MpiLidarError(f"{model_dir} is not a model directory (needs {MODEL_FILE} and {CARD_FILE}); "
@@ -370,17 +448,42 @@ def load_model(model_dir: str | Path) -> CorrectionModel:
     card = read_card(card_path)
     if card.model_sha256 != file_sha256(model_path):
         raise MpiLidarError(f"{model_path} does not match the hash in its card; the model directory is damaged")
+    return _checked_model(_booster(str(model_path), str(model_path)), card, str(model_dir), str(card_path))
+
+
+def _load_from_store(where: Location) -> CorrectionModel:
+    """:func:`load_model` of a URL: the card (which publishes the model), then the model file, each read whole
+    once."""
+    card_at, model_at = where.joinpath(CARD_FILE), where.joinpath(MODEL_FILE)
+    card_bytes = objects.read_bytes(card_at, MAX_CARD_BYTES)
+    model_bytes = objects.read_bytes(model_at, MAX_MODEL_BYTES) if card_bytes is not None else None
+    if card_bytes is None or model_bytes is None:
+        raise MpiLidarError(f"{where} is not a published model directory (needs {MODEL_FILE} and {CARD_FILE}); "
+                            "train one there with 'mpi-lidar train --out'")
+    card = card_from_bytes(card_bytes, str(card_at))
+    if card.model_sha256 != hashlib.sha256(model_bytes).hexdigest():
+        raise MpiLidarError(f"{model_at} does not match the hash in its card; the model directory is damaged")
+    return _checked_model(_booster(bytearray(model_bytes), str(model_at)), card, str(where), str(card_at))
+
+
+def _booster(source: str | bytearray, name: str) -> xgb.Booster:
+    """A booster from a UBJSON file's path or bytes; one line naming ``name`` where it is not one."""
     import_xgboost()  # without scikit-learn: a one-scan correction's start-up
     import xgboost as xgb
 
     booster = xgb.Booster()
     try:
-        booster.load_model(str(model_path))
+        booster.load_model(source)
     except xgb.core.XGBoostError as exc:
-        raise MpiLidarError(f"{model_path} is not a readable XGBoost model: {str(exc).splitlines()[0]}") from None
+        raise MpiLidarError(f"{name} is not a readable XGBoost model: {str(exc).splitlines()[0]}") from None
     except UnicodeDecodeError:  # XGBoost echoes the file's first bytes; a pickle's are not UTF-8
-        raise MpiLidarError(f"{model_path} is not a readable XGBoost model (not UBJSON; a pickle is never "
+        raise MpiLidarError(f"{name} is not a readable XGBoost model (not UBJSON; a pickle is never "
                             "loaded)") from None
+    return booster
+
+
+def _checked_model(booster: xgb.Booster, card: ModelCard, model_dir: str, card_name: str) -> CorrectionModel:
+    """The model, once its card's features match the booster's inputs and the feature set's."""
     names = list(card.feature_names)
     if EARLIER_GEOMETRIC_NAME in names:
         raise MpiLidarError(f"{model_dir} takes the earlier geometric input {EARLIER_GEOMETRIC_NAME!r} (the coupling "
@@ -390,6 +493,6 @@ def load_model(model_dir: str | Path) -> CorrectionModel:
     spec = card.spec
     if (booster.num_features() != len(names) or names != spec.names or list(card.raw_feature_names) != spec.raw_names
             or (booster_names is not None and list(booster_names) != names)):
-        raise MpiLidarError(f"{card_path} lists features {names} that do not match its model "
+        raise MpiLidarError(f"{card_name} lists features {names} that do not match its model "
                             f"({booster.num_features()} inputs) or its feature set {card.feature_set!r}")
     return CorrectionModel(booster=booster, card=card)

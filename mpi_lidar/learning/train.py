@@ -16,7 +16,7 @@ import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,7 +36,9 @@ from mpi_lidar.learning.model import (
     booster_sha256,
     package_versions,
     save_model,
+    staged_model,
 )
+from mpi_lidar.locations import location
 from mpi_lidar.simulation import dataset
 
 if TYPE_CHECKING:
@@ -310,16 +312,31 @@ def dataset_card(info: dataset.DatasetInfo) -> DatasetCard:
     return DatasetCard.from_config(info.config, path=info.path, sha256=info.config_sha256, samples=info.samples)
 
 
+@overload
+def train_and_save(client: Client, data_path: str | Path, out_dir: Path, spec: FeatureSpec,
+                   params: dict[str, object] | None = None, **train_options: int) -> tuple[Path, TrainResult]: ...
+
+
+@overload
+def train_and_save(client: Client, data_path: str | Path, out_dir: str | Path, spec: FeatureSpec,
+                   params: dict[str, object] | None = None, **train_options: int) -> tuple[str | Path, TrainResult]: ...
+
+
 def train_and_save(
     client: Client, data_path: str | Path, out_dir: str | Path, spec: FeatureSpec,
     params: dict[str, object] | None = None, **train_options: int,
-) -> tuple[Path, TrainResult]:
-    """Train on the cluster and write the model directory (the booster trimmed to its best iteration)."""
-    out_dir = Path(out_dir)
-    if out_dir.exists():
-        raise MpiLidarError(f"model directory {out_dir} already exists; choose another --out or remove it")
-    params = dict(params or DEFAULT_PARAMS)
-    result = train_dask(client, data_path, spec, params, **train_options)
-    card = model_card(spec, dataset_card(dataset.dataset_info(data_path)), params, result,
-                      len(client.scheduler_info()["workers"]))
-    return save_model(out_dir, result.booster, card), result
+) -> tuple[str | Path, TrainResult]:
+    """Train on the cluster and write the model directory (the booster trimmed to its best iteration): a path,
+    or an object-store URL, where a model already there is refused before the training and the new one is
+    published whole once trained (:func:`~mpi_lidar.learning.model.staged_model`). Gives back ``out_dir``
+    (a URL as its text) and the training's result."""
+    with staged_model(out_dir) as target:
+        if target.exists():
+            raise MpiLidarError(f"model directory {out_dir} already exists; choose another --out or remove it")
+        params = dict(params or DEFAULT_PARAMS)
+        result = train_dask(client, data_path, spec, params, **train_options)
+        card = model_card(spec, dataset_card(dataset.dataset_info(data_path)), params, result,
+                          len(client.scheduler_info()["workers"]))
+        written = save_model(target, result.booster, card)
+    where = location(out_dir)
+    return (written if where.is_local else where.url), result

@@ -32,7 +32,7 @@ from sqlalchemy.engine import make_url
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.train import check_dataset_matches, training_geometry, xgb_params
-from mpi_lidar.locations import driver_url
+from mpi_lidar.locations import driver_url, location
 from mpi_lidar.redact import MASK, SECRET_KEYS, redact
 from mpi_lidar.simulation import dataset
 
@@ -295,5 +295,12 @@ def storage_url(url: str | None, data_path: str | Path) -> str:
 
 
 def default_storage(data_path: str | Path) -> str:
-    """SQLite file beside the dataset: the embedded default."""
-    return f"sqlite:///{Path(data_path).resolve().parent / 'optuna.db'}"
+    """SQLite file beside the dataset: the embedded default. A dataset in an object store has no folder to put
+    it in, and the Dask workers that run the trials (on machines without a shared disk) could not all reach a
+    file on this one: refused, asking for a storage URL."""
+    where = location(data_path)
+    if not where.is_local:
+        raise MpiLidarError(f"the dataset {where} is in an object store, so the Optuna study cannot be kept in a "
+                            f"SQLite file beside it; give its storage with --storage or ${STORAGE_URL_VARIABLE} "
+                            "(postgresql://user@db-host/optuna, which every worker reaches)")
+    return f"sqlite:///{where.local_path().resolve().parent / 'optuna.db'}"

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -23,7 +24,7 @@ from matplotlib.transforms import ScaledTranslation
 
 from mpi_lidar.correction import Correction, Flag, UnservedReason
 from mpi_lidar.reporting.metrics import amplitude_v2, applied_correction_mm, measured_depth
-from mpi_lidar.reporting.thumbnail import FLAG_COLOURS
+from mpi_lidar.reporting.thumbnail import FLAG_COLOURS, azimuth_rises
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.storage.atomic import atomic_path
 
@@ -32,19 +33,38 @@ PLOTLY_JS = "plotly.min.js"
 VIEW_3D_FALLBACK = "interactive 3-D view: open report.html"
 
 
-def grid_axes(scan: Scan) -> tuple[tuple[float, float, float, float] | None, str, str]:
-    """``extent`` of ``imshow`` and the axis labels of a map of the scan grid: azimuth and elevation [deg]
-    where the scan has an azimuth/elevation grid, pixel indices otherwise (extent None)."""
+class MapAxes(NamedTuple):
+    """How a map of the scan grid is drawn: the ``extent`` of ``imshow`` (None: pixel indices), the axis labels, and
+    whether the x axis runs from high to low values (``reversed_x``)."""
+
+    extent: tuple[float, float, float, float] | None
+    xlabel: str
+    ylabel: str
+    reversed_x: bool
+
+
+PIXEL_COLUMNS = "column [pixel]"
+PIXEL_COLUMNS_ORIENTED = "column [pixel] (azimuth grows leftwards)"
+
+
+def grid_axes(scan: Scan) -> MapAxes:
+    """The axes of a map of the scan grid: azimuth and elevation [deg] where the scan has an azimuth/elevation grid,
+    pixel indices otherwise (extent None). Either way the larger azimuth is on the left (the scanner's left, seen
+    from behind it, as the thumbnail shows it): an axis in degrees runs high to low, and so does one of pixel
+    columns where the azimuth grows along the columns (a scan given as ray directions alone). A scan without any
+    geometry keeps its columns left to right, as nothing says which way it runs."""
     h, w = scan.shape
     az, el = scan.azimuth_rad, scan.elevation_rad
     if az is None or el is None or np.size(az) != w or np.size(el) != h:
-        return None, "column [pixel]", "row [pixel]"
+        rises = azimuth_rises(scan)
+        columns = PIXEL_COLUMNS_ORIENTED if rises or scan.has_geometry else PIXEL_COLUMNS
+        return MapAxes(None, columns, "row [pixel]", rises)
     az, el = np.degrees(np.asarray(az, dtype=np.float64)), np.degrees(np.asarray(el, dtype=np.float64))
     half_az = 0.5 * (az[-1] - az[0]) / (w - 1) if w > 1 else 0.05
     half_el = 0.5 * (el[-1] - el[0]) / (h - 1) if h > 1 else 0.05
     # imshow draws row 0 at the top: the top edge is the first row's elevation.
     extent = (float(az[0] - half_az), float(az[-1] + half_az), float(el[-1] + half_el), float(el[0] - half_el))
-    return extent, "azimuth [deg]", "elevation [deg]"
+    return MapAxes(extent, "azimuth [deg]", "elevation [deg]", True)
 
 
 MAPS_PAGE_IN = 9.6  # width of maps.png [in]: the report page's (about 1150 pixels at 120 dpi)
@@ -88,7 +108,7 @@ def map_layout(aspect: float, panels: int, page_in: float = MAPS_PAGE_IN) -> Map
 def map_aspect(scan: Scan) -> float:
     """A map's height over its width as drawn: to scale in degrees where the scan has that grid, else square
     pixels."""
-    extent = grid_axes(scan)[0]
+    extent = grid_axes(scan).extent
     h, w = scan.shape
     if extent is None:
         return h / max(w, 1)
@@ -116,7 +136,8 @@ def maps_figure(scan: Scan, correction: Correction) -> Figure:
     (corrected minus raw depth, where corrected), the geometry gate's expected multipath bias and the flags;
     with one, the error maps come before the bias. Axes in degrees of azimuth and elevation where the scan has
     that grid (to scale, the scanner's left on the left: azimuth grows leftwards, as the scan frame has it seen
-    from behind the scanner), pixel indices otherwise. The figure is sized by the maps' shape
+    from behind the scanner), pixel indices otherwise, the same way round where the scan's geometry says which
+    way its azimuth runs (:func:`grid_axes`). The figure is sized by the maps' shape
     (:func:`map_layout`): a wide scan's maps run the page's width with their colour bars under them.
     """
     grid = grid_axes(scan)
@@ -134,7 +155,7 @@ def maps_figure(scan: Scan, correction: Correction) -> Figure:
     return fig
 
 
-MapPanel = Callable[[Axes, tuple[tuple[float, float, float, float] | None, str, str], bool], None]
+MapPanel = Callable[[Axes, MapAxes, bool], None]
 
 
 def _map_panels(scan: Scan, correction: Correction) -> list[MapPanel]:
@@ -196,19 +217,19 @@ def _words(ax: Axes, grid: object = None, wide: bool = False, *, text: str) -> N
     ax.set_axis_off()
 
 
-def _axes_of_map(ax: Axes, title: str, grid: tuple[tuple[float, float, float, float] | None, str, str]) -> None:
+def _axes_of_map(ax: Axes, title: str, grid: MapAxes) -> None:
     ax.set_title(title, fontsize="medium")
-    ax.set_xlabel(grid[1])
-    ax.set_ylabel(grid[2])
-    if grid[0] is not None:  # azimuth grows to the scanner's left: larger azimuths on the left, as seen from it
+    ax.set_xlabel(grid.xlabel)
+    ax.set_ylabel(grid.ylabel)
+    if grid.reversed_x:  # azimuth grows to the scanner's left: larger azimuths on the left, as seen from it
         low, high = sorted(ax.get_xlim())
         ax.set_xlim(high, low)
 
 
-def _image(ax: Axes, grid: tuple[tuple[float, float, float, float] | None, str, str], wide: bool, *,
-           values: np.ndarray, title: str, cmap: str, limits: tuple[float, float] | None) -> None:
+def _image(ax: Axes, grid: MapAxes, wide: bool, *, values: np.ndarray, title: str, cmap: str,
+           limits: tuple[float, float] | None) -> None:
     shown = ax.imshow(values, cmap=cmap, vmin=None if limits is None else limits[0],
-                      vmax=None if limits is None else limits[1], interpolation="nearest", extent=grid[0])
+                      vmax=None if limits is None else limits[1], interpolation="nearest", extent=grid.extent)
     if wide:  # a bar under the map, as wide as the map: a few ticks, their labels clear of each other
         bar = ax.figure.colorbar(shown, ax=ax, location="bottom", aspect=30, pad=0.02)
         bar.ax.xaxis.set_major_locator(MaxNLocator(5))
@@ -217,11 +238,10 @@ def _image(ax: Axes, grid: tuple[tuple[float, float, float, float] | None, str, 
     _axes_of_map(ax, title, grid)
 
 
-def _flag_map(ax: Axes, grid: tuple[tuple[float, float, float, float] | None, str, str], wide: bool, *,
-              flags: np.ndarray) -> None:
+def _flag_map(ax: Axes, grid: MapAxes, wide: bool, *, flags: np.ndarray) -> None:
     """The flags in the registry's colours, a key of the flags the scan has (under a wide map, beside others)."""
     ax.imshow(flags, cmap=ListedColormap(FLAG_COLOURS), vmin=-0.5, vmax=len(Flag) - 0.5, interpolation="nearest",
-              extent=grid[0])
+              extent=grid.extent)
     present = [flag for flag in Flag if (flags == flag).any()]
     handles = [Patch(facecolor=FLAG_COLOURS[flag], edgecolor="black", linewidth=0.5,
                      label=flag.name.lower().replace("_", " ")) for flag in present]

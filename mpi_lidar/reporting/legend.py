@@ -76,10 +76,11 @@ FLAG_LEGEND: dict[Flag, FlagLegend] = {
                                       "(24.0 m for 12.5-31.25 MHz): the surface lies past it; checked where the "
                                       "amplitudes' unit is trusted", "NaN", "#6c3483"),
     Flag.MIXED: FlagLegend("X", "invalid: mixed pixel at a depth edge (two surfaces)",
-                           "the frequencies disagree beyond chi-square's 1 - 1e-3 quantile under the scan's noise law "
-                           "and a neighbour within one pixel lies more than 10 sigma and 5 cm nearer or farther: the "
-                           "footprint straddles a depth edge, and its one depth lies between the surfaces (a flying "
-                           "pixel); no two-return fit the data support", "NaN", "#48dbfb"),
+                           "the footprint straddles a depth edge: beside a jump of more than 5 cm, the frequencies' "
+                           "depths or their amplitudes disagree beyond their noise, or the depth lies off the line "
+                           "through two opposite neighbours, or between two flat sides (one or two pixels in from "
+                           "each); its one depth lies between the surfaces (a flying pixel); no two-return fit the "
+                           "data support", "NaN", "#48dbfb"),
     Flag.TWO_RETURNS: FlagLegend("T", "valid, mixed pixel resolved into two returns; the stronger one's depth",
                                  "a mixed pixel (as `mixed`) whose four equally spaced frequencies fit two returns "
                                  "within their noise, at least 2 m apart, the weaker holding at least 20 % of the "

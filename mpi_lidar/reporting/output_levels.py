@@ -71,7 +71,8 @@ OUTPUT_FILES = (
                "expected multipath bias, error maps where there is a reference, flags; axes in degrees"),
     OutputFile("error_hist.png", OutputLevel.FULL, "the depth errors before and after correction; with a "
                "reference depth"),
-    OutputFile("point_cloud.png", OutputLevel.FULL, "the point cloud's top and side views; with scan geometry"),
+    OutputFile("point_cloud.png", OutputLevel.FULL, "top views of the raw and corrected point clouds, and a side "
+               "profile of one column with how far correction moved its points; with scan geometry"),
     OutputFile("raw.ply", OutputLevel.FULL, "the measured point cloud; with scan geometry"),
     OutputFile("corrected.ply", OutputLevel.FULL, "the corrected point cloud; with scan geometry"),
 )

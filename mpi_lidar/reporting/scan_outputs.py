@@ -20,7 +20,7 @@ from mpi_lidar.reporting.output_levels import OutputLevel, check_outputs
 from mpi_lidar.reporting.point_cloud_files import point_cloud_formats, write_point_clouds
 from mpi_lidar.reporting.report import REPORT_MARKER, Embed, error_histogram_figure, save_figure
 from mpi_lidar.reporting.scan_report import scan_report
-from mpi_lidar.reporting.thumbnail import thumbnail_image, thumbnail_legend, with_key, write_png
+from mpi_lidar.reporting.thumbnail import azimuth_rises, thumbnail_image, thumbnail_legend, with_key, write_png
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.pointcloud import PointCloudFormat
 from mpi_lidar.scans.scan import Scan
@@ -148,19 +148,6 @@ def _write_thumbnail(staging: Path, correction: Correction, mirror: bool = False
     image, depth_limits = thumbnail_image(correction, mirror=mirror)
     write_png(staging / "thumbnail.png", with_key(image, correction.flags, depth_limits))
     return depth_limits
-
-
-def azimuth_rises(scan: Scan) -> bool:
-    """Whether the scan's azimuth grows along its columns (its rays turn towards +x, the scanner's left): its
-    thumbnail then runs its columns right to left, so the scanner's left is on the left, as the maps show it."""
-    h, w = scan.shape
-    if scan.azimuth_rad is not None and np.size(scan.azimuth_rad) == w and w > 1:
-        azimuth = np.asarray(scan.azimuth_rad, dtype=np.float64)
-        return bool(azimuth[-1] > azimuth[0])
-    if scan.ray_directions is not None and w > 1:
-        middle = np.asarray(scan.ray_directions[h // 2, [0, -1], 0], dtype=np.float64)
-        return bool(middle[1] > middle[0])
-    return False
 
 
 def _thread_cpu(work: Callable[..., T], *args: object) -> tuple[T, float]:

@@ -12,6 +12,7 @@ import numpy as np
 
 from mpi_lidar.correction import Correction, Flag
 from mpi_lidar.reporting.legend import FLAG_COLOURS as FLAG_COLOURS  # the registry's, re-exported
+from mpi_lidar.scans.scan import Scan
 
 KEY_ROW_PX = 14  # one line of the colour key under the panels [px]
 THUMBNAIL_PX = 512  # longest side of thumbnail.png [px]
@@ -39,6 +40,21 @@ VIRIDIS_RGB = np.frombuffer(bytes.fromhex(
 def viridis(scaled: np.ndarray) -> np.ndarray:
     """RGB bytes (..., 3) of values in [0, 1], as matplotlib's ``colormaps["viridis"](scaled, bytes=True)``."""
     return VIRIDIS_RGB[np.clip((scaled * 256).astype(np.int64), 0, 255)]
+
+
+def azimuth_rises(scan: Scan) -> bool:
+    """Whether the scan's azimuth grows along its columns (its rays turn towards +x, the scanner's left), from its
+    azimuths or, given only ray directions, from its middle row's first and last rays. The thumbnail and the maps
+    against pixel columns then run its columns right to left, so that the scanner's left is on the left, as the
+    maps in degrees show it. False where the scan has no geometry: nothing says which way it runs."""
+    h, w = scan.shape
+    if scan.azimuth_rad is not None and np.size(scan.azimuth_rad) == w and w > 1:
+        azimuth = np.asarray(scan.azimuth_rad, dtype=np.float64)
+        return bool(azimuth[-1] > azimuth[0])
+    if scan.ray_directions is not None and w > 1:
+        middle = np.asarray(scan.ray_directions[h // 2, [0, -1], 0], dtype=np.float64)
+        return bool(middle[1] > middle[0])
+    return False
 
 
 def thumbnail_image(correction: Correction, limit: int = THUMBNAIL_PX,

@@ -1,8 +1,10 @@
 """Object stores (S3 and its compatibles; read-only ``gs://`` and ``az://``): opening, listing, reading, and
-publishing a directory of outputs without a rename.
+publishing a directory of outputs (or a store, or a model) without a rename.
 
-Stores are reached through fsspec (``s3fs`` for S3), zarr arrays through zarr's own
-:class:`zarr.storage.FsspecStore`; every process (each Dask worker too) opens its own. Credentials and the
+Stores are reached through fsspec (``s3fs`` for S3, ``gcsfs`` and ``adlfs`` where installed), zarr arrays
+through zarr's own :class:`zarr.storage.FsspecStore`; every process (each Dask worker too) opens its own. A
+store whose library is not installed, or that does not answer, is refused with one line naming the location
+and what to do (:func:`missing_library`, :func:`store_error`). Credentials and the
 endpoint come only from the store library's standard chains (for S3 the environment: ``AWS_ACCESS_KEY_ID``,
 ``AWS_SECRET_ACCESS_KEY``, ``AWS_SESSION_TOKEN``, ``AWS_PROFILE``, ``AWS_ENDPOINT_URL``, ``AWS_DEFAULT_REGION``,
 the shared config files, an instance role): nothing here takes, stores or prints one.
@@ -21,6 +23,9 @@ Guarantees of :func:`publish_directory` (one scan's outputs under ``<out>/<scan>
   that differs, never a mix passed off as whole.
 - Two writers cannot both publish one folder: the second conditional create is refused (one error line).
   One batch at a time holds the output location (:class:`ObjectOutputLock`).
+
+:func:`publish_whole` (a scan or dataset store, a model directory) publishes by the one object its readers
+open it by, written last with a conditional create: the store's root ``zarr.json``, the model's ``card.json``.
 
 Not guaranteed: durability beyond the store's own, a reader that reads the objects without their manifest,
 and publication on ``gs://`` or ``az://`` (writing there is refused).
@@ -54,6 +59,18 @@ LOCK_LEASE_S = 60.0
 _RENEW_EVERY_S = LOCK_LEASE_S / 4
 
 
+# The fsspec library of each store's scheme, and where that library finds the store and its credentials.
+STORE_LIBRARIES = {"s3": "s3fs", "gs": "gcsfs", "az": "adlfs"}
+_REACHED_BY = {
+    "s3": "the endpoint (AWS_ENDPOINT_URL) and the credentials (AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, "
+          "AWS_PROFILE or an instance role)",
+    "gs": "the credentials (GOOGLE_APPLICATION_CREDENTIALS, gcloud's default login or the instance's service "
+          "account)",
+    "az": "the account and its credentials (AZURE_STORAGE_ACCOUNT_NAME with AZURE_STORAGE_ACCOUNT_KEY, "
+          "AZURE_STORAGE_CONNECTION_STRING or a managed identity)",
+}
+
+
 def filesystem(where: Location) -> AbstractFileSystem:
     """The fsspec file system of an object-store location (one per process and options, fsspec's cache);
     listings are not cached, so every listing sees what other processes published."""
@@ -61,9 +78,17 @@ def filesystem(where: Location) -> AbstractFileSystem:
 
     try:
         return fsspec.filesystem(where.scheme, **storage_options(where))
-    except ImportError as exc:
-        raise MpiLidarError(f"{where}: the {where.scheme}:// store needs a library that is not installed "
-                            f"({exc.name}); install it (s3fs, gcsfs or adlfs)") from None
+    except ImportError:
+        raise missing_library(where) from None
+
+
+def missing_library(where: Location) -> MpiLidarError:
+    """One line for a store whose fsspec library is not installed: which, and how to get it."""
+    library = STORE_LIBRARIES.get(where.scheme, "an fsspec implementation")
+    read_only = "" if where.scheme in WRITABLE_SCHEMES else (
+        f" to read from it (writing to {where.scheme}:// is not supported yet: write to s3:// or a path)")
+    return MpiLidarError(f"{where}: {where.scheme}:// is reached through the {library} package, which is not "
+                         f"installed; install it (pip install {library}, on every Dask worker too){read_only}")
 
 
 # s3fs asks an object's size (a HEAD request) before every whole read, to split one larger than its block
@@ -84,15 +109,18 @@ def zarr_store(where: Location, read_only: bool = True) -> str | FsspecStore:
         return where.path
     from zarr.storage import FsspecStore
 
-    return FsspecStore.from_url(where.url, storage_options=storage_options(where), read_only=read_only)
+    try:
+        return FsspecStore.from_url(where.url, storage_options=storage_options(where), read_only=read_only)
+    except ImportError:
+        raise missing_library(where) from None
 
 
 def store_error(where: Location, exc: BaseException, doing: str) -> MpiLidarError:
     """One line for a failed store operation, naming the location, never the request (no credential)."""
     reason = type(exc).__name__ if isinstance(exc, FileNotFoundError | PermissionError) else (
         str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__)
-    return StoreError(f"cannot {doing} {where} ({reason}); check the URL, the endpoint (AWS_ENDPOINT_URL) and "
-                      "the credentials in the environment")
+    return StoreError(f"cannot {doing} {where} ({reason}); check the URL, "
+                      f"{_REACHED_BY.get(where.scheme, 'the store and its credentials')}")
 
 
 def list_files(where: Location) -> dict[str, int]:
@@ -119,8 +147,9 @@ def list_files(where: Location) -> dict[str, int]:
 
 def exists(where: Location) -> bool:
     """Whether an object (or a prefix holding objects) is at ``where``."""
+    fs = filesystem(where)
     try:
-        return bool(filesystem(where).exists(where.path))
+        return bool(fs.exists(where.path))
     except Exception as exc:
         raise store_error(where, exc, "reach") from None
 
@@ -140,7 +169,9 @@ def read_bytes(where: Location, max_bytes: int = MAX_METADATA_BYTES) -> bytes | 
         raise store_error(where, exc, "read") from None
 
 
-def _writable(where: Location) -> None:
+def check_writable(where: Location) -> None:
+    """Refuse, with one line, a store the tool cannot publish into: publication needs a conditional create
+    and overwrite (S3's ``If-None-Match`` and ``If-Match``), which fsspec does not offer for every store."""
     if where.scheme not in WRITABLE_SCHEMES:
         raise MpiLidarError(f"{where}: writing to {where.scheme}:// is not supported yet (only "
                             f"{', '.join(s + '://' for s in WRITABLE_SCHEMES)}); write the outputs to s3:// or a path")
@@ -150,7 +181,7 @@ def write_object(where: Location, data: bytes, *, create: bool = False, if_match
     """Put one object (whole or not at all); ``create``: only if none is there (``If-None-Match: *``);
     ``if_match``: only over the object of that ETag. A refused condition is :class:`FileExistsError`.
     Returns the new object's ETag."""
-    _writable(where)
+    check_writable(where)
     fs = filesystem(where)
     kwargs: dict[str, object] = {"mode": "create"} if create else {}
     if if_match is not None:
@@ -174,7 +205,7 @@ def _precondition_failed(exc: BaseException) -> bool:
 def remove_prefix(where: Location) -> None:
     """Delete every object below ``where``, the manifest first (so the folder is unpublished before anything
     it lists goes)."""
-    _writable(where)
+    check_writable(where)
     fs = filesystem(where)
     try:
         fs.rm_file(f"{where.path}/{MANIFEST_FILE}")
@@ -192,7 +223,7 @@ def remove_prefix(where: Location) -> None:
 
 def upload_files(local_dir: Path, where: Location, skip: tuple[str, ...] = ()) -> list[str]:
     """Put every file under ``local_dir`` (but ``skip``) below ``where``, each a whole object; their names."""
-    _writable(where)
+    check_writable(where)
     fs = filesystem(where)
     names = sorted(p.relative_to(local_dir).as_posix() for p in local_dir.rglob("*") if p.is_file())
     names = [n for n in names if n not in skip]
@@ -221,12 +252,19 @@ def publish_directory(local_dir: Path, where: Location) -> list[str]:
 
 
 def publish_store(local_store: Path, where: Location) -> None:
-    """Publish a Zarr store built in ``local_store`` at ``where``: every object but the root ``zarr.json``, then
-    that last by a conditional create, so the store exists for every reader (which opens it by that object) only
-    once whole, and never over one there. Refused with one line if a store is there already."""
-    upload_files(local_store, where, skip=("zarr.json",))
+    """Publish a Zarr store built in ``local_store`` at ``where``, its root ``zarr.json`` last
+    (:func:`publish_whole`): the store exists for every reader (which opens it by that object) only once whole."""
+    publish_whole(local_store, where, "zarr.json")
+
+
+def publish_whole(local_dir: Path, where: Location, commit: str) -> None:
+    """Publish the files built in ``local_dir`` at ``where``: every object but ``commit``, then ``commit`` last
+    by a conditional create, so what readers open by that object (a store by its root metadata, a model by its
+    card) exists only once whole, and never over one there. Objects a killed publication left (all but
+    ``commit``) are written over. Refused with one line if ``commit`` is there already."""
+    upload_files(local_dir, where, skip=(commit,))
     try:
-        write_object(where.joinpath("zarr.json"), (local_store / "zarr.json").read_bytes(), create=True)
+        write_object(where.joinpath(commit), (local_dir / commit).read_bytes(), create=True)
     except FileExistsError:
         raise MpiLidarError(f"{where} already exists (written meanwhile by another process); remove it to write it "
                             "again") from None

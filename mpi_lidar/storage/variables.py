@@ -98,7 +98,7 @@ VARIABLES: tuple[Variable, ...] = (
     Variable("elevation_rad", Store.SCAN, ("y",), "f", "as given", "rad", "elevation of the pixel row",
              note="With azimuth_rad, the scan grid; a coordinate of y."),
     Variable("ray_directions", Store.SCAN, ("y", "x", "xyz"), "f", "as given", "1",
-             "unit ray direction (x right, y up, z forward)", note="Instead of a scan grid."),
+             "unit ray direction (x left, y up, z forward)", note="Instead of a scan grid."),
     Variable("reference_depth", Store.SCAN, ("y", "x"), "f", "as given", "m", "reference range along the ray",
              note="For evaluation only."),
     Variable("reference_mask", Store.SCAN, ("y", "x"), "b", "bool", "1",
@@ -140,13 +140,15 @@ VARIABLES: tuple[Variable, ...] = (
              "share of the light of the weaker of two returns (flag two_returns)",
              note="Its amplitude over the two returns' amplitudes; written with second_return_depth."),
     Variable("azimuth_rad", Store.CORRECTED, ("x",), "f", "as given", "rad", "azimuth of the pixel column",
-             coordinate=True, note="The scan's, where it has a scan grid."),
+             coordinate=True, note="The scan's, or worked out from its ray_directions where they form a regular "
+             "grid. Where the grid is regular (each angle strictly monotonic), the maps' dimensions are "
+             "(elevation_rad, azimuth_rad) instead of (y, x), with the angles as their dimension coordinates."),
     Variable("elevation_rad", Store.CORRECTED, ("y",), "f", "as given", "rad", "elevation of the pixel row",
-             coordinate=True, note="The scan's, where it has a scan grid."),
+             coordinate=True, note="As azimuth_rad: the scan's, or worked out from a regular grid of rays."),
     Variable("y", Store.CORRECTED, ("y",), "i", "int64", "1", "pixel row", coordinate=True,
-             note="Written where the scan has no elevation_rad."),
+             note="Written where the scan grid is not regular (no angles, or angles not monotonic)."),
     Variable("x", Store.CORRECTED, ("x",), "i", "int64", "1", "pixel column", coordinate=True,
-             note="Written where the scan has no azimuth_rad."),
+             note="Written where the scan grid is not regular (no angles, or angles not monotonic)."),
     # --- the dataset store ---
     Variable("features", Store.DATASET, ("sample", "feature"), "f", "float32",
              "m (depth columns), V^2 (amplitude columns)", "measured depth then amplitude per modulation frequency",

@@ -38,7 +38,7 @@ from mpi_lidar.reporting.point_cloud_files import cloud_placement, point_cloud_f
 from mpi_lidar.reporting.scan_outputs import write_scan_outputs
 from mpi_lidar.scans.store import STORED_MAPS_ABOVE_BYTES, read_scan
 from mpi_lidar.storage.manifest import unsealed, write_manifest
-from mpi_lidar.storage.objects import ObjectOutputLock
+from mpi_lidar.storage.objects import ObjectOutputLock, filesystem, store_error
 from mpi_lidar.storage.publication import LocalOutputLock
 from mpi_lidar.workflows.archive_paths import expand_archive, safe_output, safe_scan_name, scan_output_paths
 from mpi_lidar.workflows.batch_failure import FAIL_ON, batch_failure, failing_outcomes, failure_line
@@ -99,7 +99,7 @@ def process_scan(source: str | Path, model_dir: str | Path, out_dir: str | Path,
             output = scan_output_paths([source])[source]
         out = location(out_dir)
         base = out.local_path() if out.is_local else out
-        return _process_scan(source, Path(model_dir), safe_output(base, output), options, started,
+        return _process_scan(source, str(model_dir), safe_output(base, output), options, started,
                              outputs, point_clouds, bundle_dir=base, output=output,
                              placement=(point_cloud_frame, no_return_range_m))
     except Exception as exc:  # one bad scan, whatever went wrong, must not stop the batch
@@ -127,30 +127,56 @@ def share_one_heap() -> bool:
         return False
 
 
+# Per model file (a local model's two; a URL's card): what changes when it is written again.
+ModelSignature = tuple[tuple[object, ...] | None, ...]
+
+
 def _cached_model(model_dir: str) -> CorrectionModel:
     """The model of ``model_dir``, loaded once per process: every scan of a batch run here, or of one Dask
-    worker, shares it. Its files' sizes and modification times are part of the key, so a model replaced
-    at the same path is loaded again."""
-    return _load_model(str(model_dir), _model_files_signature(Path(model_dir)))
+    worker, shares it. Its files' sizes and modification times (in an object store, its card's version) are
+    part of the key, so a model replaced at the same path or URL is loaded again."""
+    return _load_model(str(model_dir), _model_files_signature(str(model_dir)))
 
 
 @lru_cache(maxsize=4)
-def _load_model(model_dir: str, _signature: tuple[tuple[int, int, int] | None, ...]) -> CorrectionModel:
+def _load_model(model_dir: str, _signature: ModelSignature) -> CorrectionModel:
     return load_model(model_dir)
 
 
-def _model_files_signature(model_dir: Path) -> tuple[tuple[int, int, int] | None, ...]:
-    signature: list[tuple[int, int, int] | None] = []
+def _model_files_signature(model_dir: str) -> ModelSignature:
+    where = location(model_dir)
+    if not where.is_local:
+        return (_published_card_version(where),)
+    signature: list[tuple[object, ...] | None] = []
     for name in (MODEL_FILE, CARD_FILE):
         try:
-            stat = (model_dir / name).stat()
+            stat = (where.local_path() / name).stat()
             signature.append((stat.st_ino, stat.st_size, stat.st_mtime_ns))
         except OSError:  # load_model says what is missing
             signature.append(None)
     return tuple(signature)
 
 
-def _process_scan(source: str, model_dir: Path, target: Path | Location, options: CorrectionOptions,
+# What a store's HEAD gives that changes when an object is written again: S3's ETag (the content's digest) and
+# time, and the same under gcsfs's and adlfs's names.
+_VERSION_KEYS = ("ETag", "etag", "LastModified", "last_modified", "updated", "size")
+
+
+def _published_card_version(model_dir: Location) -> tuple[object, ...] | None:
+    """The version of a model's card in an object store, by one HEAD request; None where there is none (loading
+    the model says so). The card is published last and names the model file's hash, so a model deleted and
+    trained again at the same URL has another card."""
+    card = model_dir.joinpath(CARD_FILE)
+    try:
+        info = filesystem(card).info(card.path)
+    except FileNotFoundError:
+        return None
+    except Exception as exc:  # botocore raises many types
+        raise store_error(card, exc, "read") from None
+    return tuple(str(info[key]) for key in _VERSION_KEYS if key in info)
+
+
+def _process_scan(source: str, model_dir: str, target: Path | Location, options: CorrectionOptions,
                   started: float, outputs: str = "full", point_clouds: tuple[str, ...] | None = None,
                   bundle_dir: Path | Location | None = None, output: str = "",
                   placement: tuple[str, float | None] = ("scanner", None)) -> ScanOutcome:

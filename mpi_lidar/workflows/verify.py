@@ -8,8 +8,7 @@ time, so a store whose metadata declares 100000 x 100000 values is refused witho
 
 In an object store (``s3://...``) a scan's outputs exist only where published: a ``corrected.zarr`` (or an
 output folder) without its manifest fails, and every object the manifest lists is read and its SHA-256
-checked (:func:`mpi_lidar.storage.objects.verify_published`). Scans there are verified as on disk; datasets
-in a store are not yet.
+checked (:func:`mpi_lidar.storage.objects.verify_published`). Scans and datasets there are verified as on disk.
 """
 
 from __future__ import annotations
@@ -86,7 +85,7 @@ def _schema(path: Path) -> object:
 
 
 def _verify_in_store(where: Location) -> Verified:
-    """:func:`verify_store` of a URL: an output folder or its ``corrected.zarr`` (published), or a scan."""
+    """:func:`verify_store` of a URL: an output folder or its ``corrected.zarr`` (published), a scan or a dataset."""
     if exists(where.joinpath(MANIFEST_FILE)):
         where = where.joinpath(CORRECTED_STORE)
     folder = where.parent if where.name == CORRECTED_STORE else None
@@ -100,8 +99,9 @@ def _verify_in_store(where: Location) -> Verified:
     if schema == SCAN_SCHEMA:
         read_scan(where.url)
         return _verified_arrays(where, "scan", check=False)
-    raise StoreError(f"{where} is not an mpi-lidar scan or published corrected output (schema {schema!r}); "
-                     "datasets in an object store cannot be verified yet")
+    if schema == dataset.SCHEMA:
+        return Verified(where.url, "dataset", dataset.verify_dataset(where.url))
+    raise StoreError(f"{where} is not an mpi-lidar dataset, scan or published corrected output (schema {schema!r})")
 
 
 def _verified_arrays(path: Path | Location, kind: str, check: bool, files: int = 0) -> Verified:

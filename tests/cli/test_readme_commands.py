@@ -163,6 +163,7 @@ def test_readme_table__every_command_runs(work, monkeypatch, capsys):
     assert (work / "run" / "scenes" / "flat_wall.scan.zarr").is_dir(), "the demo scene that was missing is rendered"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", [["benchmarks.sensor", "--rows", "2000"],
                                      ["benchmarks.limits", "--n-test", "20", "--pool", "100", "--scales", "1"]])
 def test_readme_benchmark_commands__run_small(command):

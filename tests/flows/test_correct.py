@@ -30,6 +30,7 @@ def archive(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_correct_archive_flow__bad_scan_fails_alone_and_rerun_skips(archive, small_model, tmp_path, dask_scheduler):
     out = tmp_path / "corrected"
     state = correct_archive_flow(scans=[str(archive)], model=str(small_model), out=str(out),

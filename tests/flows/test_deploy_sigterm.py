@@ -9,10 +9,13 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 START_S = 120  # the serving process imports Prefect and registers four deployments
 
 
+@pytest.mark.slow
 def test_main__sigterm_stops_serving_with_one_line_and_no_warning(prefect_api: str, tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(REPO), "PREFECT_API_URL": prefect_api, "PYTHONWARNINGS": "default"}
     served = subprocess.Popen([sys.executable, "-m", "flows.deploy", "--root", str(tmp_path / "nightly")],

@@ -25,6 +25,7 @@ def generated(tmp_path_factory: pytest.TempPathFactory, config_file: Path) -> di
     return generate_dataset_flow(out=str(out), config_file=str(config_file), workers=2)
 
 
+@pytest.mark.slow
 def test_generate_dataset_flow__store_equals_in_process_generation(
     generated: dict[str, object], config_file: Path, tmp_path: Path
 ) -> None:

@@ -30,6 +30,7 @@ def tuned(small_dataset, tmp_path_factory, dask_scheduler):
     return storage, state
 
 
+@pytest.mark.slow
 def test_tune_flow__publishes_best_trial_and_plots_without_the_password(tuned):
     _, state = tuned
     result = state.result()
@@ -40,6 +41,7 @@ def test_tune_flow__publishes_best_trial_and_plots_without_the_password(tuned):
     assert "Best trial" in artifact.data and "optimisation_history.png" in artifact.data
 
 
+@pytest.mark.slow
 def test_train_and_evaluate_flows__model_from_the_study_and_its_report(tuned, small_dataset, tmp_path,
                                                                      dask_scheduler):
     storage, _ = tuned
@@ -57,6 +59,7 @@ def test_train_and_evaluate_flows__model_from_the_study_and_its_report(tuned, sm
     assert "corrected (XGBoost)" in artifact.data and (tmp_path / "r" / "error_hist.png").exists()
 
 
+@pytest.mark.slow
 def test_table2_flow__table_artifact_and_files(small_dataset, small_model, tmp_path):
     state = table2_flow(data=str(small_dataset), report=str(tmp_path / "t2"), model=str(small_model), trials=1,
                         train_rows=1_500, svm_rows=500, return_state=True)

@@ -55,6 +55,7 @@ def run_main(args: list[str]) -> int:
         return int(exc.code or 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("flow", "option", "value"), BAD_VALUES, ids=[f"{f[0]} {o} {v}" for f, o, v in BAD_VALUES])
 def test_main__a_value_past_its_bound_is_one_line_exit_2_before_a_flow_run(quiet, capsys: pytest.CaptureFixture[str],
                                                                           flow, option, value) -> None:

@@ -33,6 +33,7 @@ def first_run(tmp_path_factory: pytest.TempPathFactory, config_file: Path, dask_
     return regenerate_dataset_flow(root=str(root), config_file=str(config_file), scheduler=dask_scheduler)
 
 
+@pytest.mark.slow
 def test_regenerate_dataset_flow__first_run_generates_into_key_directory(
     first_run: dict[str, object], config_file: Path, dask_scheduler: str
 ) -> None:
@@ -64,6 +65,7 @@ def test_regenerate_dataset_flow__complete_store_skips_all_work(
     assert Path(again["latest"]).readlink() == Path(first_run["key"])
 
 
+@pytest.mark.slow
 def test_regenerate_dataset_flow__new_seed_gets_new_store_and_keeps_old(
     first_run: dict[str, object], dask_scheduler: str, tmp_path: Path
 ) -> None:

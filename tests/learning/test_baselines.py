@@ -20,6 +20,7 @@ def result(small_dataset, small_model):
                   eval_rows=None)
 
 
+@pytest.mark.slow
 def test_table2__every_learner_beats_the_raw_depth(result):
     rows = {row.name: row for row in result.rows}
     raw = rows["raw depth 31.25MHz"]
@@ -59,6 +60,7 @@ def test_to_report__table_carries_the_papers_numbers(result):
     assert set(figures) == {"table2_mae.png"}
 
 
+@pytest.mark.slow
 def test_table2_cli__writes_report_and_bad_data_is_one_line(small_dataset, tmp_path):
     command = [sys.executable, "-m", "mpi_lidar.cli", "table2", "--data", str(small_dataset), "--report",
                str(tmp_path / "t2"), "--trials", "1", "--train-rows", "1500", "--svm-rows", "500"]

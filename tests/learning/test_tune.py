@@ -34,6 +34,7 @@ def storage_url(request, tmp_path):
     return request.getfixturevalue("postgres_url")
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_tune__parallel_trials_on_shared_storage_are_all_accounted_for(storage_url, small_dataset, cluster_client):
     # Residual target: 40 rounds reach a sane error at any learning rate TPE draws (with the absolute target,
@@ -46,6 +47,7 @@ def test_tune__parallel_trials_on_shared_storage_are_all_accounted_for(storage_u
     assert_trials_accounted(storage_url, "parallel", 6)
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_tune__rerun_resumes_and_extends_without_repeating(tmp_path, small_dataset, cluster_client):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
@@ -57,6 +59,7 @@ def test_tune__rerun_resumes_and_extends_without_repeating(tmp_path, small_datas
     assert_trials_accounted(url, "grow", 5)
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_run_one_trial__failing_trial_is_recorded_and_study_goes_on(tmp_path, small_dataset, cluster_client):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"

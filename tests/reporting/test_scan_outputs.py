@@ -64,6 +64,7 @@ def level_outputs(model_dir, board_store, tmp_path_factory):
     return written
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_full__archived_scan_writes_maps_named_point_clouds_and_the_3d_view(full_outputs, archived):
     scan = archived[0]
@@ -115,6 +116,7 @@ def test_output_level__one_closed_set_from_most_to_least():
     assert OUTPUT_LEVELS == ("full", "light", "data") == tuple(OutputLevel)
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 @pytest.mark.parametrize("level", OUTPUT_LEVELS)
 def test_write_scan_outputs__each_level_writes_its_files_and_says_which(level, level_outputs):

@@ -108,6 +108,7 @@ def test_generate__unmarked_chunk_with_garbage_is_rewritten(tmp_path, reference_
     assert_same_bytes(path, reference_store)
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_generate__worker_killed_mid_run_completes_identically(tmp_path, waveform_reference):
     config = small_config(**KILLED_RUN)
@@ -129,6 +130,7 @@ def test_generate__worker_killed_mid_run_completes_identically(tmp_path, wavefor
     assert_same_bytes(path, waveform_reference)
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_simulate_cli__killed_process_rerun_matches_uninterrupted(tmp_path, waveform_reference):
     args = ["--samples", str(KILLED_RUN["samples"]), "--chunk-rows", str(KILLED_RUN["chunk_rows"]),

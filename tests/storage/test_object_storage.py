@@ -84,6 +84,7 @@ def test_read_scan__damaged_chunk_in_bucket_refused(archive, tmp_path):
         read_scan(url)
 
 
+@pytest.mark.slow
 def test_correct__bucket_outputs_identical_to_local_and_verified(archive, pixelwise_model, tmp_path, monkeypatch,
                                                                  capsys, caplog):
     local, url = archive
@@ -119,6 +120,7 @@ def test_correct__bucket_outputs_identical_to_local_and_verified(archive, pixelw
     assert SECRET not in blob and "S3cr3t" not in blob
 
 
+@pytest.mark.slow
 def test_verify__unpublished_or_edited_output_in_bucket_fails(archive, pixelwise_model, tmp_path, monkeypatch,
                                                               capsys):
     _, url = archive

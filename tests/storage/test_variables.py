@@ -48,7 +48,7 @@ def test_registry__attributes_the_stores_have_always_written():
         "taps": ("V^2", "demodulation taps"),
         "azimuth_rad": ("rad", "azimuth of the pixel column"),
         "elevation_rad": ("rad", "elevation of the pixel row"),
-        "ray_directions": ("1", "unit ray direction (x right, y up, z forward)"),
+        "ray_directions": ("1", "unit ray direction (x left, y up, z forward)"),
         "reference_depth": ("m", "reference range along the ray"),
         "reference_mask": ("1", "reference region mask (1 where the reference holds)"),
         "frequency_hz": ("Hz", "modulation frequency"),

@@ -9,6 +9,7 @@ from benchmarks import correction as bench
 pytestmark = pytest.mark.integration
 
 
+@pytest.mark.slow
 def test_benchmark_correction__quick_prints_every_table(tmp_path):
     text = bench.run(bench.Plan.quick(), None, tmp_path)
     assert text.startswith("Machine: ") and "cores" in text and "load average" in text

@@ -27,6 +27,7 @@ def test_baseline_comparison__fused_must_be_no_worse_on_the_whole_map_and_the_ma
     assert not _comparison((1.2, 1.3), (1.1, 0.8)).fused_no_worse
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_scenes_benchmark__baselines_print_a_row_per_scene_with_shares_summing_to_100(tmp_path):
     model = tiny_model(tmp_path / "model")

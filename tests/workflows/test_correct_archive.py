@@ -53,6 +53,7 @@ def corrected_depth(output: Path) -> np.ndarray:
 # --- where the outputs go --------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_correct_archive__same_named_scans_in_day_folders_both_survive(small_model, tmp_path):
     archive = tmp_path / "archive"

@@ -112,3 +112,9 @@ def check_layout(path: str | Path, group: zarr.Group, attrs: Mapping[str, Any]) 
 def store_array(group: zarr.Group, name: str) -> zarr.Array:
     """The array ``name`` of a dataset store (:func:`open_store` checked that each is an array of its shape)."""
     return cast(zarr.Array, group[name])
+
+
+def store_arrays(group: zarr.Group, names: tuple[str, ...]) -> dict[str, zarr.Array]:
+    """The named arrays of a dataset store, each opened once: every ``group[name]`` reads the array's metadata
+    again (a request in an object store), so a pass over chunks opens its arrays here and keeps them."""
+    return {name: store_array(group, name) for name in names}

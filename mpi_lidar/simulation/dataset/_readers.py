@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import zarr
@@ -15,7 +15,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.errors import StoreError
 from mpi_lidar.locations import location
 from mpi_lidar.simulation.dataset._chunks import SPLIT_CODES
-from mpi_lidar.simulation.dataset._layout import DATA_ARRAYS, store_array
+from mpi_lidar.simulation.dataset._layout import DATA_ARRAYS, store_arrays
 from mpi_lidar.simulation.dataset._store import chunk_fingerprints, completed_chunks, open_store, store_config
 from mpi_lidar.storage.integrity import check_fingerprint, read_chunk
 from mpi_lidar.storage.objects import zarr_store
@@ -45,7 +45,11 @@ class DatasetInfo:
 
 
 def dataset_info(path: str | Path) -> DatasetInfo:
-    group = open_store(path)
+    return _described(path, open_store(path))
+
+
+def _described(path: str | Path, group: zarr.Group) -> DatasetInfo:
+    """:func:`dataset_info` of a store already opened (and checked) by :func:`open_store`."""
     try:
         return _info(path, group)
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:  # codecs raise RuntimeError on bad chunks
@@ -71,12 +75,37 @@ def _info(path: str | Path, group: zarr.Group) -> DatasetInfo:
     )
 
 
-def _complete_info(path: str | Path) -> DatasetInfo:
-    info = dataset_info(path)
-    if not info.complete:
+def _complete_info(path: str | Path, group: zarr.Group) -> DatasetInfo:
+    info = _described(path, group)
+    if not info.complete:  # an unfinished chunk has no fingerprint: its rows would be read as fill values
         raise StoreError(f"dataset {path} is incomplete ({info.chunks_done} of {info.chunks} chunks); "
                          f"finish it with 'mpi-lidar simulate --out {path}' and the same configuration")
     return info
+
+
+@dataclass(frozen=True)
+class _ReadPass:
+    """A complete store opened for one pass of reads: opened and checked once, each data array's metadata read
+    once (every ``group[name]`` reads it again: a request per array and chunk in an object store)."""
+
+    path: str
+    info: DatasetInfo
+    fingerprints: NDArray[np.uint8]
+    arrays: Mapping[str, zarr.Array]
+
+    @property
+    def chunk_rows(self) -> int:
+        return int(self.arrays["target"].chunks[0])
+
+    def chunk(self, index: int, names: tuple[str, ...]) -> dict[str, NDArray]:
+        """The rows of chunk ``index`` of the named arrays, each checked against its fingerprint."""
+        return _verified_chunk(self.path, self.arrays, index, self.fingerprints, names)
+
+
+def _open_complete(path: str | Path) -> _ReadPass:
+    group = open_store(path)
+    info = _complete_info(path, group)
+    return _ReadPass(str(path), info, chunk_fingerprints(group), store_arrays(group, DATA_ARRAYS))
 
 
 @dataclass(frozen=True)
@@ -92,12 +121,10 @@ class LazyDataset:
 
 def read_lazy(path: str | Path) -> LazyDataset:
     """Open a complete dataset as dask arrays (for training on a cluster)."""
-    info = _complete_info(path)
-    group = open_store(path)
-    fingerprints = chunk_fingerprints(group)
-    arrays = {name: _verified_lazy(path, store_array(group, name), k, fingerprints)
+    opened = _open_complete(path)
+    arrays = {name: _verified_lazy(path, opened.arrays[name], k, opened.fingerprints)
               for k, name in enumerate(DATA_ARRAYS)}
-    return LazyDataset(info=info, **arrays)
+    return LazyDataset(info=opened.info, **arrays)
 
 
 def _verified_lazy(path: str | Path, array: zarr.Array, k: int, fingerprints: NDArray | None) -> da.Array:
@@ -106,16 +133,19 @@ def _verified_lazy(path: str | Path, array: zarr.Array, k: int, fingerprints: ND
 
     chunks = da.core.normalize_chunks(array.chunks, array.shape)
     return da.map_blocks(_load_verified_block, dtype=array.dtype, chunks=chunks, path=str(path),
-                         array_name=array.basename, k=k, fingerprints=fingerprints,
-                         meta=np.empty((0,) * array.ndim, dtype=array.dtype))
+                         array_name=array.basename, zarr_format=array.metadata.zarr_format, k=k,
+                         fingerprints=fingerprints, meta=np.empty((0,) * array.ndim, dtype=array.dtype))
 
 
-def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArray | None, block_info=None) -> NDArray:
+def _load_verified_block(path: str, array_name: str, zarr_format: Literal[2, 3], k: int, fingerprints: NDArray | None,
+                         block_info=None) -> NDArray:
+    """One block, where it is computed (a Dask worker opens its own store): the array alone is opened, one read
+    of its metadata, neither the group's nor another format's."""
     info = block_info[None]
     where = tuple(slice(start, stop) for start, stop in info["array-location"])
     index = info["chunk-location"][0]
-    group = zarr.open_group(store=zarr_store(location(path)), mode="r", use_consolidated=False)
-    values = read_chunk(store_array(group, array_name), where, path, array_name, index)
+    array = zarr.open_array(store=zarr_store(location(path)), path=array_name, mode="r", zarr_format=zarr_format)
+    values = read_chunk(array, where, path, array_name, index)
     if fingerprints is not None:
         check_fingerprint(values, fingerprints[index, k], path, array_name, index)
     return values
@@ -124,15 +154,21 @@ def _load_verified_block(path: str, array_name: str, k: int, fingerprints: NDArr
 def read_verified_chunk(path: str | Path, group: zarr.Group, index: int, fingerprints: NDArray | None,
                         names: tuple[str, ...] = DATA_ARRAYS) -> dict[str, NDArray]:
     """The rows of chunk ``index`` of the named arrays, each checked against its fingerprint."""
-    chunk_rows = store_array(group, "target").chunks[0]
+    arrays = store_arrays(group, tuple(dict.fromkeys(("target", *names))))  # target's chunks give the rows
+    return _verified_chunk(str(path), arrays, index, fingerprints, names)
+
+
+def _verified_chunk(path: str, arrays: Mapping[str, zarr.Array], index: int, fingerprints: NDArray | None,
+                    names: tuple[str, ...]) -> dict[str, NDArray]:
+    chunk_rows = arrays["target"].chunks[0]
     rows = slice(index * chunk_rows, (index + 1) * chunk_rows)
     out = {}
     for name in names:
-        array = store_array(group, name)
+        array = arrays[name]
         where = (rows,) + (slice(None),) * (array.ndim - 1)
-        values = read_chunk(array, where, str(path), name, index)
+        values = read_chunk(array, where, path, name, index)
         if fingerprints is not None:
-            check_fingerprint(values, fingerprints[index, DATA_ARRAYS.index(name)], str(path), name, index)
+            check_fingerprint(values, fingerprints[index, DATA_ARRAYS.index(name)], path, name, index)
         out[name] = values
     return out
 
@@ -140,15 +176,14 @@ def read_verified_chunk(path: str | Path, group: zarr.Group, index: int, fingerp
 def read_verified(path: str | Path, names: tuple[str, ...] = DATA_ARRAYS,
                   on_chunk: Callable[[dict[str, NDArray]], dict[str, NDArray]] | None = None) -> dict[str, NDArray]:
     """Whole arrays of a store, streamed chunk by chunk and each chunk verified; ``on_chunk`` may reduce a chunk."""
-    group = open_store(path)
-    fingerprints = chunk_fingerprints(group)
-    done = completed_chunks(group)
-    if not done.all():  # an unfinished chunk has no fingerprint: its rows would be read as fill values
-        raise StoreError(f"dataset {path} is incomplete ({int(done.sum())} of {done.size} chunks); finish it with "
-                         f"'mpi-lidar simulate --out {path}' and the same configuration")
+    return _read_all(_open_complete(path), names, on_chunk)
+
+
+def _read_all(opened: _ReadPass, names: tuple[str, ...],
+              on_chunk: Callable[[dict[str, NDArray]], dict[str, NDArray]] | None = None) -> dict[str, NDArray]:
     parts: dict[str, list[NDArray]] = {name: [] for name in names}
-    for index in range(done.size):
-        chunk = read_verified_chunk(path, group, index, fingerprints, names)
+    for index in range(opened.info.chunks):
+        chunk = opened.chunk(index, names)
         if on_chunk is not None:
             chunk = on_chunk(chunk)
         for name in names:
@@ -158,9 +193,9 @@ def read_verified(path: str | Path, names: tuple[str, ...] = DATA_ARRAYS,
 
 def verify_dataset(path: str | Path) -> int:
     """Check every chunk of a complete dataset store against its fingerprint; the number of chunks checked."""
-    info = _complete_info(path)
-    read_verified(path, on_chunk=lambda chunk: {name: values[:0] for name, values in chunk.items()})
-    return info.chunks
+    opened = _open_complete(path)
+    _read_all(opened, DATA_ARRAYS, on_chunk=lambda chunk: {name: values[:0] for name, values in chunk.items()})
+    return opened.info.chunks
 
 
 @dataclass(frozen=True)
@@ -178,27 +213,26 @@ def read_subsample(
     path: str | Path, split: str = "train", max_rows: int | None = None, seed: int = 0
 ) -> Subsample:
     """Read the rows of ``split`` ("train", "test" or "all"), or a seeded random ``max_rows`` of them."""
-    info = _complete_info(path)
+    opened = _open_complete(path)
+    info = opened.info
     if split not in (*SPLIT_CODES, "all"):
         raise StoreError(f"unknown split {split!r}; choose train, test or all")
-    split_codes = read_verified(path, ("split",))["split"]
+    split_codes = _read_all(opened, ("split",))["split"]
     rows = np.arange(info.samples) if split == "all" else np.flatnonzero(split_codes == SPLIT_CODES[split])
     if max_rows is not None and max_rows < rows.size:
         rows = np.sort(np.random.default_rng(seed).choice(rows, size=max_rows, replace=False))
     if rows.size == 0:
         raise StoreError(f"dataset {path} has no {split} rows")
-    arrays = _rows_verified(path, rows, ("features", "target", "theta"))
+    arrays = _rows_verified(opened, rows, ("features", "target", "theta"))
     return Subsample(info=info, rows=rows, **arrays)
 
 
-def _rows_verified(path: str | Path, rows: NDArray[np.int64], names: tuple[str, ...]) -> dict[str, NDArray]:
+def _rows_verified(opened: _ReadPass, rows: NDArray[np.int64], names: tuple[str, ...]) -> dict[str, NDArray]:
     """The given sorted rows of the named arrays, read chunk by chunk, every chunk touched verified."""
-    group = open_store(path)
-    fingerprints = chunk_fingerprints(group)
-    chunk_rows = store_array(group, "target").chunks[0]
+    chunk_rows = opened.chunk_rows
     parts: dict[str, list[NDArray]] = {name: [] for name in names}
     for index in np.unique(rows // chunk_rows):
-        chunk = read_verified_chunk(path, group, int(index), fingerprints, names)
+        chunk = opened.chunk(int(index), names)
         local = rows[(rows // chunk_rows) == index] - index * chunk_rows
         for name in names:
             parts[name].append(chunk[name][local])

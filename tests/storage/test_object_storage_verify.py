@@ -1,0 +1,84 @@
+"""``mpi-lidar verify`` of a damaged dataset in a bucket (moto's S3 server on 127.0.0.1; a whole one is verified
+by the how-to's commands, test_object_storage_howto.py), and the one line a store that cannot be reached gives."""
+
+from __future__ import annotations
+
+import importlib.util
+import socket
+from pathlib import Path
+
+import pytest
+
+from benchmarks.object_storage import aws_environment
+from mpi_lidar.config import Config, PriorConfig
+from mpi_lidar.errors import MpiLidarError, StoreError
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.locations import location
+from mpi_lidar.storage import objects
+from mpi_lidar.workflows.generate import generate
+from mpi_lidar.workflows.verify import verify_store
+from tests.cli_runner import assert_one_error_line, call_main
+from tests.storage.conftest import BUCKET, SECRET
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture(scope="module")
+def local_dataset(tmp_path_factory) -> Path:
+    """600 rows of the paper's prior in two chunks, on the local disk."""
+    path = tmp_path_factory.mktemp("verify") / "dataset.zarr"
+    generate(path, Config(prior=PriorConfig()).replace(dataset={"samples": 600, "chunk_rows": 300, "seed": 7}))
+    return path
+
+
+def upload(local: Path, url: str) -> str:
+    objects.filesystem(location(url)).put(str(local) + "/", location(url).path, recursive=True)
+    return url
+
+
+def test_verify__unfinished_or_damaged_dataset_in_bucket_fails(s3_server, local_dataset, monkeypatch, capsys):
+    """A dataset whose chunk was never marked done is incomplete; a chunk replaced by another (well-formed,
+    but not the rows written there) is found by its fingerprint."""
+    url = upload(local_dataset, f"s3://{BUCKET}/verify/damaged.zarr")
+    fs, path = objects.filesystem(location(url)), location(url).path
+    fs.rm_file(f"{path}/chunk_done/c/1")
+    code, stdout, err = call_main(monkeypatch, capsys, "verify", url)
+    assert code == 1 and stdout == "", stdout
+    assert_one_error_line(err, "incomplete (1 of 2 chunks)")
+    fs.pipe_file(f"{path}/chunk_done/c/1", (local_dataset / "chunk_done" / "c" / "1").read_bytes())
+    fs.pipe_file(f"{path}/target/c/0", (local_dataset / "target" / "c" / "1").read_bytes())
+    with pytest.raises(MpiLidarError, match=r"'target'.*chunk 0|chunk 0.*'target'"):
+        verify_store(url)
+
+
+@pytest.mark.parametrize(("url", "library"), [("gs://bucket/scans/a.scan.zarr", "gcsfs"),
+                                              ("az://container/scans/a.scan.zarr", "adlfs")])
+def test_store_without_its_library__one_line_names_the_package(url, library, monkeypatch, capsys):
+    """gcsfs and adlfs are not installed here: reading gs:// or az:// says which package to install, and that
+    writing there is not supported."""
+    if importlib.util.find_spec(library) is not None:
+        pytest.skip(f"{library} is installed")
+    assert objects.STORE_LIBRARIES[location(url).scheme] == library
+    for command in (("verify", url), ("correct", url, "--model", "model", "--out", "out")):
+        code, stdout, err = call_main(monkeypatch, capsys, *command)
+        assert code in (1, 2) and stdout == "", stdout
+        assert_one_error_line(err, f"the {library} package, which is not installed; install it (pip install {library}")
+        assert "writing to" in err
+    with pytest.raises(MpiLidarError, match=f"{library} package"):
+        load_model(url.replace("scans/a.scan.zarr", "model"))
+
+
+def test_unreachable_s3_endpoint__one_line_names_what_to_check(moto_endpoint, monkeypatch, capsys):
+    """A server that does not answer (a closed port): one line naming the location and the endpoint variable,
+    never the secret; botocore's retries are cut to one attempt to keep the test short."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        closed = probe.getsockname()[1]
+    monkeypatch.setenv("AWS_MAX_ATTEMPTS", "1")
+    with aws_environment(f"http://127.0.0.1:{closed}", "AKIAMPILIDARTEST", SECRET):
+        code, stdout, err = call_main(monkeypatch, capsys, "verify", f"s3://{BUCKET}/d.zarr")
+        with pytest.raises(StoreError, match=f"cannot read s3://{BUCKET}/model/card.json .*AWS_ENDPOINT_URL"):
+            load_model(f"s3://{BUCKET}/model")
+    assert code == 1 and stdout == ""
+    assert_one_error_line(err, f"s3://{BUCKET}/d.zarr")
+    assert "AWS_ENDPOINT_URL" in err and SECRET not in err
