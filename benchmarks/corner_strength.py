@@ -13,7 +13,9 @@ floor (the default correction of the same scan rendered without multipath, same 
 against the true one; the share of corrected pixels whose geometric inputs lie beyond the model's training prior
 (its card's rho_ABA and d_AB ranges); the share of valid pixels within their 1-sigma uncertainty; and the pixels
 made worse by more than three times their noise (|output - reference| > |true multipath bias| + 3 sigma, sigma
-the 31.25 MHz noise).
+the 31.25 MHz noise). A second table splits each default run's masked pixels into those the model corrected and
+those it left alone: their count, share of the error, MAE, mean error, coverage and share with a true bias above
+the gate's 4 mm.
 """
 
 from __future__ import annotations
@@ -148,6 +150,21 @@ class Row:
     covered: float
     worse: float
     worse_pixels: int
+    split: dict[str, Split]
+
+
+@dataclass(frozen=True)
+class Split:
+    """The default run's masked pixels of one kind (corrected, or left alone: fused or measured): how many, their
+    share of the masked error [1], MAE and mean signed error [mm], the share within 1 sigma [1] and the share whose
+    true multipath bias exceeds the gate's 4 mm [1]."""
+
+    pixels: int
+    error_share: float
+    mae_mm: float
+    mean_mm: float
+    covered: float
+    biased: float
 
 
 def measure(case: Case, rendered: Rendered, model: CorrectionModel, config: Config) -> Row:
@@ -166,7 +183,25 @@ def measure(case: Case, rendered: Rendered, model: CorrectionModel, config: Conf
            for name, where in regions.items()}
     worse = _made_worse(scan, default, rendered.true_bias_m, config) & usable
     return Row(mae, _footprint(default), _beyond_prior_share(default), covered_share(default, reference, usable),
-               float(worse.sum() / max(usable.sum(), 1)), int(worse.sum()))
+               float(worse.sum() / max(usable.sum(), 1)), int(worse.sum()),
+               _split(default, reference, regions["masked"], rendered.true_bias_m))
+
+
+def _split(run: Correction, reference: NDArray, where: NDArray, true_bias_m: NDArray) -> dict[str, Split]:
+    """The masked pixels ``where`` split into those the model corrected and those it left alone."""
+    assert run.estimate is not None
+    error = run.depth.astype(np.float64) - reference
+    total = max(float(np.abs(error[where]).sum()), 1e-300)
+    corrected = run.estimate.reshape(where.shape) == Estimate.CORRECTED
+    found = {}
+    for name, kind in (("corrected", corrected), ("left alone", ~corrected)):
+        pixels = where & kind
+        if not pixels.any():
+            continue
+        found[name] = Split(int(pixels.sum()), float(np.abs(error[pixels]).sum() / total),
+                            1e3 * float(np.abs(error[pixels]).mean()), 1e3 * float(error[pixels].mean()),
+                            covered_share(run, reference, pixels), float((np.abs(true_bias_m[pixels]) > 4e-3).mean()))
+    return found
 
 
 def _made_worse(scan: Scan, run: Correction, true_bias_m: NDArray, config: Config) -> NDArray[np.bool_]:
@@ -208,6 +243,22 @@ def format_row(case: Case, row: Row) -> str:
                  else "not significant")
     return (f"| {case.label} | {' | '.join(cells)} | {footprint} | {100 * row.beyond_prior:.1f} % "
             f"| {100 * row.covered:.1f} % | {row.worse_pixels} ({100 * row.worse:.2f} %) |")
+
+
+SPLIT_HEADER = ("| scene | pixels | share of the masked error | MAE [mm] | mean error [mm] | within 1 sigma "
+                "| true bias > 4 mm |\n|---|---|---|---|---|---|---|")
+
+
+def format_split(case: Case, row: Row) -> str:
+    """The default run's corrected and left-alone masked pixels of one case, "corrected / left alone" per cell."""
+    parts = [row.split.get(name) for name in ("corrected", "left alone")]
+
+    def cell(text: Callable[[Split], str]) -> str:
+        return " / ".join(text(part) if part is not None else "-" for part in parts)
+
+    return (f"| {case.label} | {cell(lambda p: str(p.pixels))} | {cell(lambda p: f'{100 * p.error_share:.0f} %')} "
+            f"| {cell(lambda p: f'{p.mae_mm:.2f}')} | {cell(lambda p: f'{p.mean_mm:+.2f}')} "
+            f"| {cell(lambda p: f'{100 * p.covered:.0f} %')} | {cell(lambda p: f'{100 * p.biased:.0f} %')} |")
 
 
 def _mm(value: float) -> str:
@@ -262,9 +313,15 @@ def main() -> None:
     print(f"model {args.model} ({model.booster.num_boosted_rounds()} trees, prior {prior}); default options, "
           f"Table I noise, seed {args.seed}\n")
     print(HEADER)
+    measured = []
     for index, case in enumerate(cases(args.shrink)):
         rendered = render_case(case, config, [args.seed, index])
-        print(format_row(case, measure(case, rendered, model, config)), flush=True)
+        measured.append((case, measure(case, rendered, model, config)))
+        print(format_row(*measured[-1]), flush=True)
+    print("\nWhere the error sits: the default run's masked pixels, corrected / left alone (fused or measured)\n")
+    print(SPLIT_HEADER)
+    for case, row in measured:
+        print(format_split(case, row))
     print(f"\n{platform.system()}, {platform.machine()}, Python {platform.python_version()}, {date.today()}, "
           f"{time.perf_counter() - started:.0f} s wall")
 

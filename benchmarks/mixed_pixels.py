@@ -1,6 +1,6 @@
 """Mixed pixels at depth edges: a plate before a wall, rendered with sub-ray footprints, through the correction.
 
-Run: .venv/bin/python -m benchmarks.mixed_pixels [--model DIR] [--work DIR] [--quick]
+Run: .venv/bin/python -m benchmarks.mixed_pixels [--model DIR] [--work DIR] [--quick] [--per-scene]
 
 The scenes: the issue's three, a sweep of gaps (0.2-10 m) and albedo pairs (0.05-20) with the plate at 2 m, the
 plate at 1, 5 and 10 m with gaps of 0.2-5 m, and the plate at 2 and 5 m with its right edge turned 30 or 45 degrees
@@ -11,17 +11,20 @@ pixel centres, or that rectangle with its right edge turned) or the wall, and th
 the sum of its sub-rays' (amplitude Gamma_R albedo cos / r^2, phase 4 pi f r / c), through the sensor model with its
 noise (:func:`mpi_lidar.simulation.scenes.scan_from_phasors`). A mixed pixel is one whose sub-rays hit both. The
 scans are corrected with default options (:func:`mpi_lidar.correction.correct_scan`) and the benchmark prints, per
-scene:
+group of scenes (the edge straight, or turned / wide; the plate's range; the plate darker than, as bright as or
+brighter than the wall), or per scene with ``--per-scene``:
 
 - the mixed pixels, and of them: reported as one valid depth more than 5 cm from both surfaces (the target: at most
   2 %), of those the ones also more than 3 times their own uncertainty (the corrected depth's 1-sigma) from both,
   flagged ``mixed``, resolved (``two_returns``), flagged ``inconsistent``;
 - of the resolved: the nearer and the farther return's median and largest error against the plate's and the wall's
-  range, and the median of those errors over the two-return Cramer-Rao bound;
+  range (per scene only), and the median of those errors over the two-return Cramer-Rao bound;
 - the share of the pixels of one surface whose valid depth lies more than 5 cm from it: where it is not near 0 the
   5 cm criterion lies within the noise, and mixed pixels miss it as often for that reason;
+- per group, also the worst scene's share of single depths more than 5 cm off, and the range of its scenes' median
+  error over the bound;
 - then the share of pixels flagged mixed or two_returns on clean surfaces (flat walls, corners, the cornered board,
-  1-20 m; the target: under 0.1 %).
+  1-20 m; the target: under 0.1 %), per kind of surface (per scan with ``--per-scene``).
 
 The model is ``--model DIR``, or one trained here as the correction benchmark's (``--quick``: a small one and a
 smaller sweep).
@@ -213,16 +216,18 @@ def scan_light(truth: Truth, scene: PlateScene, config: Config) -> NDArray[np.fl
     return plate + wall
 
 
-def clean_scans(config: Config, quick: bool) -> list[tuple[str, Scan]]:
-    """Flat walls (square and turned 45 degrees), corners and the cornered board at 1-20 m."""
+def clean_scans(config: Config, quick: bool) -> list[tuple[str, float | None, Scan]]:
+    """Flat walls (square and turned 45 degrees), corners and the cornered board at 1-20 m: each scan with its
+    kind and distance (None for the board)."""
     distances = (1.0, 5.0, 20.0) if quick else (1.0, 2.0, 5.0, 10.0, 20.0)
-    out = [("cornered board", render(cornered_board(60, 80), config, np.random.default_rng(1), patch_spacing_m=0.05))]
+    board = render(cornered_board(60, 80), config, np.random.default_rng(1), patch_spacing_m=0.05)
+    out: list[tuple[str, float | None, Scan]] = [("cornered board", None, board)]
     for i, d in enumerate(distances):
-        for name, scene in ((f"flat wall {d:g} m", flat_wall(0.0, d, height=60, width=80)),
-                            (f"flat wall 45 deg {d:g} m", flat_wall(45.0, d, height=60, width=80)),
-                            (f"corner {d:g} m", corner(90.0, d, height=60, width=80, board_m=0.3 * d,
-                                                       half_height_m=0.2 * d))):
-            out.append((name, render(scene, config, np.random.default_rng(10 + i), patch_spacing_m=0.05 * d)))
+        for kind, scene in (("flat wall", flat_wall(0.0, d, height=60, width=80)),
+                            ("flat wall 45 deg", flat_wall(45.0, d, height=60, width=80)),
+                            ("corner", corner(90.0, d, height=60, width=80, board_m=0.3 * d,
+                                              half_height_m=0.2 * d))):
+            out.append((kind, d, render(scene, config, np.random.default_rng(10 + i), patch_spacing_m=0.05 * d)))
     return out
 
 
@@ -241,28 +246,92 @@ def _largest(values: NDArray) -> str:
     return f"{values.max() * 1000:.1f}" if values.size else "-"
 
 
-def report(model: CorrectionModel, quick: bool) -> str:
-    config = Config()
+def _percent(part: int, whole: int, digits: int = 0) -> str:
+    return f"{100 * part / max(whole, 1):.{digits}f} %"
+
+
+def all_scenes(quick: bool) -> tuple[PlateScene, ...]:
+    return ISSUE_SCENES + sweep(quick) + range_sweep(quick) + edge_sweep(quick)
+
+
+def per_scene_table(results: list[tuple[PlateScene, SceneResult]]) -> list[str]:
     lines = ["| plate | wall | mixed | single > 5 cm | single > 5 cm, 3 sigma | flagged mixed | resolved | "
              "inconsistent | near error median / max [mm] | far error median / max [mm] | error / CRB | "
              "surface > 5 cm |", "|" + "---|" * 12]
-    for i, scene in enumerate(ISSUE_SCENES + sweep(quick) + range_sweep(quick) + edge_sweep(quick)):
-        r = evaluate(scene, model, config, seed=100 + i)
-        share = 100 * r.single_far / max(r.mixed, 1)
+    for scene, r in results:
         ratio = f"{np.median(r.crb_ratios):.2f}" if r.crb_ratios.size else "-"
-        lines.append(f"| {scene.label} | {r.mixed} | {r.single_far} ({share:.0f} %) | {r.single_far_noise} | "
-                     f"{r.flagged} | {r.resolved} | {r.inconsistent} | {_median(r.near_errors)} / "
-                     f"{_largest(r.near_errors)} | {_median(r.far_errors)} / {_largest(r.far_errors)} | "
-                     f"{ratio} | {100 * r.surface_far:.0f} % |")
-    lines += ["", "| clean scene | pixels flagged mixed or two_returns | pixels measured | share |",
-              "|---|---|---|---|"]
-    flagged_total = measured_total = 0
-    for name, scan in clean_scans(config, quick):
+        lines.append(f"| {scene.label} | {r.mixed} | {r.single_far} ({_percent(r.single_far, r.mixed)}) | "
+                     f"{r.single_far_noise} | {r.flagged} | {r.resolved} | {r.inconsistent} | "
+                     f"{_median(r.near_errors)} / {_largest(r.near_errors)} | {_median(r.far_errors)} / "
+                     f"{_largest(r.far_errors)} | {ratio} | {100 * r.surface_far:.0f} % |")
+    return lines
+
+
+def albedo_class(scene: PlateScene) -> str:
+    if scene.plate_albedo == scene.wall_albedo:
+        return "equal"
+    return "darker plate" if scene.plate_albedo < scene.wall_albedo else "brighter plate"
+
+
+def straight_edge(scene: PlateScene) -> bool:
+    return scene.edge_deg == 0 and scene.footprint == 1
+
+
+def scene_group(scene: PlateScene) -> str:
+    """The summary row a scene counts in: its edge (straight, or turned / wide), plate range and albedo class."""
+    edge = "straight" if straight_edge(scene) else "turned or wide"
+    return f"{edge}, plate at {scene.plate_m:g} m, {albedo_class(scene)}"
+
+
+def group_row(group: str, results: list[tuple[PlateScene, SceneResult]]) -> str:
+    """One summary row: the group's sums, its worst scene's miss share, the range of its scenes' error / CRB."""
+    mixed = sum(r.mixed for _, r in results)
+    single_far = sum(r.single_far for _, r in results)
+    worst_scene, worst = max(results, key=lambda sr: sr[1].single_far / max(sr[1].mixed, 1))
+    worst_text = (f"{_percent(worst.single_far, worst.mixed, 1)} ({worst_scene.plate_albedo:g} / "
+                  f"{worst_scene.wall_albedo:g}, gap {worst_scene.wall_m - worst_scene.plate_m:g} m)"
+                  if worst.single_far else "-")
+    ratios = [float(np.median(r.crb_ratios)) for _, r in results if r.crb_ratios.size]
+    ratio_text = "-" if not ratios else f"{min(ratios):.2f}" + (f"-{max(ratios):.2f}" if len(ratios) > 1 else "")
+    return (f"| {group} | {len(results)} | {mixed} | {single_far} ({_percent(single_far, mixed, 1)}) | "
+            f"{sum(r.single_far_noise for _, r in results)} | {worst_text} | "
+            f"{sum(r.flagged for _, r in results)} | {sum(r.resolved for _, r in results)} | "
+            f"{sum(r.inconsistent for _, r in results)} | {ratio_text} | "
+            f"{100 * max(r.surface_far for _, r in results):.0f} % |")
+
+
+def summary_table(results: list[tuple[PlateScene, SceneResult]]) -> list[str]:
+    """One row per edge shape, plate range and albedo class (plate darker than, as bright as, brighter than the
+    wall): straight edges first, then by the plate's range."""
+    groups: dict[str, list[tuple[PlateScene, SceneResult]]] = {}
+    for scene, result in sorted(results, key=lambda sr: (not straight_edge(sr[0]), sr[0].plate_m)):
+        groups.setdefault(scene_group(scene), []).append((scene, result))
+    lines = ["| edge, plate range, albedos | scenes | mixed | single > 5 cm | single > 5 cm, 3 sigma | "
+             "worst scene's single > 5 cm (plate / wall albedo, gap) | flagged mixed | resolved | inconsistent | "
+             "error / CRB, scenes' medians | surface > 5 cm, worst |", "|" + "---|" * 11]
+    return lines + [group_row(group, members) for group, members in groups.items()]
+
+
+def clean_table(model: CorrectionModel, config: Config, quick: bool, per_scene: bool) -> list[str]:
+    """Pixels flagged mixed or two_returns on clean scenes: per kind of scene (per scene with ``per_scene``)."""
+    counts: dict[str, list[int]] = {}
+    for kind, distance, scan in clean_scans(config, quick):
+        row = kind if distance is None or not per_scene else f"{kind} {distance:g} m"
         flagged, measured = false_flags(scan, model, config)
-        flagged_total, measured_total = flagged_total + flagged, measured_total + measured
-        lines.append(f"| {name} | {flagged} | {measured} | {100 * flagged / max(measured, 1):.3f} % |")
-    lines.append(f"| all | {flagged_total} | {measured_total} | {100 * flagged_total / max(measured_total, 1):.3f} % |")
-    return "\n".join(lines)
+        total = counts.setdefault(row, [0, 0])
+        total[0], total[1] = total[0] + flagged, total[1] + measured
+    counts["all"] = [sum(c[0] for c in counts.values()), sum(c[1] for c in counts.values())]
+    lines = ["| clean scene | pixels flagged mixed or two_returns | pixels measured | share |", "|---|---|---|---|"]
+    return lines + [f"| {row} | {flagged} | {measured} | {100 * flagged / max(measured, 1):.3f} % |"
+                    for row, (flagged, measured) in counts.items()]
+
+
+def report(model: CorrectionModel, quick: bool, per_scene: bool = False) -> str:
+    """The plate scenes summarised per group (per scene with ``per_scene``), then the clean scenes' false flags."""
+    config = Config()
+    results = [(scene, evaluate(scene, model, config, seed=100 + i)) for i, scene in enumerate(all_scenes(quick))]
+    table = per_scene_table(results) if per_scene else summary_table(results)
+    return "\n".join([*table, "", *clean_table(model, config, quick, per_scene)])
 
 
 def main() -> None:
@@ -270,11 +339,13 @@ def main() -> None:
     parser.add_argument("--model", type=Path, help="Model directory (default: train one here).")
     parser.add_argument("--work", type=Path, help="Where a trained model is kept (default: a temporary directory).")
     parser.add_argument("--quick", action="store_true", help="A small model and a smaller sweep.")
+    parser.add_argument("--per-scene", action="store_true",
+                        help="One row per scene and per clean scan (default: one per group of scenes).")
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="mixed-pixels-"))
     rows, rounds = (2_000, 10) if args.quick else (20_000, 100)
     model_dir = args.model or trained_model(work / f"model-{rows}-{rounds}", rows, rounds)
-    print(report(load_model(model_dir), args.quick))
+    print(report(load_model(model_dir), args.quick, args.per_scene))
 
 
 if __name__ == "__main__":

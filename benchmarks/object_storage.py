@@ -92,15 +92,15 @@ def install_counters() -> None:
         _record(operation_name, started, sent + received)
         return response
 
-    async def counted_get(self, key, prototype, byte_range=None):
+    async def counted_get(self, key, *args, **kwargs):  # zarr's own signature passed on, defaults included
         started = time.perf_counter()
-        buffer = await get(self, key, prototype, byte_range)
+        buffer = await get(self, key, *args, **kwargs)
         _record("local read", started, 0 if buffer is None else len(buffer))
         return buffer
 
-    async def counted_set(self, key, value):
+    async def counted_set(self, key, value, *args, **kwargs):
         started = time.perf_counter()
-        await set_(self, key, value)
+        await set_(self, key, value, *args, **kwargs)
         _record("local write", started, len(value))
 
     AioBaseClient._make_api_call, LocalStore.get, LocalStore.set = counted_call, counted_get, counted_set

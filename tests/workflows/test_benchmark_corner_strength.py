@@ -33,6 +33,7 @@ def test_corner_strength__a_row_per_scene_with_its_footprint_and_shares(tmp_path
     assert all(cells[3] == "" for cells in rows if cells[0].startswith("corner")), "a corner has no tri-corner"
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 def test_corner_strength__partners_summed_predict_the_bias_better_than_the_dominant_one():
     done = subprocess.run([sys.executable, "-m", "benchmarks.corner_strength", "--partners", "--shrink", "8"],

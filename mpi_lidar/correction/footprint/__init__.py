@@ -5,10 +5,12 @@ A_fp (:mod:`mpi_lidar.physics.coupling`). A scan holds the evidence for it: on t
 the raw depth drifts away from the surfaces' planes towards their shared edge, in proportion to A_fp and with the
 shape the geometry predicts, and multipath adds light as well as range. :func:`estimate_footprint` fits A_fp to
 both; :class:`PlaneModelInputs` gives a geometric correction model its per-pixel inputs at a footprint.
-docs/explanation/footprint.md carries the equations (F1)-(F15) the modules cite.
+docs/explanation/footprint.md carries the equations (F1)-(F15) the modules cite; (F16), the two bounces, is in
+``_two_bounce``.
 
 The parts, each private: ``_surfaces`` (the scan's flat surfaces), ``_albedo`` (albedo from amplitude),
-``_partners`` (flat surfaces as planes continued beyond the view), ``_coupling`` (the two-path model's phasors),
+``_partners`` (flat surfaces as planes continued beyond the view), ``_two_bounce`` (light from one partner plane to
+another and back, A -> B -> C -> A), ``_coupling`` (the multipath model's phasors),
 ``_problem`` (the fit's rows, bias model and planes), ``_fit`` (the weighted fit of the footprint), ``_result``
 (:class:`FootprintEstimate`), ``_estimate`` (the rounds of the fit), ``_inputs`` (the model's inputs).
 """

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.footprint._partners import BlockPairs, PlanePartners
 from mpi_lidar.correction.footprint._surfaces import SurfaceLabels
+from mpi_lidar.correction.footprint._two_bounce import partner_two_bounce
 from mpi_lidar.scans.geometry import FacingBlocks
 from mpi_lidar.scans.scan import Scan
 
@@ -118,6 +119,10 @@ class PlaneCoupling:
         # Per block and partner plane: the unit-footprint sums (Hb*Wb, P, F) and (Hb*Wb,) of the planes.
         self.unit_plane_phasor_at_blocks, plane_kappa = self.at_points(self.partners.block_rays, block_surface)
         self.plane_coupling_at_blocks = plane_kappa.sum(1)
+        # Per block and ordered pair of partner planes: the two-bounce sums (Hb*Wb, P, P, F) (F16); None with
+        # fewer than three partner planes (a corner of two has no such light).
+        self.unit_two_bounce_at_blocks = partner_two_bounce(self.partners, self.partners.block_rays, block_surface,
+                                                            scan.frequencies_hz, sensor.speed_of_light_m_per_s)
         # The block pairs of receivers on a plane with curved partners, and of receivers on no plane.
         self.pair_groups = [
             PairGroup(BlockPhasors(blocks, scan.frequencies_hz, sensor.speed_of_light_m_per_s, pairs),
@@ -141,6 +146,9 @@ class PlaneCoupling:
         ``area_m2`` [m^2] and albedos ``albedo`` (Hb*Wb,): the light the partner planes and curved partners send
         back to the block's centre, capped as in (F5)."""
         phasor = self.plane_phasor_at_blocks(albedo)
+        two_bounce = self.two_bounce_phasor_at_blocks(albedo)
+        if two_bounce is not None:
+            phasor += two_bounce
         for group in self.pair_groups:
             phasor += group.phasors(albedo)
         return np.abs(1.0 + area_m2 * phasor / np.maximum(area_m2 * self.coupling_at_blocks, 1.0)[:, None]).mean(1)
@@ -149,6 +157,15 @@ class PlaneCoupling:
         """S_f (Hb*Wb, F) (F5) the partner planes give each block's centre for the albedos per block ``albedo``."""
         partner_albedo = albedo[self.partners.partner_block]
         return albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.unit_plane_phasor_at_blocks)
+
+    def two_bounce_phasor_at_blocks(self, albedo: NDArray) -> NDArray[np.complex128] | None:
+        """The two-bounce S_f (Hb*Wb, F) (F16) each block's centre gets for the albedos per block ``albedo``
+        (Hb*Wb,), None where the scan has no such light."""
+        if self.unit_two_bounce_at_blocks is None:
+            return None
+        partner_albedo = albedo[self.partners.partner_block]
+        return albedo[:, None] * np.einsum("p,q,npqf->nf", partner_albedo, partner_albedo,
+                                           self.unit_two_bounce_at_blocks)
 
 
 class PixelCoupling:
@@ -194,12 +211,17 @@ class PixelCoupling:
     def __call__(self, albedo: NDArray) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
         """S_f (n, F) and K (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""
         return self.at_block_sums(albedo, self.plane.plane_phasor_at_blocks(albedo),
-                                  [group.phasors(albedo) for group in self.plane.pair_groups])
+                                  [group.phasors(albedo) for group in self.plane.pair_groups],
+                                  self.plane.two_bounce_phasor_at_blocks(albedo))
 
-    def at_block_sums(self, albedo: NDArray, plane_phasor: NDArray, pair_phasors: list[NDArray]
-                      ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
-        """:meth:`__call__` with the block centres' sums for ``albedo`` given (the partner planes' ``plane_phasor``
-        and those of each of the plane's pair groups), so that many sets of pixels can share them."""
+    def at_block_sums(self, albedo: NDArray, plane_phasor: NDArray, pair_phasors: list[NDArray],
+                      two_bounce_phasor: NDArray | None = None) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+        """:meth:`__call__` with the block centres' sums for ``albedo`` given (the partner planes' ``plane_phasor``,
+        those of each of the plane's pair groups and the two bounces' ``two_bounce_phasor``, None: none), so that
+        many sets of pixels can share them.
+
+        The two bounces are interpolated from the block centres at every pixel on a plane, near an edge too: their
+        light falls as 1 / r^2 per leg, not as the single bounce's 1 / r^4, and changes little across a block."""
         plane = self.plane
         phasor, kappa = _pixel_phasors(self.blocks, plane_phasor, plane.plane_coupling_at_blocks, self.coordinates)
         partner_albedo = albedo[plane.partners.partner_block]
@@ -212,6 +234,11 @@ class PixelCoupling:
             rows_phasor, rows_kappa = _pixel_phasors(self.blocks, pair_phasor, group.coupling_at_blocks, coordinates)
             phasor[rows] += rows_phasor
             kappa[rows] += rows_kappa
+        if two_bounce_phasor is not None:
+            coordinates = (self.coordinates[0][self.on_plane], self.coordinates[1][self.on_plane])
+            phasor[self.on_plane] += np.stack([self.blocks.to_pixels(two_bounce_phasor[:, k].real, coordinates)
+                                               + 1j * self.blocks.to_pixels(two_bounce_phasor[:, k].imag, coordinates)
+                                               for k in range(two_bounce_phasor.shape[1])], axis=1)
         return phasor, kappa
 
 

@@ -28,6 +28,7 @@ lies nearest its measured range. Partners that are not flat surfaces (curved one
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -49,6 +50,10 @@ MIN_SPAN_BLOCKS = 3
 # coupling falls as 1 / r^4, so far patches may be coarse.
 PATCH_M = 0.02
 GRADING_M = 0.05
+# The patches of the two-bounce light (:mod:`._two_bounce`), which changes slowly across a surface: five times as
+# wide next to a receiving surface, growing every TWO_BOUNCE_GRADING_M (the multi-bounce renderer's choice).
+TWO_BOUNCE_PATCH_M = 0.10
+TWO_BOUNCE_GRADING_M = 0.15
 # Within the view a patch counts where it lies no nearer than this [m] in front of what the scan measured
 # there (the multipath moves the measured surface by centimetres near an edge).
 FRONT_TOLERANCE_M = 0.05
@@ -118,6 +123,7 @@ class PlanePartners:
         for surface, plane in (fitted or {}).items():
             if surface in self.planes:
                 self.planes[surface] = _moved_plane(self.planes[surface], plane)
+        self.blocks, self.components = blocks, components
         self.patches = _surface_patches(blocks, components, self.planes, self.block_rays)
         self.partners = sorted(self.patches)
         # A block of each plane's surface, whose albedo stands for the plane's.
@@ -128,6 +134,14 @@ class PlanePartners:
         a, b = blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b]
         self.facing = {own: {int(p) for p in np.unique(components[b[labels[a] == own]])} & set(self.patches) - {own}
                        for own in self.planes}
+
+    @functools.cached_property
+    def coarse_patches(self) -> dict[int, Patches]:
+        """The patched planes' coarser patches (:data:`TWO_BOUNCE_PATCH_M`, :data:`TWO_BOUNCE_GRADING_M`), by surface
+        label: those of the two-bounce light."""
+        coarse = _surface_patches(self.blocks, self.components, self.planes, self.block_rays, TWO_BOUNCE_PATCH_M,
+                                  TWO_BOUNCE_GRADING_M)
+        return {surface: patches for surface, patches in coarse.items() if surface in self.patches}
 
     def at_points(self, rays: NDArray, surface: NDArray, frequencies_hz: tuple[float, ...],
                   speed_of_light_m_per_s: float) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
@@ -142,7 +156,7 @@ class PlanePartners:
                 continue
             rows = np.flatnonzero(surface == own)
             own_plane = self.planes[int(own)]
-            points = _on_plane(rays[rows], own_plane)
+            points = on_plane(rays[rows], own_plane)
             for column, partner in enumerate(self.partners):
                 if partner not in self.facing[int(own)]:
                     continue
@@ -178,7 +192,7 @@ class PlanePartners:
         gap = np.full(surface.shape, np.inf)
         for column, plane_surface in enumerate(planes):
             rows = np.flatnonzero(candidate[:, column])
-            points = _on_plane(rays[rows], self.planes[plane_surface])
+            points = on_plane(rays[rows], self.planes[plane_surface])
             with np.errstate(invalid="ignore"):
                 distance = np.abs(np.linalg.norm(points, axis=1) - range_m[rows])
                 distance[self._behind_a_partner(points, plane_surface)] = np.inf
@@ -216,7 +230,7 @@ class PlanePartners:
         rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
         for partner in self.facing[surface]:
             plane = self.planes[partner]
-            within = np.linalg.norm(_on_plane(rays, plane) - plane.centre, axis=1) <= HIDING_REACH * plane.visible_m
+            within = np.linalg.norm(on_plane(rays, plane) - plane.centre, axis=1) <= HIDING_REACH * plane.visible_m
             behind |= ((points - plane.centre) @ plane.normal < 0) & within
         return behind
 
@@ -292,8 +306,10 @@ def _moved_plane(plane: SurfacePlane, fitted: NDArray) -> SurfacePlane:
 
 
 def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int, SurfacePlane],
-                     block_rays: NDArray) -> dict[int, Patches]:
-    """The patches of every modelled surface's plane that faces another, by surface label.
+                     block_rays: NDArray, patch_m: float = PATCH_M, grading_m: float = GRADING_M
+                     ) -> dict[int, Patches]:
+    """The patches of every modelled surface's plane that faces another, by surface label, ``patch_m`` [m] wide next
+    to a receiving surface and one such side wider every ``grading_m`` [m] further from it.
 
     Within the view a patch counts where the scan measured something at its range or behind it; beyond the
     view where the block nearest to its direction, on the view's border, belongs to the surface.
@@ -315,7 +331,7 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
         e1 = np.cross(normal, [0.0, 1.0, 0.0] if abs(normal[1]) < 0.9 else [1.0, 0.0, 0.0])
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(normal, e1)
-        u, v, sides = _graded_patches(centre, e1, e2, reach_m, cKDTree(block_centres[receivers]))
+        u, v, sides = _graded_patches(centre, e1, e2, reach_m, cKDTree(block_centres[receivers]), patch_m, grading_m)
         centres = centre + u[:, None] * e1 + v[:, None] * e2
         patch_range = np.linalg.norm(centres, axis=1)
         distance, nearest = directions.query(centres / np.maximum(patch_range, 1e-12)[:, None])
@@ -329,17 +345,17 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
     return found
 
 
-def _graded_patches(centre: NDArray, e1: NDArray, e2: NDArray, reach_m: float, receivers: cKDTree
-                    ) -> tuple[NDArray, NDArray, NDArray]:
+def _graded_patches(centre: NDArray, e1: NDArray, e2: NDArray, reach_m: float, receivers: cKDTree,
+                    patch_m: float = PATCH_M, grading_m: float = GRADING_M) -> tuple[NDArray, NDArray, NDArray]:
     """Square patches (u, v, side [m]) tiling the square of half-side ``reach_m`` around ``centre`` in the
-    plane spanned by e1, e2: halved until each is at most PATCH_M (1 + d / GRADING_M) wide, d the distance
+    plane spanned by e1, e2: halved until each is at most ``patch_m`` (1 + d / ``grading_m``) wide, d the distance
     from the patch to the nearest receiving block centre (``receivers``)."""
     u, v, side = np.zeros(1), np.zeros(1), np.array([2 * reach_m])
     done: list[tuple[NDArray, NDArray, NDArray]] = []
     while u.size:
         points = centre + u[:, None] * e1 + v[:, None] * e2
         clearance = np.maximum(receivers.query(points)[0] - side / np.sqrt(2), 0.0)
-        split = side > PATCH_M * (1 + clearance / GRADING_M)
+        split = side > patch_m * (1 + clearance / grading_m)
         done.append((u[~split], v[~split], side[~split]))
         quarter = side[split] / 4
         u = np.concatenate([u[split] - quarter, u[split] + quarter, u[split] - quarter, u[split] + quarter])
@@ -362,7 +378,7 @@ def _block_pairs(blocks: FacingBlocks, components: NDArray, labels: NDArray, nar
             BlockPairs(a[~on_plane], b[~on_plane], kappa[~on_plane], distance[~on_plane]))
 
 
-def _on_plane(rays: NDArray, plane: SurfacePlane) -> NDArray[np.float64]:
+def on_plane(rays: NDArray, plane: SurfacePlane) -> NDArray[np.float64]:
     """Points (n, 3) [m] where unit rays (n, 3) meet a plane (from its front)."""
     along = (plane.centre @ plane.normal) / np.minimum(rays @ plane.normal, -1e-3)
     return rays * along[:, None]

@@ -14,8 +14,8 @@ from mpi_lidar.correction.footprint._partners import (
     SurfacePlane,
     _coupling_at,
     _narrow_components,
-    _on_plane,
     _phasor_sums,
+    on_plane,
 )
 from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
 from mpi_lidar.scans.geometry import DEFAULT_MIN_COS, facing_blocks
@@ -204,7 +204,7 @@ def test_patches__a_board_continues_beyond_the_view_and_nothing_lies_in_front(co
 def test_on_plane__points_lie_on_the_plane_along_their_rays():
     plane = SurfacePlane(np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 2.0]), 1.0)
     rays = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
-    np.testing.assert_allclose(_on_plane(rays, plane), [[0.0, 0.0, 2.0], [1.5, 0.0, 2.0]])
+    np.testing.assert_allclose(on_plane(rays, plane), [[0.0, 0.0, 2.0], [1.5, 0.0, 2.0]])
 
 
 @pytest.mark.integration
