@@ -1,8 +1,9 @@
 """Where the time of archive correction goes: per stage, end to end, per scan in a batch, and peak memory.
 
 Run: .venv/bin/python -m benchmarks.correction [--model DIR] [--work DIR] [--side 1000] [--batch 200]
-     [--batch-side 256] [--big-side 4000] [--quick]
-One run prints six tables, each a markdown table (``--quick``: tiny sizes, seconds, for the test):
+     [--batch-side 256] [--big-side 4000] [--quick] [--only memory|startup]
+One run prints six tables, each a markdown table (``--quick``: tiny sizes, seconds, for the test; ``--only``:
+table 5 or table 6 alone, as the other tables' minutes do not change a peak or a start-up):
 
 1. Stages of one ``--side`` x ``--side`` render of the cornered board (4 frequencies, Table I noise,
    geometry gate, this process, caches warm): CPU seconds of this process (all threads, so robust when other
@@ -359,6 +360,29 @@ def machine() -> str:
             f"{platform.python_version()}, {date.today()}; load average {load} at the start")
 
 
+def memory_table(plan: Plan, model_dir: Path, work: Path, source: Path) -> str:
+    """Table 5: the peak memory of the ``--side`` scan and of the ``--big-side`` one."""
+    big = upsampled(source, work / f"{SCENE}-{plan.big_side}.scan.zarr", max(1, plan.big_side // plan.side))
+    big_side = read_scan(big).shape[0] if plan.big_side != plan.side else plan.side
+    return table(MEMORY_HEADERS, [peak_memory(source, model_dir, work, plan.side),
+                                  peak_memory(big, model_dir, work, big_side)])
+
+
+def run_only(table_name: str, plan: Plan, model_dir: Path | None, work: Path) -> str:
+    """One table alone (``memory``: table 5, ``startup``: table 6), printed when measured."""
+    work.mkdir(parents=True, exist_ok=True)
+    parts = [machine()]
+    if table_name == "startup":
+        parts.append(startup_tables(work / "startup", plan.startup_repeats))
+    else:
+        model_dir = model_dir or trained_model(work / f"model-{plan.train_rows}-{plan.rounds}", plan.train_rows,
+                                               plan.rounds)
+        parts.append(memory_table(plan, model_dir, work, rendered(work, plan.side)))
+    text = "\n\n".join(parts)
+    print(text, flush=True)
+    return text
+
+
 def run(plan: Plan, model_dir: Path | None, work: Path) -> str:
     """Every table of one run, as markdown, each printed as soon as it is measured."""
     work.mkdir(parents=True, exist_ok=True)
@@ -383,10 +407,7 @@ def run(plan: Plan, model_dir: Path | None, work: Path) -> str:
     emit(table(INFERENCE_HEADERS, pure_inference(source, model_dir, default_wall, plan.repeats)))
     archive = batch_archive(work, rendered(work, plan.batch_side), plan.batch)
     emit(table(BATCH_HEADERS, batch(archive, model_dir, work, plan.batch, plan.batch_side**2, pixels / default_wall)))
-    big = upsampled(source, work / f"{SCENE}-{plan.big_side}.scan.zarr", max(1, plan.big_side // plan.side))
-    big_side = read_scan(big).shape[0] if plan.big_side != plan.side else plan.side
-    emit(table(MEMORY_HEADERS, [peak_memory(source, model_dir, work, plan.side),
-                                peak_memory(big, model_dir, work, big_side)]))
+    emit(memory_table(plan, model_dir, work, source))
     emit(startup_tables(work / "startup", plan.startup_repeats))
     return "\n\n".join(parts + sections)
 
@@ -401,6 +422,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--big-side", type=int, help="Side of the big peak-memory scan [px] (default 4000).")
     parser.add_argument("--train-rows", type=int, help="Rows the model is trained on (default 50,000).")
     parser.add_argument("--quick", action="store_true", help="Tiny sizes (seconds): for a first look and tests.")
+    parser.add_argument("--only", choices=("memory", "startup"),
+                        help="One table alone: the peak memory (5) or the start-up (6).")
     parser.add_argument("--peak-child", nargs=3, metavar=("SCAN", "MODEL", "OUT"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.peak_child:
@@ -411,7 +434,10 @@ def main(argv: list[str] | None = None) -> None:
              "train_rows": args.train_rows}
     plan = dataclasses.replace(plan, **{k: v for k, v in sizes.items() if v is not None})
     work = args.work or Path(tempfile.gettempdir()) / "mpi-lidar-bench-correction"
-    run(plan, args.model, work)
+    if args.only:
+        run_only(args.only, plan, args.model, work)
+    else:
+        run(plan, args.model, work)
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ from mpi_lidar.correction.result import Correction
 from mpi_lidar.correction.scene import analyse_geometry
 from mpi_lidar.correction.sensor_reading import SensorReading, read_sensor
 from mpi_lidar.correction.status import unserved_reason, untrusted_unit
-from mpi_lidar.correction.tiles import StageClock, in_v2, scan_tiles
+from mpi_lidar.correction.tiles import StageClock, in_v2, release_freed_memory, scan_tiles
 from mpi_lidar.correction.validity import BeyondAmbiguity, Validity, check_validity
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import CorrectionModel
@@ -85,6 +85,7 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
         validity = check_validity(in_v2(scan, reading.units_per_v2), noise, options, tiles, gate,
                                   reading.saturation_v2, _beyond_ambiguity(reading, sensor))
     scan = validity.scan  # amplitudes in V^2, depths in one range: what every later stage reads
+    release_freed_memory()  # the first pass's tiles' memory, before the scene geometry takes its own
     gate_started = time.perf_counter()
     with clock("gate"):
         scene = None
@@ -96,9 +97,11 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
         mixed = find_mixed(scan, tiles, validity, decision, noise)  # flying pixels at depth edges, after the gate
         decision, validity = mixed.decision, mixed.validity
     gate_s = time.perf_counter() - gate_started
+    release_freed_memory()
     part = ScenePart() if scene is None else ScenePart(scene.model_inputs, scene.bias_m, scene.footprint)
     offsets = frequency_offsets(validity.offsets, decision.flags, None if scene is None else scene.blocks, options)
     pixels = estimate_pixels(scan, tiles, noise, decision.flags, validity, part, model, offsets, options, clock)
+    release_freed_memory()  # before the outputs are written
     # Corrected pixels beyond the training prior keep the model's depth under their own flag.
     flags = (decision.flags if pixels.beyond_prior is None
              else np.where(pixels.beyond_prior, np.uint8(Flag.BEYOND_PRIOR), decision.flags).astype(np.uint8))

@@ -79,16 +79,19 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
     known = [int(flag) for flag in (*BASELINE_FLAGS, Flag.CORRECTED, Flag.TWO_RETURNS)]
     invalid = [int(flag) for flag in INVALID_FLAGS]
     beyond, inference_s, inputs_s = 0, 0.0, 0.0
-    # The geometric inputs each corrected pixel's model read: where in the prior it lies, for its uncertainty.
-    read = np.full((flags.size, 2), np.nan) if model.geometric and scene.inputs is not None else None
+    reads_inputs = model.geometric and scene.inputs is not None
+    past = np.zeros(flags.size, dtype=bool) if reads_inputs and reach is not None else None
     for pixels, raw in raw_tiles(scan, tiles):
         cpu, started = time.process_time(), time.perf_counter()
+        # The geometric inputs each corrected pixel's model read: where in the prior it lies, for its uncertainty.
+        # A tile's only (float64, 16 bytes a pixel): the whole scan's would be the stage's largest array.
+        read = np.full((raw.shape[0], 2), np.nan) if reads_inputs else None
         needs = np.flatnonzero(flags[pixels] == Flag.CORRECTED)
         if needs.size:
             predicted = predict_rows(model, raw[needs], pixels.start + needs, scene.inputs, reach)
             depth[pixels.start + needs] = predicted.depth_m
             if read is not None and predicted.inputs is not None:
-                read[pixels.start + needs] = predicted.inputs
+                read[needs] = predicted.inputs
             beyond += predicted.beyond_prior
             inputs_s += predicted.inputs_wall_s
             clock.add("gate", predicted.inputs_cpu_s)
@@ -96,7 +99,8 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
             inference_s += time.perf_counter() - started - predicted.inputs_wall_s
         cpu = time.process_time()
 
-        def estimate_rows(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
+        def estimate_rows(rows: slice, start: int = pixels.start, raw: NDArray = raw,
+                          read: NDArray | None = read) -> None:
             where = slice(start + rows.start, start + rows.stop)
             tile_flags = flags[where]
             estimate[where] = np.where(np.isin(tile_flags, invalid), Estimate.NONE, Estimate.MEASURED)
@@ -116,12 +120,11 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
             uncertainty[index[corrected]] = corrected_uncertainty_m(
                 model.card, measured_sigma[corrected], fused.sigma_m[corrected],
                 depth[index[corrected]] - validity.measured_depth[index[corrected]], scene.footprint,
-                None if read is None else read[index[corrected]])
+                None if read is None else read[index[corrected] - start])
             estimate[index[corrected]] = Estimate.CORRECTED
 
         on_cores_by_rows(estimate_rows, raw.shape[0], PARALLEL_MIN_ROWS)
         clock.add("baseline", time.process_time() - cpu)
-    past = None
-    if read is not None and reach is not None:
-        past = beyond_prior(np.nan_to_num(read, nan=0.0), reach) & (flags == Flag.CORRECTED)
+        if past is not None and read is not None and reach is not None:
+            past[pixels] = beyond_prior(np.nan_to_num(read, nan=0.0), reach) & (flags[pixels] == Flag.CORRECTED)
     return PixelEstimates(depth, estimate, uncertainty, beyond, inference_s, inputs_s, past)
