@@ -10,7 +10,7 @@ from prefect.cache_policies import NO_CACHE
 
 from mpi_lidar.learning.baselines import table2
 from mpi_lidar.learning.evaluate import Evaluation
-from mpi_lidar.reporting.report import Report, write_report
+from mpi_lidar.reporting.report import Report, write_report_to
 from mpi_lidar.reporting.table2 import table2_report
 from mpi_lidar.workflows.job_options import BaselineRows, Trials
 from mpi_lidar.workflows.pipeline import evaluate_to_report
@@ -40,7 +40,7 @@ def evaluate_task(data: str, model: str, report_dir: str, split: str) -> tuple[E
 @task(name="table-2", cache_policy=NO_CACHE)
 def table2_task(data: str, model: str | None, report_dir: str, trials: int, train_rows: int, svm_rows: int) -> str:
     report, figures = table2_report(table2(data, model, trials=trials, train_rows=train_rows, svm_rows=svm_rows))
-    write_report(report, report_dir, figures)
+    write_report_to(report, report_dir, figures)
     return _publish(report, report_dir, TABLE2_ARTIFACT_KEY)
 
 

@@ -23,7 +23,7 @@ from mpi_lidar.errors import ConfigError
 from mpi_lidar.learning import tune
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, DEFAULT_TARGET_MODE, FeatureSpec
 from mpi_lidar.redact import carries_secret, install_log_redaction, redact
-from mpi_lidar.reporting.report import write_report
+from mpi_lidar.reporting.report import write_report_to
 from mpi_lidar.reporting.tuning_report import tuning_report
 from mpi_lidar.simulation import dataset
 from mpi_lidar.workflows.cluster import dask_client
@@ -75,7 +75,7 @@ def run_trials_task(storage: str, study: str, settings: tune.TuneSettings, trial
 def publish_study_task(storage: str, study: str, report_dir: str) -> str:
     """The study's report as files (with its plots) and as a markdown artifact; the storage is masked."""
     report, figures = tuning_report(tune.load_existing_study(storage, study), tune.masked(storage))
-    write_report(report, report_dir, figures)
+    write_report_to(report, report_dir, figures)
     markdown = report.markdown().replace("](", f"]({report_dir}/")
     create_markdown_artifact(markdown=markdown, key=TUNING_ARTIFACT_KEY, description=f"Optuna study {study}")
     return markdown

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from mpi_lidar.terminal import Display, print_table
@@ -13,10 +11,10 @@ from mpi_lidar.terminal import Display, print_table
 @click.option("--data", required=True, metavar="PATH|URL", help="Dataset store (.zarr): a path or an s3:// URL.")
 @click.option("--model", "model_dir", required=True, metavar="PATH|URL",
               help="Model directory, or its object-store URL (s3://bucket/models/m).")
-@click.option("--out", "--report", "report_dir", type=click.Path(path_type=Path), required=True,
-              help="Report directory (--report is the older name).")
+@click.option("--out", "--report", "report_dir", required=True, metavar="PATH|URL",
+              help="Report directory, or its object-store URL (s3://bucket/reports/r); --report is the older name.")
 @click.option("--split", type=click.Choice(["test", "train"]), default="test", show_default=True)
-def evaluate(data: str, model_dir: str, report_dir: Path, split: str) -> None:
+def evaluate(data: str, model_dir: str, report_dir: str, split: str) -> None:
     """Evaluate a model on a dataset split: metrics table, error histogram, report files.
 
     \b

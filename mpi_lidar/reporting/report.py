@@ -21,6 +21,7 @@ from markupsafe import Markup
 
 from mpi_lidar.learning.evaluate import Evaluation
 from mpi_lidar.learning.model import ModelCard
+from mpi_lidar.locations import is_url, location
 from mpi_lidar.simulation import dataset
 from mpi_lidar.storage.atomic import atomic_path
 
@@ -217,6 +218,21 @@ def write_report(report: Report, report_dir: str | Path, figures: dict[str, Figu
             json.dumps(report.data, indent=2, sort_keys=True, default=float) + "\n")
         (staging / REPORT_MARKER).write_text("")
     return report_dir
+
+
+def write_report_to(report: Report, report_dir: str | Path, figures: dict[str, Figure]) -> str:
+    """:func:`write_report` at a path, or at an object-store URL: the same folder, built in a temporary directory
+    and published there, its marker last (:func:`~mpi_lidar.storage.objects.publish_report`); where it went."""
+    if not is_url(report_dir):
+        return str(write_report(report, report_dir, figures))
+    import tempfile
+
+    from mpi_lidar.storage.objects import publish_report
+
+    where = location(report_dir)
+    with tempfile.TemporaryDirectory(prefix="mpi-lidar-report-") as staging:
+        publish_report(write_report(report, Path(staging) / "report", figures), where, REPORT_MARKER)
+    return str(report_dir)
 
 
 def _not_a_report(path: Path) -> bool:

@@ -251,6 +251,19 @@ def publish_directory(local_dir: Path, where: Location) -> list[str]:
     return names
 
 
+def publish_report(local_dir: Path, where: Location, marker: str) -> None:
+    """Publish a report folder built in ``local_dir`` at ``where``, its ``marker`` object last by a conditional
+    create: a previous report there (one with its marker) is replaced, as on disk; a prefix that holds anything
+    else is refused with one line, and nothing is written."""
+    found = list_files(where)
+    if found and marker not in found:
+        raise MpiLidarError(f"{where} holds {len(found)} objects that are not a report of ours; give another --out "
+                            "(nothing was written)")
+    if found:
+        remove_prefix(where)
+    publish_whole(local_dir, where, marker)
+
+
 def publish_store(local_store: Path, where: Location) -> None:
     """Publish a Zarr store built in ``local_store`` at ``where``, its root ``zarr.json`` last
     (:func:`publish_whole`): the store exists for every reader (which opens it by that object) only once whole."""

@@ -33,7 +33,7 @@ from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_GEOMETRIC, 
 from mpi_lidar.learning.model import CARD_FILE, load_model, read_card
 from mpi_lidar.learning.train import DEFAULT_ROUNDS, train_and_save, xgb_params
 from mpi_lidar.reporting.batch_report import write_batch_report
-from mpi_lidar.reporting.report import Report, evaluation_report, write_report
+from mpi_lidar.reporting.report import Report, evaluation_report, write_report_to
 from mpi_lidar.scans.store import SCAN_SUFFIX
 from mpi_lidar.simulation import dataset
 from mpi_lidar.simulation.scenes import DEMO_SCENES, render_scenes
@@ -181,7 +181,7 @@ def evaluate_to_report(data: str | Path, model_dir: str | Path, report_dir: str 
     model = load_model(model_dir)
     evaluation = evaluate_model(model, data, split)
     report, figures = evaluation_report(evaluation, model.card)
-    write_report(report, report_dir, figures)
+    write_report_to(report, report_dir, figures)
     return evaluation, report
 
 
