@@ -61,7 +61,8 @@ from benchmarks.startup import startup_tables
 from mpi_lidar.config import Config
 from mpi_lidar.correction import MODEL_FLAGS, CorrectionOptions, correct_scan
 from mpi_lidar.learning.features import DEFAULT_FEATURE_SET, DEFAULT_TARGET_MODE, FeatureSpec, synthetic_geometry
-from mpi_lidar.learning.model import DatasetCard, load_model, save_model
+from mpi_lidar.learning.model import load_model, save_model
+from mpi_lidar.learning.model_card import DatasetCard
 from mpi_lidar.learning.train import DEFAULT_EARLY_STOPPING, DEFAULT_ROUNDS, model_card, train_arrays
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
 from mpi_lidar.reporting.metrics import scan_metrics

@@ -37,7 +37,7 @@ from mpi_lidar.correction.sensor_reading import read_sensor
 from mpi_lidar.correction.tiles import in_v2, scan_tiles
 from mpi_lidar.correction.validity import check_validity
 from mpi_lidar.learning.features import geometry_inputs
-from mpi_lidar.learning.model import PriorCard
+from mpi_lidar.learning.model_card import PriorCard
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.simulation.scenes import Scene, corner, render
 

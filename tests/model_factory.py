@@ -8,7 +8,8 @@ import numpy as np
 
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.learning.features import FeatureSpec, synthetic_geometry
-from mpi_lidar.learning.model import DatasetCard, save_model
+from mpi_lidar.learning.model import save_model
+from mpi_lidar.learning.model_card import DatasetCard
 from mpi_lidar.learning.train import model_card, train_arrays
 from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows
 from mpi_lidar.simulation.sampling import THETA_NAMES

@@ -18,7 +18,8 @@ from mpi_lidar.config import PAPER_FREQUENCIES_HZ, Config, PriorConfig, SensorCo
 from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan, validity_flags
 from mpi_lidar.learning.features import FeatureSpec
 from mpi_lidar.learning.limits import posterior_estimates
-from mpi_lidar.learning.model import CorrectionModel, DatasetCard
+from mpi_lidar.learning.model import CorrectionModel
+from mpi_lidar.learning.model_card import DatasetCard
 from mpi_lidar.learning.train import TrainResult, model_card
 from mpi_lidar.physics import demod, make_sensor
 from mpi_lidar.physics.inverse import (

@@ -54,7 +54,7 @@ def predict_rows(model: CorrectionModel, raw: NDArray, pixels: NDArray, inputs: 
 
     The model's inputs, with the geometric ones of ``inputs`` where the model takes them, are built in row ranges
     on the cores into one array; the model then predicts them all at once. ``reach`` is the largest rho_ABA [1] and
-    d_AB [m] of the training prior (:meth:`~mpi_lidar.learning.model.PriorCard.multipath_reach`); None: rows beyond
+    d_AB [m] of the training prior (:meth:`~mpi_lidar.learning.model_card.PriorCard.multipath_reach`); None: rows beyond
     it are not counted.
     """
     features = np.empty((raw.shape[0], len(model.spec.names)), dtype=np.float32)

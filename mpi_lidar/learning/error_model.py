@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.learning.model import RegionScales, UncertaintyCard
+from mpi_lidar.learning.model_card import RegionScales, UncertaintyCard
 from mpi_lidar.physics.noise import fused_depths
 
 # Share of a Gaussian's values within one sd of its mean: sigma is this quantile of the absolute error.
@@ -68,7 +68,7 @@ def error_terms(raw: NDArray, depth_m: NDArray, true_depth_m: NDArray, frequenci
 def corrected_sigma_m(model: UncertaintyCard, fused_sigma_m: NDArray, correction_m: NDArray,
                       inputs: NDArray | None = None, reach: tuple[float, float] | None = None) -> NDArray[np.float64]:
     """1-sigma uncertainty [m] of corrected depths from their fused depth's sd (n,) [m] and their correction (n,)
-    [m] (:class:`~mpi_lidar.learning.model.UncertaintyCard`).
+    [m] (:class:`~mpi_lidar.learning.model_card.UncertaintyCard`).
 
     ``inputs`` (n, 2): the geometric inputs the model read, equivalent rho_ABA [1] and d_AB [m]; with them and a
     card with region scales, each row's sigma is scaled by its region's factor, and where ``reach`` (the prior's

@@ -25,18 +25,14 @@ from mpi_lidar.config import SensorConfig
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.error_model import error_terms, fit_uncertainty
 from mpi_lidar.learning.features import GEOMETRY_ERROR_MODEL, FeatureSpec, synthetic_geometry, synthetic_geometry_dask
-from mpi_lidar.learning.model import (
+from mpi_lidar.learning.model import ModelCard, booster_sha256, package_versions, save_model, staged_model
+from mpi_lidar.learning.model_card import (
     MODEL_SCHEMA,
     DatasetCard,
     GeometryErrorCard,
     MetricsCard,
-    ModelCard,
     TrainingCard,
     UncertaintyCard,
-    booster_sha256,
-    package_versions,
-    save_model,
-    staged_model,
 )
 from mpi_lidar.locations import location
 from mpi_lidar.simulation import dataset

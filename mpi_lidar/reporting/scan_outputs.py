@@ -61,14 +61,14 @@ def write_scan_outputs(target: Path, scan: Scan, correction: Correction,
     """
     level = check_outputs(outputs)
     if level == OutputLevel.FULL:  # matplotlib and plotly are imported where the full level draws with them
-        from mpi_lidar.reporting.figures import (
+        from mpi_lidar.reporting.cloud_figures import (
             VIEW_3D_FALLBACK,
-            maps_figure,
             plotly_js_src,
             point_cloud_figure,
             point_cloud_view_3d,
             write_plotly_js,
         )
+        from mpi_lidar.reporting.figures import maps_figure
     formats = point_cloud_formats(outputs, point_clouds)
     cpu_s = {} if cpu_s is None else cpu_s
     notes: list[str] = list(correction_notes(correction))

@@ -11,7 +11,8 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, correct_scan
 from mpi_lidar.correction.options import Estimate, Flag, ScanStatus
 from mpi_lidar.correction.outcome import scan_status
-from mpi_lidar.learning.model import UncertaintyCard, load_model
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.learning.model_card import UncertaintyCard
 from mpi_lidar.simulation.scenes import corner, render
 from tests.model_factory import tiny_model
 

@@ -13,7 +13,8 @@ from mpi_lidar.correction.footprint import FootprintEstimate
 from mpi_lidar.correction.options import Estimate, Flag
 from mpi_lidar.correction.uncertainty import corrected_uncertainty_m, footprint_left_open
 from mpi_lidar.learning.error_model import corrected_sigma_m
-from mpi_lidar.learning.model import UncertaintyCard, load_model
+from mpi_lidar.learning.model import load_model
+from mpi_lidar.learning.model_card import UncertaintyCard
 from mpi_lidar.simulation.scenes import corner, render
 from tests.model_factory import tiny_model
 

@@ -15,7 +15,8 @@ from mpi_lidar.learning.error_model import (
     fit_uncertainty,
 )
 from mpi_lidar.learning.features import FeatureSpec, synthetic_geometry
-from mpi_lidar.learning.model import UncertaintyCard, booster_depth
+from mpi_lidar.learning.model import booster_depth
+from mpi_lidar.learning.model_card import UncertaintyCard
 from mpi_lidar.learning.train import train_arrays
 from mpi_lidar.physics.noise import fused_depths
 from mpi_lidar.simulation.dataset import seeded_rng, simulate_rows

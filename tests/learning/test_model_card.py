@@ -13,15 +13,8 @@ import xgboost as xgb
 from mpi_lidar.config import Config
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.features import GEOMETRY_ERROR_MODEL, FeatureSpec
-from mpi_lidar.learning.model import (
-    CARD_FILE,
-    MODEL_FILE,
-    DatasetCard,
-    UncertaintyCard,
-    file_sha256,
-    load_model,
-    save_model,
-)
+from mpi_lidar.learning.model import CARD_FILE, MODEL_FILE, file_sha256, load_model, save_model
+from mpi_lidar.learning.model_card import DatasetCard, UncertaintyCard
 from mpi_lidar.learning.train import model_card, train_arrays
 
 pytestmark = pytest.mark.unit
@@ -227,7 +220,7 @@ def test_load_model__a_model_with_the_earlier_geometric_input_is_refused_with_wh
     ({"scheme": "explicit", "rho_aba": "high", "d_ab_m": [0.0, 0.2]}, None),
 ])
 def test_prior_card__multipath_reach_follows_the_scheme_as_written(written, reach):
-    from mpi_lidar.learning.model import PriorCard
+    from mpi_lidar.learning.model_card import PriorCard
 
     found = PriorCard.model_validate({"d_as_m": [1.4, 2.4], **written}).multipath_reach()
     assert found == (None if reach is None else pytest.approx(reach))

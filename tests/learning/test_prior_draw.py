@@ -7,7 +7,7 @@ import pytest
 
 from mpi_lidar.config import Config, PriorConfig, preset
 from mpi_lidar.learning.limits import log_coupling_density
-from mpi_lidar.learning.model import PriorCard
+from mpi_lidar.learning.model_card import PriorCard
 from mpi_lidar.simulation.sampling import THETA_NAMES, sample_theta
 
 RHO_ABA = THETA_NAMES.index("rho_aba")

@@ -18,7 +18,7 @@ from mpi_lidar.learning.error_model import (
     fit_uncertainty,
     region_factor,
 )
-from mpi_lidar.learning.model import RegionScales, UncertaintyCard
+from mpi_lidar.learning.model_card import RegionScales, UncertaintyCard
 
 # The error's sd by region: weak multipath 1 mm, strong (rho_ABA >= 1) 4 mm, and 2 mm where d_AB >= 0.25 m.
 ROWS = 6_000

@@ -21,7 +21,7 @@ from mpi_lidar.learning.baselines import PAPER_TABLE2, Row, Table2
 from mpi_lidar.learning.evaluate import Evaluation, error_metrics
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.batch_report import write_batch_report
-from mpi_lidar.reporting.figures import PLOTLY_JS
+from mpi_lidar.reporting.cloud_figures import PLOTLY_JS
 from mpi_lidar.reporting.report import evaluation_report, write_report
 from mpi_lidar.reporting.table2 import table2_report
 from mpi_lidar.reporting.tuning_report import tuning_report

@@ -10,17 +10,15 @@ import pytest
 
 from mpi_lidar.correction import Correction, CorrectionOptions, Flag
 from mpi_lidar.physics.coupling import DEFAULT_FOOTPRINT_AREA_M2
-from mpi_lidar.reporting.figures import (
-    MAPS_PAGE_IN,
+from mpi_lidar.reporting.cloud_figures import (
     VIEW_3D_POINTS,
     _mean_raster,
     _sample,
-    map_layout,
-    maps_figure,
     point_cloud_figure,
     point_cloud_view_3d,
     profile_column,
 )
+from mpi_lidar.reporting.figures import MAPS_PAGE_IN, map_layout, maps_figure
 from mpi_lidar.reporting.metrics import applied_correction_mm
 from mpi_lidar.scans import geometry
 from tests.scan_factory import two_path_scan

@@ -10,7 +10,7 @@ import pytest
 from mpi_lidar.cli.correct import correct as correct_command
 from mpi_lidar.correction import CorrectionOptions
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.reporting.figures import PLOTLY_JS
+from mpi_lidar.reporting.cloud_figures import PLOTLY_JS
 from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OutputLevel
 from mpi_lidar.reporting.point_cloud_files import (
     FULL_POINT_CLOUDS,

@@ -17,7 +17,7 @@ from plyfile import PlyData
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions
-from mpi_lidar.reporting.figures import PLOTLY_JS, VIEW_3D_FALLBACK
+from mpi_lidar.reporting.cloud_figures import PLOTLY_JS, VIEW_3D_FALLBACK
 from mpi_lidar.reporting.output_levels import DEFAULT_OUTPUTS, OUTPUT_LEVELS, OutputLevel, covers
 from mpi_lidar.reporting.thumbnail import FLAG_COLOURS, KEY_ROW_PX
 from mpi_lidar.scans.store import write_scan

@@ -9,14 +9,8 @@ import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction.footprint import surface_labels
-from mpi_lidar.correction.footprint._partners import (
-    PlanePartners,
-    SurfacePlane,
-    _coupling_at,
-    _narrow_components,
-    _phasor_sums,
-    on_plane,
-)
+from mpi_lidar.correction.footprint._partners import PlanePartners, SurfacePlane, _narrow_components, on_plane
+from mpi_lidar.correction.footprint._plane_coupling import coupling_at, phasor_sums
 from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
 from mpi_lidar.scans.geometry import DEFAULT_MIN_COS, facing_blocks
 from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, render
@@ -42,7 +36,7 @@ def corner_partners(corner_scan):
 
 
 @pytest.mark.unit
-def test_coupling_at__matches_the_renderers_pairwise_coupling():
+def testcoupling_at__matches_the_renderers_pairwise_coupling():
     rng = np.random.default_rng(0)
     normal_a, normal_b = np.array([0.6, 0.0, -0.8]), np.array([-0.6, 0.0, -0.8])
     points = np.array([0.0, 0.0, 2.0]) + rng.uniform(-0.3, 0.0, (40, 1)) * np.array([0.8, 0.0, 0.6]) \
@@ -51,7 +45,7 @@ def test_coupling_at__matches_the_renderers_pairwise_coupling():
         + rng.uniform(-0.4, 0.4, (300, 1)) * np.array([0.0, 1.0, 0.0])
     areas = rng.uniform(1e-4, 4e-4, 300)
     freqs = (12.5e6, 18.75e6, 25e6, 31.25e6)
-    found = _coupling_at(points, normal_a, centres, areas, normal_b, freqs, C)
+    found = coupling_at(points, normal_a, centres, areas, normal_b, freqs, C)
     # Independent: the renderer's pair geometry and coupling, pair by pair, with cosines and sines.
     r, cos_a, cos_b = pair_geometry(points[:, None], normal_a, centres[None], normal_b)
     cos_i = -(points / np.linalg.norm(points, axis=1, keepdims=True)) @ normal_a
@@ -64,14 +58,14 @@ def test_coupling_at__matches_the_renderers_pairwise_coupling():
 
 
 @pytest.mark.unit
-def test_phasor_sums__powers_of_a_common_wave_equal_the_direct_sums():
+def testphasor_sums__powers_of_a_common_wave_equal_the_direct_sums():
     rng = np.random.default_rng(1)
     kappa, r = rng.uniform(0, 1, (5, 200)), rng.uniform(0.01, 3.0, (5, 200))
     harmonic = 4 * np.pi * np.array([12.5e6, 18.75e6, 25e6, 31.25e6]) / C
     unrelated = 4 * np.pi * np.array([10e6, 10e6 * np.sqrt(2)]) / C  # no common multiple: direct sums
     for wavenumbers in (harmonic, unrelated):
         direct = np.stack([(kappa * np.exp(1j * k * r)).sum(1) for k in wavenumbers], axis=1)
-        np.testing.assert_allclose(_phasor_sums(kappa, r, wavenumbers), direct, rtol=1e-10)
+        np.testing.assert_allclose(phasor_sums(kappa, r, wavenumbers), direct, rtol=1e-10)
 
 
 def partners_of(scan):
