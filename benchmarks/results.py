@@ -3,12 +3,12 @@
 Run: .venv/bin/python -m benchmarks.results PAGE [--docs DIR] -- [the benchmark's own options]
  e.g. .venv/bin/python -m benchmarks.results calibration -- --model runs/quick/model --quick
 
-PAGE names a page of ``docs/results/`` (:data:`PAGES` says which benchmark module fills it). The benchmark runs
-in a child process with the options after ``--``; its standard output (the markdown tables) replaces the page's
-"latest run" block, between :data:`BEGIN` and :data:`END`, with the command, the machine and the date above it.
-The rest of the page (the discussion) is kept as it is: a page holds only its latest run. A page without the block
-gets it after its first paragraph. A benchmark that fails leaves the page untouched and its exit status is this
-command's.
+PAGE names a page of ``docs/results/`` (:data:`PAGES` says which benchmark module fills it; ``table2.md`` is
+written by ``mpi-lidar table2`` itself). The benchmark runs in a child process with the options after ``--``; its
+standard output (the markdown tables) replaces the page's "latest run" block, between :data:`BEGIN` and
+:data:`END`, with the command, the machine and the date above it. The rest of the page (the discussion) is kept as
+it is: a page holds only its latest run. A page without the block gets it after its first paragraph. A benchmark
+that fails leaves the page untouched and its exit status is this command's.
 """
 
 from __future__ import annotations
@@ -40,9 +40,11 @@ PAGES = {
     "model-range": "benchmarks.model_range",
     "noise-limit": "benchmarks.noise_limit",
     "point-clouds": "benchmarks.point_clouds",
+    "prior": "benchmarks.prior_coverage",
     "range-bands": "benchmarks.range_bands",
     "scenes": "benchmarks.scenes",
     "sensor": "benchmarks.sensor",
+    "sensor-law": "benchmarks.sensor_law",
     "tradeoff": "benchmarks.tradeoff",
     "training": "benchmarks.training",
     "unwrapping": "benchmarks.unwrapping",

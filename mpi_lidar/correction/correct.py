@@ -123,15 +123,14 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
 
 
 def _beyond_ambiguity(reading: SensorReading, sensor: SensorConfig) -> BeyondAmbiguity | None:
-    """The test for ranges past the frequencies' combined ambiguity, where the amplitudes' unit can be trusted
-    and the frequencies have a combined ambiguity (None otherwise)."""
-    if not reading.unit_trusted:
-        return None
+    """The test for ranges past the frequencies' combined ambiguity, where the frequencies have one (None
+    otherwise): by amplitude and continuity where the amplitudes' unit can be trusted, by continuity alone where
+    not."""
     try:
         ambiguity = combined_ambiguity_m(reading.noise.frequencies_hz, reading.noise.speed_of_light_m_per_s)
     except MpiLidarError:  # frequencies without a useful combined ambiguity: nothing to tell
         return None
-    return BeyondAmbiguity(ambiguity, sensor.gamma_r_v2)
+    return BeyondAmbiguity(ambiguity, sensor.gamma_r_v2 if reading.unit_trusted else None)
 
 
 def _model_not_applied(validity: Validity) -> GateDecision:

@@ -59,7 +59,8 @@ class ConsistencyGate(Gate):
 
     A pixel with no multipath has the same depth at every frequency up to noise; chi^2 of the depths around
     their inverse-variance mean, with each depth's noise predicted by the moment model at the measured
-    amplitude (:meth:`mpi_lidar.physics.noise.NoiseModel.chi2`), follows chi^2(F-1).
+    amplitude (:meth:`mpi_lidar.physics.noise.NoiseModel.disagree`), follows chi^2(F-1) (a degree fewer per
+    frequency without light).
     Pixels below the (1 - p) quantile are skipped. At Table I noise and d_AB <= 15 cm the multipath offset
     is almost the same at every frequency, so this test misses most multipath: it is cheap, not sufficient.
     """
@@ -69,9 +70,7 @@ class ConsistencyGate(Gate):
     p_value: float = 0.01
 
     def needs_correction(self, raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
-        from scipy.special import chdtri  # the quantile without scipy.stats's imports (0.3 s)
-
-        return np.asarray(noise.chi2(raw) > chdtri(len(noise.frequencies_hz) - 1, self.p_value))
+        return noise.disagree(raw, self.p_value)
 
 
 @dataclass(frozen=True)

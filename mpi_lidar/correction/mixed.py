@@ -27,8 +27,11 @@ such a step rarer. It reads the frequencies' fused depth (about 0.68 of the high
 side's median across the direction, so that a dark plate's few per cent of the light, which move the depth by a few
 sigmas, and a noisy dark side are seen; a side's flatness must hold beyond its noise, as a grazing surface's noisy
 steps look flat now and then. One side may begin a pixel further out, past a pixel that lies between: two mixed
-pixels in a row, where an edge runs diagonally or the footprint is wider than the pixels' pitch. The amplitude's
-level tells little here: a mixture's lies between its neighbours' as a grazing surface's does.
+pixels in a row, where an edge runs diagonally or the footprint is wider than the pixels' pitch. Far away, where a
+pixel's noise is centimetres, a second form of the test (:func:`mpi_lidar.correction._mixed_steps.stepped`) takes
+each side's level as the median of a block of six pixels, half a pixel's noise: the step must be significant in the
+sides' noise, and the pixel lie only two of its own sigmas (and ``MIN_EDGE_M``) from each. The amplitude's level
+tells little here: a mixture's lies between its neighbours' as a grazing surface's does.
 
 A clean surface passes the first test but for a share ``MIXED_P_VALUE`` of its pixels, and only those beside a
 jump of several centimetres (a grazing surface's) can be flagged. Where the phasors fit two returns within the
@@ -50,6 +53,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.correction import _mixed_steps as _blocks
 from mpi_lidar.correction.gating import GateDecision
 from mpi_lidar.correction.options import Flag
 from mpi_lidar.correction.validity import Validity
@@ -78,7 +82,7 @@ ACROSS = {(0, 1): (1, 0), (1, 0): (0, 1), (1, 1): (1, -1), (1, -1): (1, 1)}
 # understated, and the tests' margins with it).
 ACROSS_SIGMA_SHARE = 0.67
 STEP_REACH = 4  # a step's sides reach three pixels out along a diagonal and one across it
-MARGIN_ROWS = STEP_REACH  # rows read either side of a tile
+MARGIN_ROWS = max(STEP_REACH, _blocks.BLOCK_REACH)  # rows read either side of a tile
 
 
 @dataclass(frozen=True)
@@ -282,7 +286,7 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
 
     f = len(noise.frequencies_hz)
     fused = noise.fuse(raw)
-    chi2 = ((f - 1) * fused.birge_ratio.astype(np.float64) ** 2).reshape(depth.shape)
+    frequencies_disagree = fused.disagree(MIXED_P_VALUE, f).reshape(depth.shape)
     sigma = fused.top_sigma_m.reshape(depth.shape)
     ys, xs = np.nonzero(candidates)
     amplitude = raw[:, f:].reshape(*depth.shape, f)
@@ -291,10 +295,11 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
     # The step test reads the frequencies' fused depth, about 0.68 of the highest frequency's noise: the jumps it
     # looks for are a few sigmas. The lone-edge tests keep the highest frequency's depth their margins were set on.
     fused_depth = np.where(np.isfinite(depth), fused.depth_m.reshape(depth.shape), np.nan)
-    stepped = _stepped(fused_depth, fused.sigma_m.reshape(depth.shape), candidates)
+    fused_sigma = fused.sigma_m.reshape(depth.shape)
+    stepped = _stepped(fused_depth, fused_sigma, candidates) | _blocks.stepped(fused_depth, fused_sigma, candidates)
     with np.errstate(invalid="ignore"):
         edge = np.nan_to_num(_jumps(depth, sigma), nan=0.0).max(axis=0) > MIN_EDGE_M
-        disagree = (chi2 > chdtri(f - 1, MIXED_P_VALUE)) | (amplitude_chi2 > chdtri(f - 1, AMPLITUDE_P_VALUE))
+        disagree = frequencies_disagree | (amplitude_chi2 > chdtri(f - 1, AMPLITUDE_P_VALUE))
     return np.asarray(candidates & ((edge & disagree) | _between(depth, sigma) | stepped))
 
 

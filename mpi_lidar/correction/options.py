@@ -152,8 +152,9 @@ class CorrectionOptions(BaseModel):
         "Which valid pixels get corrected: where the scan's geometry allows multipath (geometry; on scans without "
         "geometry a pixel-wise model corrects every valid pixel and a geometric model, the default, leaves them as "
         "measured: status unchanged), every valid pixel (all), or frequency disagreement (consistency)."))
-    # No return: an amplitude below this many times the no-light noise of the scan's own noise law (its read term)
-    # at some frequency, or none at all.
+    # No return: the frequencies' light together below what no light reaches as rarely as one frequency reaches this
+    # many times the no-light noise of the scan's own noise law (its read term); where a surface past the combined
+    # ambiguity could give the amplitude, any one frequency below it; or none at all.
     min_amplitude_sigmas: Annotated[float, Field(ge=0, le=MAX_SIGMAS, strict=True)] = 5.0
     # The amplitude above which a pixel is saturated [V^2], from a sensor profile or the user. None: from the scan
     # itself (a plateau of clipped amplitudes), never from a sensor table's limit in a guessed unit.

@@ -3,7 +3,9 @@ the noise floor, unsaturated, frequencies consistent), in one pass over the scan
 
 The same pass keeps what later stages need from the raw measurements, so that they are read only once more after
 the scene geometry: a sample of the frequencies' relative depths for their offsets (:class:`OffsetSample`), the
-unwrapped depths of the pixels that took a wrap count, and a pixel-wise gate's decision.
+unwrapped depths of the pixels that took a wrap count, and a pixel-wise gate's decision. After the pass, where the
+scan holds a pixel past the frequencies' combined ambiguity or a wrap seam, the surfaces joined to them are flagged
+too (:func:`~mpi_lidar.correction.beyond_ambiguity.continuity_flags`).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.correction.beyond_ambiguity import STEP_SHARE, BeyondAmbiguity, continuity_flags
 from mpi_lidar.correction.gates import Gate
 from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.correction.tiles import PARALLEL_MIN_ROWS, raw_tiles, unwrapped_scan
@@ -55,7 +58,7 @@ def validity_flags(raw: NDArray, options: CorrectionOptions, noise: NoiseModel, 
         (Flag.BEYOND_AMBIGUITY, np.zeros(raw.shape[0], bool) if beyond is None else beyond.flags(raw, noise)),
         (Flag.AMBIGUOUS, ambiguous),
         (Flag.SATURATED, (amplitude >= _saturation_levels(saturation_v2, options, f)[None, :]).any(axis=1)),
-        (Flag.NO_RETURN, _no_return(amplitude, options, noise)),
+        (Flag.NO_RETURN, _no_return(amplitude, options, noise, _could_be_farther(raw, noise, beyond))),
         (Flag.NOT_FINITE, ~np.isfinite(raw).all(axis=1)),
     ]
     for flag, where in rules:  # later rules win: the most basic reason is reported
@@ -70,24 +73,54 @@ def _saturation_levels(saturation_v2: NDArray | None, options: CorrectionOptions
     return np.full(f, np.inf if options.saturation_amplitude_v2 is None else options.saturation_amplitude_v2)
 
 
-def _no_return(amplitude: NDArray, options: CorrectionOptions, noise: NoiseModel) -> NDArray[np.bool_]:
-    """Rows (n,) whose amplitude at some frequency lies below ``options.min_amplitude_sigmas`` times the noise
-    model's no-light noise (its read term: the scan's own where it measured one), or is zero or less."""
+def _no_return(amplitude: NDArray, options: CorrectionOptions, noise: NoiseModel,
+               each_frequency: NDArray | None = None) -> NDArray[np.bool_]:
+    """Rows (n,) without a return: no light at some frequency (zero or less), or too little at all of them together
+    (:func:`unlit`); the rows of ``each_frequency`` (n,) also where some frequency alone lies below
+    ``options.min_amplitude_sigmas`` times its no-light noise."""
     if options.min_amplitude_sigmas == 0:
         return np.zeros(amplitude.shape[0], bool)
-    floor = options.min_amplitude_sigmas * noise.floor_v2
-    with np.errstate(invalid="ignore"):
-        return np.asarray(((amplitude < floor[None, :]) | ~(amplitude > 0)).any(axis=1))
+    weak = unlit(amplitude, options, noise)
+    if each_frequency is not None and each_frequency.any():
+        floor = options.min_amplitude_sigmas * noise.floor_v2
+        with np.errstate(invalid="ignore"):
+            weak |= each_frequency & (amplitude < floor[None, :]).any(axis=1)
+    return weak
+
+
+def unlit(amplitude: NDArray, options: CorrectionOptions, noise: NoiseModel) -> NDArray[np.bool_]:
+    """Rows (n,) whose amplitudes (n, F) [V^2] are not all above zero, or whose squared signal-to-noise ratios
+    summed over the frequencies (each amplitude over its no-light noise, the noise model's read term) lie below
+    chi-square's with 2F degrees of freedom at the false-alarm rate of one frequency at ``options.min_amplitude_sigmas``
+    (exp(-k^2 / 2): with no light each amplitude is Rayleigh, its square over the noise chi-square(2)). The
+    frequencies' light counts together: four frequencies at 3.2 sds each pass, as one at 5 would alone."""
+    from scipy.special import chdtri  # the quantile without scipy.stats's imports
+
+    if options.min_amplitude_sigmas == 0:
+        return np.zeros(amplitude.shape[0], bool)
+    f = amplitude.shape[1]
+    floor = noise.floor_v2
+    threshold = chdtri(2 * f, np.exp(-options.min_amplitude_sigmas**2 / 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        snr2 = np.where(floor[None, :] > 0, (amplitude / np.where(floor > 0, floor, 1.0)[None, :]) ** 2, np.inf)
+        return np.asarray(~(amplitude > 0).all(axis=1) | ~(snr2.sum(axis=1) >= threshold))
+
+
+def _could_be_farther(raw: NDArray, noise: NoiseModel, beyond: BeyondAmbiguity | None) -> NDArray[np.bool_] | None:
+    """Rows (n,) whose amplitude a surface past the ambiguity could give, by its radiometry (None: no unit to
+    tell): those keep the no-return floor of each frequency alone, as a lone surface past the ambiguity would
+    pass the frequencies' joint floor as a dark near one."""
+    if beyond is None or beyond.gamma_r_v2 is None:
+        return None
+    return beyond.plausible_far(raw, noise)
 
 
 def _inconsistent(raw: NDArray, options: CorrectionOptions, noise: NoiseModel) -> NDArray[np.bool_]:
     """Rows (n,) whose frequencies' depths disagree beyond chi-square's ``1 - options.inconsistent_p_value``
     quantile under the noise model, or spread over more than the deprecated ``max_depth_spread_m`` where given."""
-    from scipy.special import chdtri  # the quantile without scipy.stats's imports
-
     f = len(noise.frequencies_hz)
+    inconsistent = noise.disagree(raw, options.inconsistent_p_value)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        inconsistent = noise.chi2(raw) > chdtri(f - 1, options.inconsistent_p_value)
         if options.max_depth_spread_m is not None:
             depth = raw[:, :f]
             high = low = depth[:, 0]
@@ -105,34 +138,6 @@ def _below_zero(raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         sigma = noise.depth_sigma_m(raw[:, f:].astype(np.float64))
         return np.asarray((raw[:, :f] < -NOISE_DEVIATIONS * sigma).any(axis=1))
-
-
-@dataclass(frozen=True)
-class BeyondAmbiguity:
-    """A range past the frequencies' combined ambiguity L looks by phase like one L nearer; only its amplitude,
-    far too weak for the near range, tells it. A pixel is flagged where its amplitude times its range squared over
-    Gamma_R (its albedo times the cosine of incidence, were it that near) reads below ``near_albedo`` and would read
-    as a plausible surface (at most ``far_albedo``) one ambiguity farther. A dark surface near by reads its own
-    albedo, a few per cent at least.
-
-    ambiguity_m : The frequencies' combined ambiguity. [m]
-    gamma_r_v2 : The sensor's amplitude of a white surface at 1 m. [V^2 m^2]
-    """
-
-    ambiguity_m: float
-    gamma_r_v2: float
-    near_albedo: float = 0.01
-    far_albedo: float = 2.0
-
-    def flags(self, raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
-        f = len(noise.frequencies_hz)
-        top = int(np.argmax(noise.frequencies_hz))
-        with np.errstate(invalid="ignore", over="ignore"):
-            range_m = raw[:, top].astype(np.float64)
-            amplitude = raw[:, f + top].astype(np.float64)
-            near = amplitude * range_m**2 / self.gamma_r_v2
-            far = amplitude * (range_m + self.ambiguity_m) ** 2 / self.gamma_r_v2
-            return (range_m > 0) & (near < self.near_albedo) & (far <= self.far_albedo) & (amplitude > 0)
 
 
 def usable_depth_of(raw: NDArray, flags: NDArray) -> NDArray:
@@ -215,6 +220,7 @@ def check_validity(scan: Scan, noise: NoiseModel, options: CorrectionOptions, ti
     confidence = np.empty(size, dtype=np.float32) if scan.depth_wrapped else None
     needs = np.zeros(size, dtype=bool) if gate is not None and gate.pixel_wise else None
     sample = OffsetSample.empty(size, f)
+    marks = np.zeros(size, dtype=np.uint8) if beyond is not None else None
     moved_parts: list[tuple[NDArray[np.intp], NDArray[np.float32]]] = []
     for pixels, raw in raw_tiles(scan, tiles):
         def check(rows: slice, start: int = pixels.start, raw: NDArray = raw) -> None:
@@ -222,6 +228,8 @@ def check_validity(scan: Scan, noise: NoiseModel, options: CorrectionOptions, ti
             part_flags = validity_flags(part, options, noise, part_confidence, saturation_v2, beyond)
             where = slice(start + rows.start, start + rows.stop)
             flags[where] = part_flags
+            if marks is not None and beyond is not None:
+                marks[where] = _far_marks(part, part_flags, options, noise, beyond)
             usable = ~np.isin(part_flags, [int(flag) for flag in UNUSABLE_FLAGS])
             sample.fill(where.start, part, usable, noise)
             usable_depth[where] = usable_depth_of(part, part_flags)
@@ -241,4 +249,54 @@ def check_validity(scan: Scan, noise: NoiseModel, options: CorrectionOptions, ti
         moved_parts.sort(key=lambda part: int(part[0][0]))  # each part ascending, disjoint
         scan = unwrapped_scan(scan, np.concatenate([p for p, _ in moved_parts]),
                               np.concatenate([d for _, d in moved_parts]))
+    if marks is not None and beyond is not None and _may_continue_past(marks):
+        marked = {mark: (marks & mark).astype(bool).reshape(scan.shape) for mark in (_LIT, _NODE, _KNOWN, _SEED)}
+        far = np.flatnonzero(continuity_flags(scan.depth[f - 1], scan.amplitude[f - 1], marked[_LIT], marked[_NODE],
+                                              marked[_KNOWN], marked[_SEED], noise, beyond.ambiguity_m).ravel())
+        _flag_beyond(far, flags, usable_depth, sample, needs)
     return Validity(flags, usable_depth, measured, confidence, sample, needs, scan)
+
+
+# Marks the validity pass keeps of each pixel for the continuity past the ambiguity: a lit pixel (unsaturated), one
+# that may lie past it (lit and, where the unit is known, of an amplitude a surface there could give), one of those
+# whose range the unwrapping is sure of, one its amplitude surely flags, and one near either end of the ambiguity
+# (where a wrap seam may run).
+_LIT, _NODE, _KNOWN, _SEED, _NEAR_END, _NEAR_START = 1, 2, 4, 8, 16, 32
+
+
+def _far_marks(raw: NDArray, flags: NDArray, options: CorrectionOptions, noise: NoiseModel,
+               beyond: BeyondAmbiguity) -> NDArray[np.uint8]:
+    """The continuity marks (n,) of unwrapped raw rows (n, 2F) [m, V^2] and their flags (n,)."""
+    f = len(noise.frequencies_hz)
+    lit = (~unlit(raw[:, f:], options, noise) & np.isfinite(raw).all(axis=1)
+           & ~np.isin(flags, [int(Flag.SATURATED), int(Flag.NOT_FINITE)]))
+    node = lit & beyond.plausible_far(raw, noise)
+    known = node & (flags != Flag.AMBIGUOUS)  # a range the unwrapping is sure of
+    seed = known & beyond.surely_flags(raw, noise)
+    depth = raw[:, f - 1]
+    with np.errstate(invalid="ignore"):
+        near_end = lit & (depth > (1 - 2 * STEP_SHARE) * beyond.ambiguity_m)
+        near_start = known & (depth < 2 * STEP_SHARE * beyond.ambiguity_m)
+    marks = (lit * _LIT + node * _NODE + known * _KNOWN + seed * _SEED + near_end * _NEAR_END
+             + near_start * _NEAR_START)
+    return marks.astype(np.uint8)
+
+
+def _may_continue_past(marks: NDArray) -> bool:
+    """Whether the scan holds a pixel flagged past the ambiguity by its amplitude, or pixels near both of its ends
+    (a wrap seam may join them): only then is the continuity worked out."""
+    seen = np.bitwise_or.reduce(marks) if marks.size else 0
+    return bool(seen & _SEED) or (bool(seen & _NEAR_END) and bool(seen & _NEAR_START))
+
+
+def _flag_beyond(pixels: NDArray, flags: NDArray, usable_depth: NDArray, sample: OffsetSample,
+                 needs: NDArray | None) -> None:
+    """The flat ``pixels`` (k,) flagged past the ambiguity by continuity, in the validity pass's maps: their depth
+    unusable, out of the offset sample and of the gate's choice."""
+    flags[pixels] = Flag.BEYOND_AMBIGUITY
+    usable_depth[pixels] = np.nan
+    sampled = pixels[pixels % sample.stride == 0] // sample.stride
+    sample.differences[sampled] = np.nan
+    sample.window_differences[sampled] = np.nan
+    if needs is not None:
+        needs[pixels] = False

@@ -26,6 +26,12 @@ from mpi_lidar.physics.window import window_corrections_m
 
 # Amplitudes below this [V^2] divide as this: a pixel without light has an unbounded, not an infinite, noise.
 MIN_AMPLITUDE_V2 = 1e-12
+# A frequency whose amplitude lies below this many times its no-light noise is taken to have no light: its phase is
+# then uniform over the circle, not the Gaussian its amplitude's weight assumes, and fusion leaves it out of that
+# pixel. With no light the amplitude passes it in exp(-3^2 / 2) = 1.1 % of pixels; a frequency with light at 3 sds
+# carries under a ninth of the weight of one at 10.
+NO_LIGHT_SIGMAS = 3.0
+LIT_SHARE = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,19 +121,23 @@ class NoiseModel:
 
         Under independent Gaussian noise of sds sigma_f the mean sum_f w_f d_f / sum_f w_f with w_f = sigma_f^-2 is
         the maximum-likelihood range and reaches the Cramer-Rao bound, sigma = (sum_f w_f)^-1/2: at 12.5-31.25 MHz
-        about 0.68 of the highest frequency's sd. ``offsets_m`` (F,): each frequency's fixed depth offset relative
-        to the highest [m], subtracted first; None: none. The noise scale moves the sds and the consistency test,
-        not the mean. ``window``: each depth first has the integration window's leakage removed
+        about 0.68 of the highest frequency's sd. A frequency without light (:meth:`dark`) weighs nothing in its
+        pixel, and the consistency test has one degree of freedom fewer; a pixel with no frequency lit weighs them
+        all. ``offsets_m`` (F,): each frequency's fixed depth offset relative to the highest [m], subtracted first;
+        None: none. The noise scale moves the sds and the consistency test, not the mean. ``window``: each depth
+        first has the integration window's leakage removed
         (:func:`~mpi_lidar.physics.window.window_corrections_m`), the offsets then being those that remain.
         """
         f = len(self.frequencies_hz)
         freqs = self.frequencies_hz
         window_m = window_corrections_m(raw[:, :f], raw[:, f:], freqs, self.sensor) if window else None
         offsets = np.zeros(f) if offsets_m is None else np.asarray(offsets_m, dtype=np.float64)
+        dark = self.dark(raw[:, f:])
         # Summed column by column: a row reduction over F values is several times slower.
         metres_per_rad = self.metres_per_radian
         scale2 = self.noise_scale**2
         depths, weights = [], []
+        top = int(np.argmax(freqs))
         for column in range(f):
             amplitude = np.maximum(raw[:, f + column].astype(np.float64), MIN_AMPLITUDE_V2)
             variance = scale2 * (self.read_variance_v4[column] + self.shot_variance_v2[column] * amplitude) \
@@ -135,20 +145,55 @@ class NoiseModel:
             weights.append(1.0 / (variance * metres_per_rad[column] ** 2))
             depth = raw[:, column].astype(np.float64) - offsets[column]
             depths.append(depth if window_m is None else depth + window_m[:, column])
+        top_sigma = weights[top] ** -0.5
+        dof = np.full(raw.shape[0], f - 1, dtype=np.int8)
+        if dark is not None:
+            rows, columns = dark
+            for column in np.unique(columns):
+                weights[column][rows[columns == column]] = 0.0
+                depths[column][rows[columns == column]] = 0.0  # a dark frequency's depth may be NaN; it weighs 0
+            np.subtract.at(dof, rows, 1)
         total = sum(weights[1:], weights[0])
         mean = sum((w * d for w, d in zip(weights[1:], depths[1:], strict=True)), weights[0] * depths[0]) / total
         chi2 = sum(w * (d - mean) ** 2 for w, d in zip(weights, depths, strict=True))
-        top = int(np.argmax(freqs))
         with np.errstate(invalid="ignore"):  # rows without a finite depth: NaN chi2, not consistent
-            consistent = chi2 <= _chi2_quantile(f - 1)
-        return Fused(mean.astype(np.float32), (total**-0.5).astype(np.float32),
-                     (weights[top] ** -0.5).astype(np.float32), consistent,
-                     np.sqrt(chi2 / max(f - 1, 1)).astype(np.float32))
+            consistent = chi2 <= _chi2_quantiles(f)[dof]
+        return Fused(mean.astype(np.float32), (total**-0.5).astype(np.float32), top_sigma.astype(np.float32),
+                     consistent, np.sqrt(chi2 / np.maximum(dof, 1)).astype(np.float32), dof)
+
+    def dark(self, amplitude_v2: NDArray) -> tuple[NDArray[np.intp], NDArray[np.intp]] | None:
+        """The (row, frequency) indices of the frequencies without light in amplitudes (n, F) [V^2], None where
+        every frequency of every row has light. A frequency has light where its amplitude is above zero and at
+        least ``NO_LIGHT_SIGMAS`` times its no-light noise (:attr:`floor_v2`) or ``LIT_SHARE`` of the row's highest
+        such ratio (the frequencies of one return have alike amplitudes: where all are weak, none is dark); a row
+        with no frequency lit has them all counted as lit."""
+        floors = NO_LIGHT_SIGMAS * self.floor_v2
+        dim = np.zeros(amplitude_v2.shape[0], bool)
+        with np.errstate(invalid="ignore"):
+            for column in range(amplitude_v2.shape[1]):  # column by column: most rows are lit everywhere
+                dim |= ~(amplitude_v2[:, column] >= floors[column])
+        rows = np.flatnonzero(dim)
+        if not rows.size:
+            return None
+        with np.errstate(invalid="ignore", divide="ignore"):
+            amplitude = amplitude_v2[rows].astype(np.float64)
+            snr = amplitude / self.floor_v2[None, :]
+            brightest = np.nanmax(np.where(np.isfinite(snr), snr, np.nan), axis=1, initial=0.0, keepdims=True)
+            lit = ((snr >= NO_LIGHT_SIGMAS) | (snr >= LIT_SHARE * brightest)) & (amplitude > 0)
+        lit |= ~lit.any(axis=1, keepdims=True)
+        dark_rows, dark_columns = np.nonzero(~lit)
+        return (rows[dark_rows], dark_columns) if dark_rows.size else None
 
     def chi2(self, raw: NDArray) -> NDArray[np.float64]:
-        """chi^2 of each row's depths about their inverse-variance mean (n,): chi^2(F - 1) where they see one range."""
-        f = len(self.frequencies_hz)
-        return (f - 1) * self.fuse(raw).birge_ratio.astype(np.float64) ** 2
+        """chi^2 of each row's depths about their inverse-variance mean (n,): chi^2(F - 1) where they see one range
+        (:attr:`Fused.dof` degrees of freedom where a frequency has no light)."""
+        fused = self.fuse(raw)
+        return np.maximum(fused.dof, 1) * fused.birge_ratio.astype(np.float64) ** 2
+
+    def disagree(self, raw: NDArray, p_value: float) -> NDArray[np.bool_]:
+        """Whether each row's depths (n,) disagree beyond chi-square's ``1 - p_value`` quantile at the row's own
+        degrees of freedom (:attr:`Fused.dof`); a row with one lit frequency has nothing to disagree with."""
+        return self.fuse(raw).disagree(p_value, len(self.frequencies_hz))
 
 
 def noise_floor_v2(sensor: SensorConfig, frequencies_hz: tuple[float, ...]) -> NDArray[np.float64]:
@@ -209,7 +254,9 @@ class Fused:
     top_sigma_m : The highest frequency's depth's standard deviation, (n,). [m]
     consistent : Whether the frequencies agree within noise (chi-square below its 1 - ``FUSION_P_VALUE``
         quantile), (n,): only those pixels are fused.
-    birge_ratio : sqrt(chi2 / (F - 1)), the spread of the frequencies over what the noise explains, (n,). [1]
+    birge_ratio : sqrt(chi2 / dof), the spread of the frequencies over what the noise explains, (n,). [1]
+    dof : The consistency test's degrees of freedom, the frequencies with light less one (F - 1 where all have
+        light; :meth:`NoiseModel.dark`), (n,).
     """
 
     depth_m: NDArray[np.float32]
@@ -217,6 +264,15 @@ class Fused:
     top_sigma_m: NDArray[np.float32]
     consistent: NDArray[np.bool_]
     birge_ratio: NDArray[np.float32]
+    dof: NDArray[np.int8]
+
+    def disagree(self, p_value: float, frequencies: int) -> NDArray[np.bool_]:
+        """Whether each row's depths (n,) of ``frequencies`` disagree beyond chi-square's ``1 - p_value`` quantile
+        at the row's own degrees of freedom; a row with one lit frequency has nothing to disagree with."""
+        dof = self.dof.astype(np.int64)
+        with np.errstate(invalid="ignore"):
+            return np.asarray(np.maximum(dof, 1) * self.birge_ratio.astype(np.float64) ** 2
+                              > _chi2_quantiles(frequencies, p_value)[dof])
 
 
 def fused_depths(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: SensorConfig, *,
@@ -227,10 +283,9 @@ def fused_depths(raw: NDArray, frequencies_hz: tuple[float, ...], sensor: Sensor
 
 
 @lru_cache(maxsize=8)
-def _chi2_quantile(dof: int) -> float:
-    """The 1 - ``FUSION_P_VALUE`` quantile of chi-square with ``dof`` degrees of freedom (inf for none)."""
-    if dof < 1:
-        return float("inf")
+def _chi2_quantiles(frequencies: int, p_value: float = FUSION_P_VALUE) -> NDArray[np.float64]:
+    """The 1 - ``p_value`` quantile of chi-square with 0 to ``frequencies`` - 1 degrees of freedom (inf for none),
+    indexed by the degrees of freedom."""
     from scipy.special import chdtri  # scipy.stats costs a second of imports; the special function does not
 
-    return float(chdtri(dof, FUSION_P_VALUE))
+    return np.array([np.inf, *(chdtri(dof, p_value) for dof in range(1, max(frequencies, 1)))])

@@ -41,9 +41,11 @@ FLAG_LEGEND: dict[Flag, FlagLegend] = {
     Flag.NOT_FINITE: FlagLegend("F", "invalid: a NaN or infinite depth or amplitude",
                                 "a NaN or infinite depth or amplitude", "NaN", "#222f3e"),
     Flag.NO_RETURN: FlagLegend("R", "invalid: no light above the noise",
-                               "an amplitude below 5 sigma of the no-light noise at some frequency "
-                               "(`min_amplitude_sigmas`; the read term of the scan's own noise law), or an "
-                               "amplitude of zero or less", "NaN", "#576574"),
+                               "too little light at all frequencies together: their squared amplitudes over the "
+                               "no-light noise (the read term of the scan's own noise law) summed below what no light "
+                               "reaches as rarely as one frequency reaches 5 sigma (`min_amplitude_sigmas`); where a "
+                               "surface past the combined ambiguity could give the amplitude, any one frequency below "
+                               "5 sigma; or an amplitude of zero or less", "NaN", "#576574"),
     Flag.SATURATED: FlagLegend("S", "invalid: amplitude clipped (saturated)",
                                "an amplitude on the scan's own plateau of clipped amplitudes at some frequency, or "
                                "above `saturation_amplitude_v2` where a sensor profile or the options give it",
@@ -73,8 +75,10 @@ FLAG_LEGEND: dict[Flag, FlagLegend] = {
     Flag.BEYOND_AMBIGUITY: FlagLegend("B", "invalid: past the combined ambiguity distance",
                                       "the pixel's amplitude is far too weak for the range its phases give (below "
                                       "1 % of a white surface's there) and plausible one combined ambiguity farther "
-                                      "(24.0 m for 12.5-31.25 MHz): the surface lies past it; checked where the "
-                                      "amplitudes' unit is trusted", "NaN", "#6c3483"),
+                                      "(24.0 m for 12.5-31.25 MHz), where the amplitudes' unit is trusted; or its "
+                                      "surface continues smoothly (depth and amplitude) from the far side of a wrap "
+                                      "seam (neighbours at about 24 m and about 0 m) or from a region most of whose "
+                                      "pixels the amplitude flags: the surface lies past it", "NaN", "#6c3483"),
     Flag.MIXED: FlagLegend("X", "invalid: mixed pixel at a depth edge (two surfaces)",
                            "the footprint straddles a depth edge: beside a jump of more than 5 cm, the frequencies' "
                            "depths or their amplitudes disagree beyond their noise, or the depth lies off the line "

@@ -116,3 +116,32 @@ def test_correct_scan__a_wrapped_scan_corrects_as_the_same_scan_unwrapped(tiny_g
     assert np.array_equal(wrapped_run.flags, unwrapped_run.flags)
     np.testing.assert_allclose(wrapped_run.depth, unwrapped_run.depth, rtol=0, atol=1e-6)
     np.testing.assert_allclose(wrapped_run.measured_depth, unwrapped.depth[-1], rtol=0, atol=1e-6)
+
+
+@pytest.mark.unit
+def test_fused_depths__a_frequency_without_light_is_left_out_as_ideal_fusion_of_the_lit_ones_would():
+    from mpi_lidar.physics.noise import NoiseModel
+
+    noise = NoiseModel.for_sensor(SensorConfig(), FREQS)
+    rng = np.random.default_rng(4)
+    n, snr = 100_000, 5.0
+    true_amplitude = np.tile(snr * noise.floor_v2, (n, 1))
+    true_amplitude[:, -1] = 0.0  # the highest frequency, the heaviest, gets no light
+    quadrature = noise.quadrature_sigma_v2(true_amplitude)
+    phasor = true_amplitude + quadrature * (rng.standard_normal((n, 4)) + 1j * rng.standard_normal((n, 4)))
+    depth = 5.0 + np.angle(phasor) * noise.metres_per_radian
+    fused = noise.fuse(np.hstack([depth, np.abs(phasor)]))
+    lit_weight = noise.depth_sigma_m(np.maximum(true_amplitude, 1e-30))[:, :3] ** -2.0
+    ideal = (lit_weight * depth[:, :3]).sum(axis=1) / lit_weight.sum(axis=1)
+    ratio = np.abs(fused.depth_m - 5.0).mean() / np.abs(ideal - 5.0).mean()
+    assert ratio == pytest.approx(1.0, abs=0.05), "within 5 % of inverse-variance fusion of the lit frequencies"
+    assert fused.consistent.mean() > 0.98, "the dark frequency's random phase is not read as a disagreement"
+    snr = np.abs(phasor) / noise.floor_v2
+    lit = (snr >= 3) | (snr >= snr.max(axis=1, keepdims=True) / 2)  # 3 sds, or half the brightest one's
+    np.testing.assert_array_equal(fused.dof, lit.sum(axis=1) - 1)
+    dark = ~lit[:, -1] & lit[:, :3].all(axis=1)
+    assert dark.mean() > 0.9
+    first = np.flatnonzero(dark)[0]
+    weight = noise.depth_sigma_m(np.abs(phasor[first:first + 1]))[0, :3] ** -2.0
+    assert fused.depth_m[first] == pytest.approx((weight * depth[first, :3]).sum() / weight.sum(), abs=1e-6)
+    assert fused.sigma_m[first] == pytest.approx(weight.sum() ** -0.5, rel=1e-6)

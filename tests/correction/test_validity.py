@@ -75,3 +75,23 @@ def test_validity_flags__a_bright_wall_past_the_ambiguity_is_flagged_a_dark_near
     near = validity_flags(dark, CorrectionOptions(), SHOT_ONLY, beyond=beyond)
     assert (near == Flag.BEYOND_AMBIGUITY).mean() < 0.01 and (near == Flag.NOT_NEEDED).mean() > 0.99
     assert not (validity_flags(far, CorrectionOptions(), SHOT_ONLY) == Flag.BEYOND_AMBIGUITY).any(), "none asked"
+
+
+def test_validity_flags__no_return_counts_the_frequencies_light_together_unless_a_far_surface_could_give_it():
+    options = CorrectionOptions()
+    floor = NOISE.floor_v2
+    weak = np.hstack([np.full((3, 4), 6.0), np.array([3.8, 3.3, 2.0])[:, None] * floor[None, :]])
+    # 4 x 3.8^2 = 58 and 4 x 3.3^2 = 44 pass chi-square(8)'s quantile at exp(-5^2 / 2), 39.6; 4 x 2^2 = 16 does not
+    flags = validity_flags(weak, options, NOISE)
+    assert list(flags == Flag.NO_RETURN) == [False, False, True]
+    # A 100 % wall at 30 m reads as this one at 6 m: where a surface past the ambiguity could give the amplitude,
+    # each frequency must stand clear of its floor alone.
+    beyond = BeyondAmbiguity(AMBIGUITY_M, SENSOR.gamma_r_v2)
+    amplitude = SENSOR.gamma_r_v2 * 1.0 / 30.0**2
+    far = np.hstack([np.full((1, 4), 6.0), np.full((1, 4), amplitude)])
+    assert ((far[0, 4:] / floor) ** 2).sum() > 39.6 and (far[0, 4:] < 5 * floor).all(), "the example's premise"
+    assert validity_flags(far, options, NOISE)[0] != Flag.NO_RETURN, "no unit: the joint rule"
+    assert validity_flags(far, options, NOISE, beyond=beyond)[0] == Flag.NO_RETURN
+    noisy = NOISE.scaled(1.5)  # 3.8 of its sds at 23 m read as a 71 % surface there, and as 296 % at 47 m
+    near = np.hstack([np.full((1, 4), 23.0), 3.8 * noisy.floor_v2[None, :]])
+    assert validity_flags(near, options, noisy, beyond=beyond)[0] != Flag.NO_RETURN

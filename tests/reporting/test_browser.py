@@ -79,13 +79,12 @@ def browse(chromium: str, page: Path, screenshot: Path | None = None, height_px:
     probed = page.with_name(f".probed-{page.name}")
     probed.write_text(page.read_text().replace("<head>", "<head>" + PROBE, 1))
     flags = [chromium, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-             "--hide-scrollbars", "--allow-file-access-from-files", "--virtual-time-budget=10000"]
+             "--hide-scrollbars", "--allow-file-access-from-files", "--virtual-time-budget=10000",
+             f"--window-size={WINDOW_PX},{height_px}", "--dump-dom"]
+    if screenshot is not None:  # the same load draws the screenshot: one browser start a page
+        flags.append(f"--screenshot={screenshot}")
     try:
-        dom = subprocess.run([*flags, f"--window-size={WINDOW_PX},2000", "--dump-dom", probed.as_uri()],
-                             capture_output=True, text=True, timeout=120)
-        if screenshot is not None:
-            subprocess.run([*flags, f"--window-size={WINDOW_PX},{height_px}", f"--screenshot={screenshot}",
-                            probed.as_uri()], capture_output=True, timeout=120)
+        dom = subprocess.run([*flags, probed.as_uri()], capture_output=True, text=True, timeout=120)
     finally:
         probed.unlink()
     match = re.search(r'<pre id="probe">(.*?)</pre>', dom.stdout, flags=re.S)
