@@ -4,12 +4,14 @@ A scan passes validity -> scene geometry -> model -> outputs. This stage takes t
 usable pixels and, where the scan has rays: fits the facing blocks (:func:`mpi_lidar.scans.geometry.facing_blocks`),
 measures the scan's own receiver footprint where ``footprint_area_m2`` is "auto"
 (:func:`mpi_lidar.correction.footprint.estimate_footprint`), the expected multipath bias of every pixel at that
-footprint, and, for a geometric model, its per-pixel inputs. Gates (:mod:`mpi_lidar.correction.gates`) decide
+footprint (the facing blocks', and the partner planes' where the blocks do not reach the gate), and, for a
+geometric model, its per-pixel inputs. Gates (:mod:`mpi_lidar.correction.gates`) decide
 from the result, :class:`SceneGeometry`; ``mpi-lidar calibrate`` and the benchmarks use the same functions.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import cast
 
@@ -35,6 +37,9 @@ from mpi_lidar.threads import on_cores
 NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
 NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (rho_ABA, d_AB), so it corrects no "
                            "pixel; every valid pixel gets the baseline")
+# Pixels whose partner-plane bias is worked out at once: the sums over their partners' patches take about a
+# kilobyte a pixel while they are made (as the model's inputs do).
+PLANE_BIAS_PIXELS = 16_384
 
 
 @dataclass(frozen=True)
@@ -48,8 +53,7 @@ class SceneGeometry:
     blocks : geometry.FacingBlocks | None
         The scan's blocks, their planes and facing pairs.
     surfaces : SurfaceLabels | None
-        The blocks' connected and flat surfaces, where the footprint fit or the model's inputs needed them (and
-        some blocks face each other).
+        The blocks' connected and flat surfaces, where some blocks face each other.
     footprint : FootprintEstimate | None
         The scan's own footprint estimate where ``footprint_area_m2`` is "auto"; None where it was given.
     footprint_m2 : float
@@ -58,9 +62,11 @@ class SceneGeometry:
     potential : geometry.BlockPotential | None
         The expected multipath per block at ``footprint_m2`` (pixels interpolate it).
     bias_m : NDArray[np.float32] | None
-        Expected multipath bias per pixel (H, W) at ``footprint_m2``. [m]
+        Expected multipath bias per pixel (H, W) at ``footprint_m2``: the facing blocks' and, where that does not
+        reach ``CorrectionOptions.min_multipath_bias_m``, the partner planes' where larger in size
+        (:meth:`PlaneModelInputs.bias_m`: the light of surfaces beyond the view or the partner range). [m]
     reaches_min_bias : NDArray[np.bool_] | None
-        Bool (H*W,): where ``bias_m`` reaches ``CorrectionOptions.min_multipath_bias_m``.
+        Bool (H*W,): where ``bias_m`` reaches ``CorrectionOptions.min_multipath_bias_m`` in size.
     uncalibrated : NDArray[np.bool_] | None
         Bool (H*W,), only where the scan's own estimate is not significant: the pixels whose bias could reach
         ``min_multipath_bias_m`` at the estimate's upper bound (they are left as measured).
@@ -105,14 +111,18 @@ def depth_sigma_map(scan: Scan, usable_depth: NDArray, noise: NoiseModel, tile_p
     """The sd (H, W) [m] of the highest-frequency depth (the one ``usable_depth`` (H*W,) holds) at each pixel's
     amplitude under ``noise``, NaN where the depth is not usable; a band of rows at a time."""
     h, w = scan.shape
-    f = len(scan.frequencies_hz)
+    highest = len(scan.frequencies_hz) - 1
+    # The highest frequency's law alone: the other frequencies' sds would be worked out only to be dropped.
+    law = dataclasses.replace(noise, frequencies_hz=noise.frequencies_hz[highest:],
+                              read_variance_v4=noise.read_variance_v4[highest:],
+                              shot_variance_v2=noise.shot_variance_v2[highest:])
     sigma = np.full((h, w), np.nan, dtype=np.float32)
     usable = np.isfinite(usable_depth).reshape(h, w)
     step = max(1, tile_pixels // max(w, 1))
     for top in range(0, h, step):
         rows = slice(top, min(top + step, h))
-        amplitude = np.asarray(scan.amplitude[:, rows], dtype=np.float64).reshape(f, -1).T
-        band = noise.depth_sigma_m(amplitude)[:, f - 1].reshape(-1, w)
+        amplitude = np.asarray(scan.amplitude[highest, rows], dtype=np.float64).reshape(-1, 1)
+        band = law.depth_sigma_m(amplitude).reshape(-1, w)
         sigma[rows] = np.where(usable[rows], band, np.nan)
     return sigma
 
@@ -133,7 +143,9 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     sensor : SensorConfig
         The sensor (noise model, Gamma_R) the footprint fit needs.
     with_model_inputs : bool
-        Also work out a geometric model's per-pixel inputs (:attr:`SceneGeometry.model_inputs`).
+        Also hand on a geometric model's per-pixel inputs (:attr:`SceneGeometry.model_inputs`). The bias map and
+        the gate's pixels do not depend on it: the partner planes are worked out wherever blocks face each other
+        and the footprint is above zero.
     noise : NoiseModel | None
         The scan's noise model, which sets how far noise can turn the block planes and weighs the footprint fit
         (None: the sensor's, scaled by ``options.noise_scale``).
@@ -150,7 +162,7 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
             return SceneGeometry(notes=(NO_GEOMETRY_INPUTS_NOTE,))
         return SceneGeometry(notes=(NO_GEOMETRY_NOTE,) if options.gate == GateName.GEOMETRY else ())
     auto = options.footprint_area_m2 == AUTO
-    surfaces = surface_labels(blocks) if blocks.pairs.a.size and (auto or with_model_inputs) else None
+    surfaces = surface_labels(blocks) if blocks.pairs.a.size else None
     estimate, uncalibrated, measured_albedo = None, None, None
     if not auto:
         # Validated options hold a number here; no float() of it, so a bad value fails where it is used.
@@ -170,9 +182,11 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     bias_m = np.empty(scan.shape, dtype=np.float32)
     reaches = _reaches_min_bias(potential, options, bias_m)
     inputs = None
-    if with_model_inputs:
+    if with_model_inputs or (surfaces is not None and footprint_m2 > 0):
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels)
-    return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated, inputs)
+        _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches)
+    return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated,
+                         inputs if with_model_inputs else None)
 
 
 def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOptions,
@@ -189,3 +203,30 @@ def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOpt
 
     on_cores(band, potential.blocks.bands(options.tile_pixels))
     return reaches.ravel()
+
+
+def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usable_depth: NDArray,
+                    frequency_hz: float, options: CorrectionOptions, bias_out: NDArray, reaches: NDArray) -> None:
+    """Where the partner planes predict a larger bias than the blocks (:meth:`PlaneModelInputs.bias_m` at
+    ``frequency_hz`` [Hz], the highest), it replaces the blocks' in ``bias_out`` (H, W) [m] and reaches the gate in
+    ``reaches`` (H*W,) where at least ``options.min_multipath_bias_m`` in size; a band of rows at a time.
+
+    The blocks see only the block pairs that face each other within the partner range and in view; a room's
+    far wall, floor or ceiling lights a pixel from beyond either, and the planes continue the surfaces there. A
+    scan without partner planes keeps the blocks' bias to the bit."""
+    if inputs.plane is None:
+        return
+    width = blocks.shape[1]
+    flat_bias = bias_out.reshape(-1)
+
+    def band(rows: slice) -> None:
+        pixels = np.arange(rows.start * width, rows.stop * width)
+        pixels = pixels[np.isfinite(usable_depth[pixels]) & ~reaches[pixels]]
+        for start in range(0, pixels.size, PLANE_BIAS_PIXELS):
+            chunk = pixels[start:start + PLANE_BIAS_PIXELS]
+            plane = inputs.bias_m(chunk, usable_depth[chunk].astype(np.float64), frequency_hz)
+            larger = np.abs(plane) > flat_bias[chunk]
+            flat_bias[chunk[larger]] = plane[larger]
+            reaches[chunk] |= np.abs(plane) >= options.min_multipath_bias_m
+
+    on_cores(band, blocks.bands(options.tile_pixels))

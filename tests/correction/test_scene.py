@@ -18,6 +18,8 @@ from mpi_lidar.correction import (
     make_gate,
 )
 from mpi_lidar.correction.gates import ConsistencyGate, CorrectAll, GeometryGate
+from mpi_lidar.correction.scene import depth_sigma_map
+from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.simulation.scenes import corner, render
 
 pytestmark = pytest.mark.unit
@@ -41,7 +43,7 @@ def scene(corner_scan) -> SceneGeometry:
 def test_analyse_geometry__given_footprint_gives_bias_map_candidates_and_inputs(scene, corner_scan):
     assert scene.has_geometry and scene.footprint is None and scene.footprint_m2 == 0.041
     assert scene.bias_m is not None and scene.bias_m.dtype == np.float32 and scene.bias_m.shape == corner_scan.shape
-    np.testing.assert_array_equal(scene.reaches_min_bias, (scene.bias_m >= 0.004).ravel())
+    np.testing.assert_array_equal(scene.reaches_min_bias, (np.abs(scene.bias_m) >= 0.004).ravel())
     assert scene.reaches_min_bias.any() and not scene.reaches_min_bias.all()
     assert scene.model_inputs is not None and scene.uncalibrated is None and scene.notes == ()
 
@@ -69,3 +71,14 @@ def test_analyse_geometry__without_rays_only_says_so(corner_scan):
     assert analyse_geometry(scan, depth, CorrectionOptions(), Config().sensor,
                             with_model_inputs=True).notes == (NO_GEOMETRY_INPUTS_NOTE,)
     assert analyse_geometry(scan, depth, CorrectionOptions(gate="all"), Config().sensor).notes == ()
+
+
+@pytest.mark.parametrize("noise_scale", [1.0, 1.7])
+def test_depth_sigma_map__is_the_highest_frequencys_sd_of_the_noise_law(corner_scan, noise_scale):
+    noise = NoiseModel.for_sensor(Config().sensor, corner_scan.frequencies_hz, noise_scale)
+    depth = usable_depth(corner_scan)
+    depth[::7] = np.nan
+    sigma = depth_sigma_map(corner_scan, depth, noise, tile_pixels=500)
+    amplitude = np.asarray(corner_scan.amplitude, dtype=np.float64).reshape(len(corner_scan.frequencies_hz), -1).T
+    expected = np.where(np.isfinite(depth), noise.depth_sigma_m(amplitude)[:, -1], np.nan).astype(np.float32)
+    np.testing.assert_array_equal(sigma.ravel(), expected)
