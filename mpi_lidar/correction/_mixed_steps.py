@@ -81,12 +81,12 @@ def _side(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.
     slope the next block's level less that, over the blocks' distance."""
     dy, dx = along
     (level, level_sigma), (outer, outer_sigma) = (
-        _block(padded, noisy, ys + k * dy, xs + k * dx, along, across) for k in (1, 1 + BLOCK_ALONG))
+        block_level(padded, noisy, ys + k * dy, xs + k * dx, along, across) for k in (1, 1 + BLOCK_ALONG))
     return _Side(level, level_sigma, np.abs(outer - level) / BLOCK_ALONG,
                  np.hypot(level_sigma, outer_sigma) / BLOCK_ALONG)
 
 
-def _block(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],
+def block_level(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],
            across: tuple[int, int]) -> tuple[NDArray, NDArray]:
     """The median depth (k,) [m] of the block of ``BLOCK_ALONG`` pixels ``along`` from (``ys``, ``xs``) and one
     pixel either way ``across``, and its noise (k,) [m] (the median's share, sqrt(pi / 2n) of n values, of the

@@ -30,8 +30,10 @@ steps look flat now and then. One side may begin a pixel further out, past a pix
 pixels in a row, where an edge runs diagonally or the footprint is wider than the pixels' pitch. Far away, where a
 pixel's noise is centimetres, a second form of the test (:func:`mpi_lidar.correction._mixed_steps.stepped`) takes
 each side's level as the median of a block of six pixels, half a pixel's noise: the step must be significant in the
-sides' noise, and the pixel lie only two of its own sigmas (and ``MIN_EDGE_M``) from each. The amplitude's level
-tells little here: a mixture's lies between its neighbours' as a grazing surface's does.
+sides' noise, and the pixel lie only two of its own sigmas (and ``MIN_EDGE_M``) from each. Where one side returns
+no usable light (NO_RETURN), a one-sided test (:func:`mpi_lidar.correction._mixed_dark.lost_light`) reads the
+lit side alone: the pixel's amplitude lies between the two sides' and its depth off the lit side's. Elsewhere the
+amplitude's level tells little: a mixture's lies between its neighbours' as a grazing surface's does.
 
 A clean surface passes the first test but for a share ``MIXED_P_VALUE`` of its pixels, and only those beside a
 jump of several centimetres (a grazing surface's) can be flagged. Where the phasors fit two returns within the
@@ -53,6 +55,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.correction import _mixed_dark as _dark
 from mpi_lidar.correction import _mixed_steps as _blocks
 from mpi_lidar.correction.gating import GateDecision
 from mpi_lidar.correction.options import Flag
@@ -82,7 +85,7 @@ ACROSS = {(0, 1): (1, 0), (1, 0): (0, 1), (1, 1): (1, -1), (1, -1): (1, 1)}
 # understated, and the tests' margins with it).
 ACROSS_SIGMA_SHARE = 0.67
 STEP_REACH = 4  # a step's sides reach three pixels out along a diagonal and one across it
-MARGIN_ROWS = max(STEP_REACH, _blocks.BLOCK_REACH)  # rows read either side of a tile
+MARGIN_ROWS = max(STEP_REACH, _blocks.BLOCK_REACH, _dark.DARK_REACH)  # rows read either side of a tile
 
 
 @dataclass(frozen=True)
@@ -131,14 +134,18 @@ def find_mixed(scan: Scan, tiles: list[slice], validity: Validity, decision: Gat
         top, bottom = pixels.start // w, pixels.stop // w
         first, last = max(top - MARGIN_ROWS, 0), min(bottom + MARGIN_ROWS, h)  # the neighbours' rows
         band = depth[first:last]
-        candidates = np.isin(decision.flags[first * w:last * w], allowed).reshape(band.shape)
-        candidates &= largest_jump(band) > MIN_EDGE_M
-        candidates[:top - first] = False
-        candidates[bottom - first:] = False
-        if not candidates.any():
+        flags = decision.flags[first * w:last * w].reshape(band.shape)
+        allowed_here = np.isin(flags, allowed)
+        candidates = allowed_here & (largest_jump(band) > MIN_EDGE_M)
+        no_return = flags == Flag.NO_RETURN
+        beside_dark = allowed_here & _dark.beside_no_return(no_return)
+        for where in (candidates, beside_dark):
+            where[:top - first] = False
+            where[bottom - first:] = False
+        if not (candidates.any() or beside_dark.any()):
             continue
         raw = replace(scan, depth=scan.depth[:, first:last], amplitude=scan.amplitude[:, first:last]).raw_pixels()
-        found = np.flatnonzero(mixed_in_rows(raw, band, candidates, noise))
+        found = np.flatnonzero(mixed_in_rows(raw, band, candidates, noise, no_return, beside_dark))
         if not found.size:
             continue
         mixed_parts.append(first * w + found)
@@ -274,14 +281,17 @@ def _across(padded: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], across:
     return np.where(np.isfinite(three).all(axis=0), three[1], middle)
 
 
-def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
+def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: NoiseModel,
+                  no_return: NDArray | None = None, beside_dark: NDArray | None = None) -> NDArray[np.bool_]:
     """Which candidates (h, W) of some whole rows are mixed: their frequencies' depths disagree beyond chi-square's
     1 - ``MIXED_P_VALUE`` quantile, or their amplitudes beyond its 1 - ``AMPLITUDE_P_VALUE`` quantile
     (:func:`amplitude_spread`), and a neighbour's measured depth (``depth`` (h, W) [m]) lies more than
     ``EDGE_SIGMAS`` of the two depths' noise and ``MIN_EDGE_M`` away, or their depth lies off the line between two
     opposite neighbours (:func:`_between`: a weak second return biases the depth more than the frequencies'
     spread shows), or between two flat sides (:func:`_stepped`: two returns of about equal strength, or a gap
-    below a metre); ``raw`` (h*W, 2F) are the rows' measurements."""
+    below a metre); ``raw`` (h*W, 2F) are the rows' measurements. The pixels ``beside_dark`` (h, W), beside one
+    with no usable return (``no_return`` (h, W)), are mixed where their footprint lost light to it and their depth
+    lies off the lit side's (:func:`mpi_lidar.correction._mixed_dark.lost_light`)."""
     from scipy.special import chdtri  # the quantile without scipy.stats's imports
 
     f = len(noise.frequencies_hz)
@@ -300,7 +310,13 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
     with np.errstate(invalid="ignore"):
         edge = np.nan_to_num(_jumps(depth, sigma), nan=0.0).max(axis=0) > MIN_EDGE_M
         disagree = frequencies_disagree | (amplitude_chi2 > chdtri(f - 1, AMPLITUDE_P_VALUE))
-    return np.asarray(candidates & ((edge & disagree) | _between(depth, sigma) | stepped))
+    found = candidates & ((edge & disagree) | _between(depth, sigma) | stepped)
+    if no_return is not None and beside_dark is not None and beside_dark.any():
+        light = raw[:, f:].astype(np.float64)
+        light_sigma = np.sqrt((noise.quadrature_sigma_v2(light) ** 2).sum(axis=1)).reshape(depth.shape)
+        found |= _dark.lost_light(fused_depth, fused_sigma, light.sum(axis=1).reshape(depth.shape), light_sigma,
+                                  no_return, beside_dark)
+    return np.asarray(found)
 
 
 def frequency_gains(amplitude: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> NDArray[np.float64]:
