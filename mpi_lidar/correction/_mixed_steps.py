@@ -56,13 +56,8 @@ def stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDA
     (h, W) is true are looked at (None: all), so that a band's few candidates cost what they are. A side's block
     that reaches past the band's border keeps its finite pixels, and none where fewer than ``MIN_FINITE`` remain."""
     h, w = depth.shape
-    ys, xs = np.nonzero(np.ones((h, w), bool) if where is None else where)
     reach = BLOCK_REACH
-    padded = np.full((h + 2 * reach, w + 2 * reach), np.nan, dtype=np.float32)
-    padded[reach:-reach, reach:-reach] = depth
-    noisy = np.full((h + 2 * reach, w + 2 * reach), np.nan, dtype=np.float32)
-    noisy[reach:-reach, reach:-reach] = sigma
-    ys, xs = ys + reach, xs + reach
+    padded, noisy, ys, xs = padded_band(depth, sigma, where, reach, np.nan)
     own, own_sigma = padded[ys, xs], noisy[ys, xs]
     found = np.zeros(ys.size, bool)
     with np.errstate(invalid="ignore"):
@@ -72,6 +67,19 @@ def stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDA
     out = np.zeros((h, w), bool)
     out[ys[found] - reach, xs[found] - reach] = True
     return out
+
+
+def padded_band(depth: NDArray, sigma: NDArray, where: NDArray | None, reach: int, sigma_fill: float
+                ) -> tuple[NDArray, NDArray, NDArray[np.intp], NDArray[np.intp]]:
+    """A band's depth (h, W) [m] and noise (h, W) [m] padded by ``reach`` pixels on every side (NaN depth, noise
+    ``sigma_fill``), and the padded indices of the pixels ``where`` (h, W) is true (None: all)."""
+    h, w = depth.shape
+    ys, xs = np.nonzero(np.ones((h, w), bool) if where is None else where)
+    padded = np.full((h + 2 * reach, w + 2 * reach), np.nan, dtype=np.float32)
+    padded[reach:-reach, reach:-reach] = depth
+    noisy = np.full((h + 2 * reach, w + 2 * reach), sigma_fill, dtype=np.float32)
+    noisy[reach:-reach, reach:-reach] = sigma
+    return padded, noisy, ys + reach, xs + reach
 
 
 def _side(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],

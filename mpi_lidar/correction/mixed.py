@@ -226,13 +226,8 @@ def _stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> ND
     (None: all), so that a band's few candidates cost what they are; pixels within ``STEP_REACH`` of the band's
     border are never found."""
     h, w = depth.shape
-    ys, xs = np.nonzero(np.ones((h, w), bool) if where is None else where)
     reach = STEP_REACH
-    padded = np.full((h + 2 * reach, w + 2 * reach), np.nan, dtype=np.float32)
-    padded[reach:-reach, reach:-reach] = depth
-    noisy = np.zeros((h + 2 * reach, w + 2 * reach), dtype=np.float32)
-    noisy[reach:-reach, reach:-reach] = sigma
-    ys, xs = ys + reach, xs + reach
+    padded, noisy, ys, xs = _blocks.padded_band(depth, sigma, where, reach, 0.0)
     own, own_sigma = padded[ys, xs], noisy[ys, xs]
     found = np.zeros(ys.size, bool)
     with np.errstate(invalid="ignore"):
