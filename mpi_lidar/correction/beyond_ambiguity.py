@@ -38,6 +38,9 @@ AMPLITUDE_STEP = 2.0
 # Joins across scan rows are followed at most this many pixels past the smooth regions' interiors (a surface's
 # rim, one or two pixels wide, joins two of them).
 MAX_RIM_PIXELS = 64
+# The continuity's float maps (depths, amplitudes, their noise and steps) are worked out this many pixels at a time:
+# a dozen float32 maps of a whole 4000 x 4000 scan would take most of a GiB.
+BAND_PIXELS = 2**20
 
 
 @dataclass(frozen=True)
@@ -62,40 +65,58 @@ class BeyondAmbiguity:
         """Rows (n,) of raw rows (n, 2F) [m, V^2] flagged by their amplitude (none where the unit is not known)."""
         if self.gamma_r_v2 is None:
             return np.zeros(raw.shape[0], bool)
-        near = self._albedo(raw, noise, 0.0, self.gamma_r_v2)
-        with np.errstate(invalid="ignore"):
-            return (near < self.near_albedo) & self.plausible_far(raw, noise)
+        return self._flagged(*_top_reading(raw, noise), self.gamma_r_v2)
 
     def surely_flags(self, raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
         """Rows (n,) flagged by their amplitude even ``NOISE_DEVIATIONS`` of its noise higher: those a surface is
         flagged from by continuity (a dark near surface's noisiest pixels are not)."""
         if self.gamma_r_v2 is None:
             return np.zeros(raw.shape[0], bool)
-        f = len(noise.frequencies_hz)
-        top = int(np.argmax(noise.frequencies_hz))
-        brighter = np.array(raw, dtype=np.float64)
-        brighter[:, f + top] += NOISE_DEVIATIONS * noise.quadrature_sigma_v2(raw[:, f:].astype(np.float64))[:, top]
-        return self.flags(brighter, noise)
+        range_m, amplitude = _top_reading(raw, noise)
+        brighter = amplitude + NOISE_DEVIATIONS * _top_quadrature_sd(amplitude, noise)
+        return self._flagged(range_m, brighter, self.gamma_r_v2)
 
     def plausible_far(self, raw: NDArray, noise: NoiseModel) -> NDArray[np.bool_]:
         """Rows (n,) whose amplitude a surface one ambiguity farther could give: it reads at most ``far_albedo``
         there, or the unit is not known to tell."""
         if self.gamma_r_v2 is None:
             return np.ones(raw.shape[0], bool)
-        with np.errstate(invalid="ignore"):
-            return np.asarray(~(self._albedo(raw, noise, self.ambiguity_m, self.gamma_r_v2) > self.far_albedo))
+        return self._plausible_far(*_top_reading(raw, noise), self.gamma_r_v2)
 
-    @staticmethod
-    def _albedo(raw: NDArray, noise: NoiseModel, farther_m: float, gamma_r_v2: float) -> NDArray[np.float64]:
-        """The highest frequency's albedo reading (n,) [1] of raw rows (n, 2F) at their range plus ``farther_m``
-        [m]; NaN where the range or the amplitude is not positive."""
-        f = len(noise.frequencies_hz)
-        top = int(np.argmax(noise.frequencies_hz))
-        with np.errstate(invalid="ignore", over="ignore"):
-            range_m = raw[:, top].astype(np.float64)
-            amplitude = raw[:, f + top].astype(np.float64)
-            albedo = amplitude * (range_m + farther_m) ** 2 / gamma_r_v2
-            return np.where((range_m > 0) & (amplitude > 0), albedo, np.nan)
+    def _flagged(self, range_m: NDArray, amplitude: NDArray, gamma_r_v2: float) -> NDArray[np.bool_]:
+        """:meth:`flags` of the highest frequency's ranges (n,) [m] and amplitudes (n,) [V^2]."""
+        with np.errstate(invalid="ignore"):
+            near = _albedo(range_m, amplitude, 0.0, gamma_r_v2) < self.near_albedo
+            return near & self._plausible_far(range_m, amplitude, gamma_r_v2)
+
+    def _plausible_far(self, range_m: NDArray, amplitude: NDArray, gamma_r_v2: float) -> NDArray[np.bool_]:
+        """:meth:`plausible_far` of the highest frequency's ranges (n,) [m] and amplitudes (n,) [V^2]."""
+        with np.errstate(invalid="ignore"):
+            return np.asarray(~(_albedo(range_m, amplitude, self.ambiguity_m, gamma_r_v2) > self.far_albedo))
+
+
+def _top_reading(raw: NDArray, noise: NoiseModel) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The highest frequency's range (n,) [m] and amplitude (n,) [V^2] of raw rows (n, 2F): the only columns the
+    test past the ambiguity reads (a float64 copy of two columns, not of the rows)."""
+    f = len(noise.frequencies_hz)
+    top = int(np.argmax(noise.frequencies_hz))
+    return raw[:, top].astype(np.float64), raw[:, f + top].astype(np.float64)
+
+
+def _top_quadrature_sd(amplitude_v2: NDArray, noise: NoiseModel) -> NDArray[np.float64]:
+    """:meth:`NoiseModel.quadrature_sigma_v2` of the highest frequency alone (n,) [V^2] at its amplitudes (n,)
+    [V^2]."""
+    top = int(np.argmax(noise.frequencies_hz))
+    sd = np.sqrt(noise.read_variance_v4[top] + noise.shot_variance_v2[top] * np.maximum(amplitude_v2, 0.0))
+    return sd if noise.noise_scale == 1.0 else noise.noise_scale * sd
+
+
+def _albedo(range_m: NDArray, amplitude: NDArray, farther_m: float, gamma_r_v2: float) -> NDArray[np.float64]:
+    """The albedo reading (n,) [1] of ranges (n,) [m] plus ``farther_m`` [m] and amplitudes (n,) [V^2]; NaN where
+    the range or the amplitude is not positive."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        albedo = amplitude * (range_m + farther_m) ** 2 / gamma_r_v2
+        return np.where((range_m > 0) & (amplitude > 0), albedo, np.nan)
 
 
 def continuity_flags(depth_m: NDArray, amplitude_v2: NDArray, lit: NDArray, nodes: NDArray, known: NDArray,
@@ -118,23 +139,56 @@ def continuity_flags(depth_m: NDArray, amplitude_v2: NDArray, lit: NDArray, node
     noise : The scan's noise model (the depths' sd at their amplitude).
     ambiguity_m : The frequencies' combined ambiguity L. [m]
     """
-    pixel = (depth_m, amplitude_v2, *_top_noise(amplitude_v2, noise))
-    right = [part[:, :-1] for part in pixel], [part[:, 1:] for part in pixel]
-    down = [part[:-1] for part in pixel], [part[1:] for part in pixel]
-    joins = []
-    seam = np.zeros_like(nodes)
-    for (a, b), pair in ((right, (np.s_[:, :-1], np.s_[:, 1:])), (down, (np.s_[:-1], np.s_[1:]))):
-        joins.append(nodes[pair[0]] & nodes[pair[1]] & _smooth(a, b, 0.0, ambiguity_m))
-        # A wrap seam: the pair's depths jump by about L, and the nearer reading continues the farther one past L.
-        seam[pair[0]] |= known[pair[0]] & lit[pair[1]] & _smooth(a, b, ambiguity_m, ambiguity_m)
-        seam[pair[1]] |= known[pair[1]] & lit[pair[0]] & _smooth(b, a, ambiguity_m, ambiguity_m)
+    right, down, seam = _joins_and_seams(depth_m, amplitude_v2, lit, nodes, known, noise, ambiguity_m)
     # A seam runs along a surface: its far side continues into more of it (a lone pixel unwrapped by its noise to
     # the far end of the range, beside one at the near end, is no seam).
-    seam &= _next_to(nodes, joins[0], joins[1])
-    interior, labels, count = _regions(nodes, joins[0], joins[1])
+    seam &= _next_to(nodes, right, down)
+    interior, labels, count = _regions(nodes, right, down)
     seeded = np.bincount(labels[seeds & interior], minlength=count + 1) > np.bincount(labels.ravel()) / 2
     seeded[0] = False
-    return _joined(seam | seeded[labels], nodes, interior, labels, joins[0], joins[1])
+    return _joined(seam | seeded[labels], nodes, interior, labels, right, down)
+
+
+def _joins_and_seams(depth_m: NDArray, amplitude_v2: NDArray, lit: NDArray, nodes: NDArray, known: NDArray,
+                     noise: NoiseModel, ambiguity_m: float
+                     ) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
+    """The smooth joins between neighbouring nodes (right (H, W-1): a pixel and its right neighbour; down
+    (H-1, W): a pixel and the one below) and the far sides of wrap seams (H, W) (:func:`continuity_flags`'
+    parameters), worked out a band of rows at a time: only the boolean maps are kept whole, the depths' and
+    amplitudes' noise and steps (a dozen float maps) only for one band."""
+    h, w = nodes.shape
+    right = np.zeros((h, max(w - 1, 0)), bool)
+    down = np.zeros((max(h - 1, 0), w), bool)
+    seam = np.zeros((h, w), bool)
+    step = max(1, BAND_PIXELS // max(w, 1))
+    for top in range(0, h, step):
+        rows = slice(top, min(top + step, h))
+        # One row more below: the band's last pixels' joins to the next band's first.
+        reach = slice(top, min(top + step + 1, h))
+        pixel = (np.asarray(depth_m[reach]), np.asarray(amplitude_v2[reach]),
+                 *_top_noise(np.asarray(amplitude_v2[reach]), noise))
+        band = {"lit": lit[reach], "nodes": nodes[reach], "known": known[reach]}
+        within = rows.stop - top  # the band's own rows among the ``reach`` rows
+        right[rows], seam_right = _pair_joins(pixel, band, np.s_[:within, :-1], np.s_[:within, 1:], ambiguity_m)
+        down[top:reach.stop - 1], seam_down = _pair_joins(pixel, band, np.s_[:-1, :], np.s_[1:, :], ambiguity_m)
+        seam[rows] |= seam_right[:within]
+        seam[reach] |= seam_down
+    return right, down, seam
+
+
+def _pair_joins(pixel: tuple[NDArray, ...], band: dict[str, NDArray], first: tuple[slice, ...],
+                second: tuple[slice, ...], ambiguity_m: float) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """The smooth joins between the pixels ``first`` and their neighbours ``second`` of one band (depth [m],
+    amplitude [V^2], depth sd [m] and amplitude sd [V^2] maps ``pixel``; its ``lit``, ``nodes`` and ``known``
+    maps in ``band``), and the band's pixels (its maps' shape) on the far side of a wrap seam between them."""
+    a, b = [part[first] for part in pixel], [part[second] for part in pixel]
+    lit, nodes, known = band["lit"], band["nodes"], band["known"]
+    joins = nodes[first] & nodes[second] & _smooth(a, b, 0.0, ambiguity_m)
+    # A wrap seam: the pair's depths jump by about L, and the nearer reading continues the farther one past L.
+    seam = np.zeros_like(nodes)
+    seam[first] |= known[first] & lit[second] & _smooth(a, b, ambiguity_m, ambiguity_m)
+    seam[second] |= known[second] & lit[first] & _smooth(b, a, ambiguity_m, ambiguity_m)
+    return joins, seam
 
 
 def _top_noise(amplitude_v2: NDArray, noise: NoiseModel) -> tuple[NDArray[np.float32], NDArray[np.float32]]:

@@ -8,6 +8,7 @@ import pytest
 
 from benchmarks.sensor_law import SENSOR, law_model, made_scan
 from mpi_lidar.constants import SPEED_OF_LIGHT_M_PER_S
+from mpi_lidar.correction import beyond_ambiguity
 from mpi_lidar.correction.options import INVALID_FLAGS, CorrectionOptions, Flag
 from mpi_lidar.correction.tiles import scan_tiles
 from mpi_lidar.correction.validity import BeyondAmbiguity, check_validity
@@ -71,3 +72,15 @@ def test_check_validity__a_near_wall_beside_a_far_one_at_the_end_of_the_range_is
     range_m[:, : SIDE // 2] = 1.0  # a bright near wall beside a far one: depths 1 and 23.5 m, amplitudes 550-fold
     flags = _flags(range_m, 0.7)
     assert not (flags == Flag.BEYOND_AMBIGUITY).any()
+
+
+@pytest.mark.parametrize("transpose", [False, True], ids=["seam across the bands", "seam along a band's edge"])
+def test_check_validity__continuity_worked_out_in_bands_of_rows_flags_as_the_whole_scan(monkeypatch, transpose):
+    range_m = _ramp(16.0, 32.0)
+    range_m = range_m.T if transpose else range_m
+    whole = _flags(range_m, 0.7)
+    # 5 rows a band: 10 bands, the last one short, the seam (or the surface's rows) split between them.
+    monkeypatch.setattr(beyond_ambiguity, "BAND_PIXELS", 5 * SIDE)
+    banded = _flags(range_m, 0.7)
+    assert (whole == Flag.BEYOND_AMBIGUITY).mean() > 0.4
+    np.testing.assert_array_equal(banded, whole)

@@ -278,3 +278,18 @@ def test_surface_normals__plane_gives_its_normal_towards_the_scanner():
     depth = 2.0 / -(rays @ normal)  # plane n . p = -2
     normals = surface_normals(point_cloud(depth, rays))
     np.testing.assert_allclose(normals[2:-2, 2:-2], np.broadcast_to(normal, normals[2:-2, 2:-2].shape), atol=1e-9)
+
+
+@pytest.mark.unit
+def test_facing_blocks__pairs_tested_a_chunk_at_a_time_are_the_pairs_tested_at_once(monkeypatch):
+    """The facing test runs a bounded number of candidate pairs at a time (memory on large scans); chunks of 7
+    pairs, cutting through both orders of many pairs, give the same pairs in the same order."""
+    from mpi_lidar.scans.geometry import _pairs
+
+    scene = corner(90.0, 2.0, 0.8, 48, 64)
+    whole = facing_blocks(exact_depth(scene), rays_of(scene))
+    monkeypatch.setattr(_pairs, "PAIRS_PER_CHUNK", 7)
+    chunked = facing_blocks(exact_depth(scene), rays_of(scene))
+    assert whole.pairs.a.size > 100
+    for name in ("a", "b", "cos_a", "cos_b", "area_b_m2", "r_eff_m", "cos_i", "distance_m"):
+        np.testing.assert_array_equal(getattr(chunked.pairs, name), getattr(whole.pairs, name), err_msg=name)

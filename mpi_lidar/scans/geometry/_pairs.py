@@ -12,6 +12,9 @@ from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
 # A pair of blocks faces only where each cosine towards the other exceeds this many of its sds under the noise:
 # on a flat surface both exceed it by chance in (1 - Phi(k))^2 of the pairs, about 1e-6 at k = 3.
 FACING_SIGMAS = 3.0
+# Candidate pairs tested at once: the test's temporaries take a few hundred bytes a pair, and a large scan with
+# much usable surface has millions of candidates.
+PAIRS_PER_CHUNK = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -108,15 +111,24 @@ def facing_pairs(i: NDArray, j: NDArray, centres: NDArray, normals: NDArray, cos
     places), so the test runs once per unordered pair. ``normal_sd_rad`` and ``centre_sd_m`` are the blocks'
     plane uncertainties (:class:`PlaneSpread`), None: the residual margin alone.
     """
+    chunks = (slice(k, k + PAIRS_PER_CHUNK) for k in range(0, max(i.size, 1), PAIRS_PER_CHUNK))  # one if none
+    parts = [_facing_part(i[chunk], j[chunk], centres, normals, area, noise_m[chunk], min_cos, normal_sd_rad,
+                          centre_sd_m) for chunk in chunks]
+    ki, kj, dist, r_eff, cos_a, cos_b = (np.concatenate(column) for column in zip(*parts, strict=True))
+    a, b = np.concatenate([ki, kj]), np.concatenate([kj, ki])
+    return FacingPairs(a, b, np.concatenate([cos_a, cos_b]), np.concatenate([cos_b, cos_a]), area[b],
+                       np.tile(r_eff, 2), cos_i[a], np.tile(dist, 2))
+
+
+def _facing_part(i: NDArray, j: NDArray, centres: NDArray, normals: NDArray, area: NDArray, noise_m: NDArray,
+                 min_cos: float, normal_sd_rad: NDArray | None, centre_sd_m: NDArray | None) -> tuple[NDArray, ...]:
+    """The facing ones of some candidate pairs (i, j): their blocks, distance, clamped distance and cosines."""
     spread = None
     if normal_sd_rad is not None and centre_sd_m is not None:
         spread = PlaneSpread(normal_sd_rad[i], normal_sd_rad[j], np.hypot(centre_sd_m[i], centre_sd_m[j]))
     dist, facing, r_eff, cos_a, cos_b = _pair_terms(centres[i], normals[i], area[i], centres[j], normals[j],
                                                     area[j], noise_m, min_cos, spread)
     keep = np.flatnonzero(facing)
-    a, b = np.concatenate([i[keep], j[keep]]), np.concatenate([j[keep], i[keep]])
-    cos_a, cos_b = cos_a[keep], cos_b[keep]
-    return FacingPairs(a, b, np.concatenate([cos_a, cos_b]), np.concatenate([cos_b, cos_a]), area[b],
-                       np.tile(r_eff[keep], 2), cos_i[a], np.tile(dist[keep], 2))
+    return i[keep], j[keep], dist[keep], r_eff[keep], cos_a[keep], cos_b[keep]
 
 
