@@ -82,9 +82,10 @@ def _no_return(amplitude: NDArray, options: CorrectionOptions, noise: NoiseModel
         return np.zeros(amplitude.shape[0], bool)
     weak = unlit(amplitude, options, noise)
     if each_frequency is not None and each_frequency.any():
+        rows = np.flatnonzero(each_frequency)
         floor = options.min_amplitude_sigmas * noise.floor_v2
         with np.errstate(invalid="ignore"):
-            weak |= each_frequency & (amplitude < floor[None, :]).any(axis=1)
+            weak[rows] |= (amplitude[rows] < floor[None, :]).any(axis=1)
     return weak
 
 
@@ -99,11 +100,15 @@ def unlit(amplitude: NDArray, options: CorrectionOptions, noise: NoiseModel) -> 
     if options.min_amplitude_sigmas == 0:
         return np.zeros(amplitude.shape[0], bool)
     f = amplitude.shape[1]
-    floor = noise.floor_v2
     threshold = chdtri(2 * f, np.exp(-options.min_amplitude_sigmas**2 / 2))
+    lit = np.ones(amplitude.shape[0], bool)
+    snr2 = np.zeros(amplitude.shape[0])
     with np.errstate(invalid="ignore", divide="ignore"):
-        snr2 = np.where(floor[None, :] > 0, (amplitude / np.where(floor > 0, floor, 1.0)[None, :]) ** 2, np.inf)
-        return np.asarray(~(amplitude > 0).all(axis=1) | ~(snr2.sum(axis=1) >= threshold))
+        for column, floor in enumerate(noise.floor_v2):  # column by column: row reductions are several times slower
+            value = amplitude[:, column].astype(np.float64)
+            lit &= value > 0
+            snr2 += (value / floor) ** 2 if floor > 0 else np.inf
+        return np.asarray(~lit | ~(snr2 >= threshold))
 
 
 def _could_be_farther(raw: NDArray, noise: NoiseModel, beyond: BeyondAmbiguity | None) -> NDArray[np.bool_] | None:
