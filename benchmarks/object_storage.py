@@ -15,11 +15,12 @@ first); each storage runs ``--repeats`` times per cluster, in alternating order,
 
 Per run: scans per second; MB read and written per scan (from and to the bucket: the bodies of the S3 requests;
 on disk: the bytes zarr read from the scan stores, and the size of the outputs written); S3 requests per scan
-(LIST, HEAD, GET, PUT, DELETE, counted in every process); and the share of the workers' time spent waiting
-on storage (the union of the intervals inside S3 requests and zarr's local reads and writes, per process,
-over workers x wall). The outputs corrected from the bucket are then compared with those from the disk: every
-file must be bit-identical but those that name their source or the seconds taken (reports, metrics, manifests,
-the corrected store's attributes, the summary); the run fails otherwise.
+(LIST, HEAD, GET, PUT, DELETE, answered or refused: a 404 is a request too, counted in every process); and the
+share of the workers' time spent waiting on storage (the union of the intervals inside S3 requests and zarr's
+local reads and writes, per process, over workers x wall). The outputs corrected from the bucket are then
+compared with those from the disk: every file must be bit-identical but those that name their source or the
+seconds taken (reports, metrics, manifests, the corrected store's attributes, the summary); the run fails
+otherwise.
 
 The S3 server is a local process sharing the cores with the workers: its figures are what this machine gives,
 a planning figure, not a gate. ``--small``: four tiny scans, one worker thread in this process (workers
@@ -55,9 +56,10 @@ BUCKET = "benchmark"
 # Outputs that name where they came from or the seconds taken: the only files that may differ from disk's.
 AWS_VARIABLES = ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_DEFAULT_REGION")
 PROVENANCE = ("report.md", "report.html", "metrics.json", MANIFEST_FILE, "corrected.zarr/zarr.json")
-OPERATIONS = ("ListObjectsV2", "HeadObject", "GetObject", "PutObject", "DeleteObjects")
-SHOWN = {"ListObjectsV2": "LIST", "HeadObject": "HEAD", "GetObject": "GET", "PutObject": "PUT",
-         "DeleteObjects": "DELETE"}
+# The S3 operations the tool asks for, by the table's column: DELETE counts single and bulk deletions.
+COLUMNS = {"LIST": ("ListObjectsV2",), "HEAD": ("HeadObject",), "GET": ("GetObject",), "PUT": ("PutObject",),
+           "DELETE": ("DeleteObject", "DeleteObjects")}
+OPERATIONS = tuple(op for ops in COLUMNS.values() for op in ops)
 
 
 # --- counting what each process asks of its stores ------------------------------------------------------------
@@ -75,8 +77,8 @@ def _record(name: str, started: float, size: int = 0) -> None:
 
 
 def install_counters() -> None:
-    """Count every S3 request (aiobotocore, which s3fs and zarr's FsspecStore use) and every zarr read and write
-    of a local store in this process, with the bytes and the time inside them (idempotent)."""
+    """Count every S3 request (aiobotocore, which s3fs and zarr's FsspecStore use), answered or refused, and every
+    zarr read and write of a local store in this process, with the bytes and the time inside them (idempotent)."""
     from aiobotocore.client import AioBaseClient
     from zarr.storage import LocalStore
 
@@ -87,10 +89,13 @@ def install_counters() -> None:
     async def counted_call(self, operation_name, api_params):
         started = time.perf_counter()
         sent = _body_bytes(api_params.get("Body"))  # before the call, which wraps the body to checksum it
-        response = await make_call(self, operation_name, api_params)
-        received = int(response.get("ContentLength") or 0) if operation_name == "GetObject" else 0
-        _record(operation_name, started, sent + received)
-        return response
+        received = 0
+        try:
+            response = await make_call(self, operation_name, api_params)
+            received = int(response.get("ContentLength") or 0) if operation_name == "GetObject" else 0
+            return response
+        finally:  # a refused request (a missing key's 404, a failed conditional create) is a request too
+            _record(operation_name, started, sent + received)
 
     async def counted_get(self, key, *args, **kwargs):  # zarr's own signature passed on, defaults included
         started = time.perf_counter()
@@ -272,7 +277,8 @@ class Run:
         s3 = self.storage == "S3"
         read = self.counts.get("GetObject bytes", 0) if s3 else self.counts.get("local read bytes", 0)
         written = self.counts.get("PutObject bytes", 0) if s3 else self.written_bytes
-        requests = [f"{self.counts.get(op, 0) * per:.1f}" if s3 else "-" for op in OPERATIONS]
+        requests = [f"{sum(self.counts.get(op, 0) for op in ops) * per:.1f}" if s3 else "-"
+                    for ops in COLUMNS.values()]
         share = self.counts.get("storage s", 0) / (max(self.workers, 1) * self.wall_s)
         return (self.storage, self.workers, self.scans, f"{self.wall_s:.1f}", f"{self.scans / self.wall_s:.2f}",
                 f"{read * per / 1e6:.2f}", f"{written * per / 1e6:.2f}", *requests, f"{100 * share:.0f} %")
@@ -359,7 +365,7 @@ def table(headers: tuple[str, ...], rows: list[tuple[object, ...]]) -> str:
 
 
 HEADERS = ("storage", "workers", "scans", "wall s", "scans/s", "MB read/scan", "MB written/scan",
-           *(f"{SHOWN[op]}/scan" for op in OPERATIONS), "time in storage")
+           *(f"{column}/scan" for column in COLUMNS), "time in storage")
 
 
 def ratios(runs: list[Run]) -> list[tuple[object, ...]]:

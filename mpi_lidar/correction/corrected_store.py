@@ -41,7 +41,7 @@ def write_corrected_store(path: Path, scan: Scan, correction: Correction, identi
     :data:`mpi_lidar.storage.variables.CORRECTED`. ``identity`` (the scan's, model's and options'
     hashes) and ``outputs`` (the output level of the scan's outputs) are recorded in the group's attributes.
     """
-    group = zarr.open_group(store=str(path), mode="w-")
+    group = zarr.open_group(store=str(path), mode="w-", zarr_format=3)
     written: tuple[tuple[str, NDArray | None], ...] = (
         ("corrected_depth", correction.depth), ("flags", correction.flags),
         ("measured_depth", correction.measured_depth), ("unwrap_confidence", correction.unwrap_confidence),

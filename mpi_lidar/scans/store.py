@@ -97,7 +97,7 @@ def write_scan(scan: Scan, path: str | Path, overwrite: bool = False) -> Path:
     if path.exists() and not overwrite:
         raise ScanError(f"{path} already exists; choose another name or remove it")
     with atomic_path(path, replace=overwrite, what="scan", error=ScanError) as staging:
-        group = zarr.open_group(store=str(staging), mode="w-")
+        group = zarr.open_group(store=str(staging), mode="w-", zarr_format=3)
         h, w = scan.shape
         maps = {name: (getattr(scan, name), SCAN[name].dims) for name in ("depth", "amplitude")}
         optional = {name: (np.asarray(getattr(scan, name)), dims) for name, dims in OPTIONAL_ARRAYS.items()

@@ -41,7 +41,7 @@ import time
 from collections.abc import Iterator
 from contextlib import AbstractContextManager, contextmanager, suppress
 from pathlib import Path, PurePosixPath
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 from mpi_lidar.errors import MpiLidarError, StoreError
 from mpi_lidar.locations import Location
@@ -128,14 +128,14 @@ def list_files(where: Location) -> dict[str, int]:
     :data:`~mpi_lidar.storage.integrity.MAX_METADATA_BYTES` are refused like a local store's."""
     fs = filesystem(where)
     try:
-        found = fs.find(where.path, detail=True)
+        found = _find_below(fs, where)
     except Exception as exc:  # botocore raises many types
         raise store_error(where, exc, "list") from None
     files: dict[str, int] = {}
     prefix = where.path.rstrip("/") + "/"
     for key, info in found.items():
         key = key.removeprefix(f"{where.scheme}://")
-        if not key.startswith(prefix) or info.get("type") == "directory":
+        if not key.startswith(prefix) or key == prefix or info.get("type") == "directory":
             continue
         relative, size = key[len(prefix):], int(info.get("size") or 0)
         if PurePosixPath(relative).name == "zarr.json" and size > MAX_METADATA_BYTES:
@@ -143,6 +143,16 @@ def list_files(where: Location) -> dict[str, int]:
                                  "store's metadata may; the store is damaged: restore or regenerate it")
         files[relative] = size
     return files
+
+
+def _find_below(fs: AbstractFileSystem, where: Location) -> dict[str, dict[str, Any]]:
+    """fsspec's ``find`` of the objects below ``where``: on S3 as the keys under the prefix ``<name>/`` of its
+    parent, one listing even where there are none (``find(path)`` would then ask whether ``path`` names an object:
+    a HEAD and a second listing, for every output folder not yet written)."""
+    parent, _, name = where.path.rstrip("/").rpartition("/")
+    if where.scheme != "s3" or not parent:
+        return cast("dict[str, dict[str, Any]]", fs.find(where.path, detail=True))
+    return cast("dict[str, dict[str, Any]]", fs.find(parent, prefix=f"{name}/", detail=True))
 
 
 def exists(where: Location) -> bool:
@@ -207,13 +217,15 @@ def remove_prefix(where: Location) -> None:
     it lists goes)."""
     check_writable(where)
     fs = filesystem(where)
-    try:
-        fs.rm_file(f"{where.path}/{MANIFEST_FILE}")
-    except FileNotFoundError:
-        pass
-    except Exception as exc:
-        raise store_error(where, exc, "unpublish") from None
-    keys = [f"{where.path}/{name}" for name in list_files(where)]
+    found = list_files(where)  # nothing there (a folder never written): no deletion asked
+    if MANIFEST_FILE in found:
+        try:
+            fs.rm_file(f"{where.path}/{MANIFEST_FILE}")
+        except FileNotFoundError:
+            pass
+        except Exception as exc:
+            raise store_error(where, exc, "unpublish") from None
+    keys = [f"{where.path}/{name}" for name in found if name != MANIFEST_FILE]
     if keys:
         try:
             fs.rm(keys)

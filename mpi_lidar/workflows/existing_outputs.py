@@ -56,7 +56,7 @@ def already_done(target: Path | Location, scan_sha: str, model_sha: str, options
     is corrected again to write the rest."""
     try:
         store = zarr_store(location(target).joinpath("corrected.zarr"))
-        attrs = zarr.open_group(store=store, mode="r").attrs
+        attrs = zarr.open_group(store=store, mode="r", zarr_format=3).attrs  # ours: v3, no probing for v2
     except Exception:  # no store, or a foreign one: not done
         return False
     written = attrs.get("outputs")  # absent in outputs written before output levels existed

@@ -93,7 +93,7 @@ def _verify_in_store(where: Location) -> Verified:
         listed = len(verify_published(folder))  # unpublished (no manifest) or differing: an IntegrityError
         return _verified_arrays(where, "corrected output", check=True, files=listed)
     try:
-        schema = zarr.open_group(store=zarr_store(where), mode="r").attrs.get("schema")
+        schema = _schema_in_store(where)
     except Exception as exc:  # zarr raises several types for foreign or broken metadata
         raise StoreError(f"{where} is not a readable Zarr store ({type(exc).__name__})") from None
     if schema == SCAN_SCHEMA:
@@ -104,12 +104,23 @@ def _verify_in_store(where: Location) -> Verified:
     raise StoreError(f"{where} is not an mpi-lidar dataset, scan or published corrected output (schema {schema!r})")
 
 
+def _schema_in_store(where: Location) -> object:
+    """The ``schema`` attribute of the store at ``where``, read as Zarr v3 (this package's stores): one request
+    where zarr would otherwise probe for Zarr v2 metadata too, three more. Only where there is no ``zarr.json``
+    (another tool's store, perhaps v2, or none) is it opened as any format, to say what it is as on disk."""
+    try:
+        return zarr.open_group(store=zarr_store(where), mode="r", zarr_format=3).attrs.get("schema")
+    except FileNotFoundError:
+        return zarr.open_group(store=zarr_store(where), mode="r").attrs.get("schema")
+
+
 def _verified_arrays(path: Path | Location, kind: str, check: bool, files: int = 0) -> Verified:
     """Count (and, with ``check``, verify one chunk at a time) every chunk of every array against the store's
     recorded fingerprints, after its files, declared chunks and shapes passed."""
     found = check_store_files(path) if isinstance(path, Path) else list_files(path)
     try:
-        group = zarr.open_group(store=zarr_store(location(path)), mode="r", use_consolidated=False)
+        # Only this package's stores come here (their schema read first): Zarr v3, no probe for v2 metadata.
+        group = zarr.open_group(store=zarr_store(location(path)), mode="r", use_consolidated=False, zarr_format=3)
         arrays = dict(group.arrays())
         attrs = dict(group.attrs)
     except Exception as exc:  # zarr raises several types for foreign or broken metadata

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.object_storage import aws_environment
+from benchmarks.object_storage import OPERATIONS, aws_environment, install_counters, take_counters
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.errors import MpiLidarError, StoreError
 from mpi_lidar.learning.model import load_model
@@ -48,6 +48,31 @@ def test_verify__unfinished_or_damaged_dataset_in_bucket_fails(s3_server, local_
     fs.pipe_file(f"{path}/chunk_done/c/1", (local_dataset / "chunk_done" / "c" / "1").read_bytes())
     fs.pipe_file(f"{path}/target/c/0", (local_dataset / "target" / "c" / "1").read_bytes())
     with pytest.raises(MpiLidarError, match=r"'target'.*chunk 0|chunk 0.*'target'"):
+        verify_store(url)
+
+
+def test_verify__dataset_in_bucket_read_as_zarr_v3_without_probes(s3_server, local_dataset):
+    """The store's schema is read from its ``zarr.json`` alone: one GET where zarr would also probe for Zarr v2
+    metadata (three more). Then one HEAD (is it a published output folder? no manifest),
+    two listings (that HEAD's, and the store's for its checks) and the dataset's pass: each of the six arrays'
+    metadata and the root's once, and each chunk's six objects."""
+    url = upload(local_dataset, f"s3://{BUCKET}/verify/counted.zarr")
+    install_counters()
+    take_counters()
+    assert verify_store(url).chunks == 2
+    asked = {name: int(n) for name, n in take_counters().items() if name in OPERATIONS}
+    assert asked == {"HeadObject": 1, "ListObjectsV2": 2, "GetObject": 1 + (1 + 6) + 6 * 2}, asked
+
+
+def test_verify__foreign_zarr_v2_store_in_bucket_named_by_its_schema(s3_server):
+    """Another tool's Zarr v2 group (no ``zarr.json``) is still opened and said to be no store of ours."""
+    import zarr
+
+    url = f"s3://{BUCKET}/verify/foreign-v2.zarr"
+    group = zarr.open_group(store=objects.zarr_store(location(url), read_only=False), mode="w", zarr_format=2)
+    group.attrs["title"] = "another tool's"
+    with pytest.raises(StoreError, match=r"not an mpi-lidar dataset, scan or published corrected output "
+                                         r"\(schema None\)"):
         verify_store(url)
 
 

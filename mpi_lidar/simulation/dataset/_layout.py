@@ -58,7 +58,7 @@ def build_layout(path: Path, config: Config) -> None:
     plan = SamplingPlan.from_config(config)
     n, rows, width = plan.samples, plan.chunk_rows, 2 * len(config.frequencies_hz)
     compressors = [BloscCodec(cname="zstd", clevel=3, shuffle="shuffle")]
-    group = zarr.open_group(store=str(path), mode="w-")
+    group = zarr.open_group(store=str(path), mode="w-", zarr_format=3)  # v3 whatever zarr's default is set to
     shapes = {"features": (n, width), "target": (n,), "theta": (n, len(THETA_NAMES)), "split": (n,)}
     for name, shape in shapes.items():
         declared = DATASET[name]
@@ -79,10 +79,15 @@ def build_layout(path: Path, config: Config) -> None:
     consolidate(path)  # for xarray; this package's readers read each array's own metadata
 
 
-def check_layout(path: str | Path, group: zarr.Group, attrs: Mapping[str, Any]) -> None:
+def check_layout(path: str | Path, group: zarr.Group, attrs: Mapping[str, Any]) -> dict[str, zarr.Array]:
     """Every array (the fingerprints ``chunk_sha256`` included: every dataset of this schema has them) of the
     shape, dtype and row chunks the attributes give, which are within the configuration's bounds; checked from
-    the metadata alone, before anything is read or allocated."""
+    the metadata alone, before anything is read or allocated.
+
+    Returns the arrays of :data:`ARRAYS` by name, each opened once here, for the checks and reads that follow
+    (opening one again reads its metadata again: a request in an object store).
+    """
+    opened: dict[str, zarr.Array] = {}
     try:
         n, width, chunk_rows = int(attrs["samples"]), 2 * len(attrs["frequencies_hz"]), int(attrs["chunk_rows"])
         if not (1 <= n <= MAX_SAMPLES and 1 <= chunk_rows <= MAX_CHUNK_ROWS and -(-n // chunk_rows) <= MAX_CHUNKS):
@@ -96,12 +101,13 @@ def check_layout(path: str | Path, group: zarr.Group, attrs: Mapping[str, Any]) 
             "chunk_sha256": ((chunks, len(DATA_ARRAYS), FINGERPRINT_BYTES), np.uint8, 1),
         }
         for name, (shape, dtype, rows) in expected.items():
-            array = store_array(group, name)
+            array = opened[name] = store_array(group, name)
             if array.shape != shape or array.dtype != dtype or array.shards or tuple(array.chunks) != (
                     min(rows, shape[0]), *shape[1:]):
                 raise StoreError(f"dataset {path}: array {name!r} is {array.dtype}{array.shape} in chunks of "
                                  f"{array.chunks}, expected {np.dtype(dtype)}{shape} in chunks of "
                                  f"{(min(rows, shape[0]), *shape[1:])}; the store is damaged: regenerate it")
+        return opened
     except KeyError as exc:
         raise StoreError(f"dataset {path} lacks {exc}; the store is truncated: regenerate it") from None
     except (TypeError, ValueError) as exc:

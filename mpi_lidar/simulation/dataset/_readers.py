@@ -16,7 +16,7 @@ from mpi_lidar.errors import StoreError
 from mpi_lidar.locations import location
 from mpi_lidar.simulation.dataset._chunks import SPLIT_CODES
 from mpi_lidar.simulation.dataset._layout import DATA_ARRAYS, store_arrays
-from mpi_lidar.simulation.dataset._store import chunk_fingerprints, completed_chunks, open_store, store_config
+from mpi_lidar.simulation.dataset._store import chunk_fingerprints, completed_chunks, open_checked, store_config
 from mpi_lidar.storage.integrity import check_fingerprint, read_chunk
 from mpi_lidar.storage.objects import zarr_store
 
@@ -45,21 +45,21 @@ class DatasetInfo:
 
 
 def dataset_info(path: str | Path) -> DatasetInfo:
-    return _described(path, open_store(path))
+    return _described(path, *open_checked(path))
 
 
-def _described(path: str | Path, group: zarr.Group) -> DatasetInfo:
-    """:func:`dataset_info` of a store already opened (and checked) by :func:`open_store`."""
+def _described(path: str | Path, group: zarr.Group, arrays: Mapping[str, zarr.Array]) -> DatasetInfo:
+    """:func:`dataset_info` of a store already opened (and checked) by :func:`open_checked`, with its arrays."""
     try:
-        return _info(path, group)
+        return _info(path, group, arrays)
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:  # codecs raise RuntimeError on bad chunks
         reason = str(exc).splitlines()[0] if str(exc) else ""
         raise StoreError(f"dataset {path} has damaged metadata or chunk marks ({type(exc).__name__}: {reason}); "
                          "regenerate it") from None
 
 
-def _info(path: str | Path, group: zarr.Group) -> DatasetInfo:
-    done = completed_chunks(group)
+def _info(path: str | Path, group: zarr.Group, arrays: Mapping[str, zarr.Array]) -> DatasetInfo:
+    done = completed_chunks(group, arrays)
     attrs: Mapping[str, Any] = group.attrs  # JSON whose layout open_store checked
     return DatasetInfo(
         path=str(path),
@@ -75,8 +75,8 @@ def _info(path: str | Path, group: zarr.Group) -> DatasetInfo:
     )
 
 
-def _complete_info(path: str | Path, group: zarr.Group) -> DatasetInfo:
-    info = _described(path, group)
+def _complete_info(path: str | Path, group: zarr.Group, arrays: Mapping[str, zarr.Array]) -> DatasetInfo:
+    info = _described(path, group, arrays)
     if not info.complete:  # an unfinished chunk has no fingerprint: its rows would be read as fill values
         raise StoreError(f"dataset {path} is incomplete ({info.chunks_done} of {info.chunks} chunks); "
                          f"finish it with 'mpi-lidar simulate --out {path}' and the same configuration")
@@ -85,8 +85,8 @@ def _complete_info(path: str | Path, group: zarr.Group) -> DatasetInfo:
 
 @dataclass(frozen=True)
 class _ReadPass:
-    """A complete store opened for one pass of reads: opened and checked once, each data array's metadata read
-    once (every ``group[name]`` reads it again: a request per array and chunk in an object store)."""
+    """A complete store opened for one pass of reads: opened and checked once, each array's metadata read once,
+    by the checks (every ``group[name]`` reads it again: a request per array and chunk in an object store)."""
 
     path: str
     info: DatasetInfo
@@ -103,9 +103,9 @@ class _ReadPass:
 
 
 def _open_complete(path: str | Path) -> _ReadPass:
-    group = open_store(path)
-    info = _complete_info(path, group)
-    return _ReadPass(str(path), info, chunk_fingerprints(group), store_arrays(group, DATA_ARRAYS))
+    group, arrays = open_checked(path)
+    info = _complete_info(path, group, arrays)
+    return _ReadPass(str(path), info, chunk_fingerprints(group, arrays), {name: arrays[name] for name in DATA_ARRAYS})
 
 
 @dataclass(frozen=True)

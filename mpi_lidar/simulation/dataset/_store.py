@@ -6,6 +6,7 @@ import hashlib
 import json
 import shutil
 import tempfile
+from collections.abc import Mapping
 from contextlib import suppress
 from pathlib import Path
 from typing import Literal
@@ -20,7 +21,6 @@ from mpi_lidar.errors import StoreError
 from mpi_lidar.locations import Location, location
 from mpi_lidar.simulation.dataset._chunks import SamplingPlan, simulate_chunk
 from mpi_lidar.simulation.dataset._layout import (
-    ARRAYS,
     DATA_ARRAYS,
     SCHEMA,
     build_layout,
@@ -48,12 +48,12 @@ def create_store(path: str | Path, config: Config) -> zarr.Group:
     if path.exists() and not _is_empty_dir(path):
         group = open_store(path)
         _check_same_config(path, group, config)
-        return zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
+        return _writable(where)
     _check_free_space(path, config)
     # Here path is absent or an empty directory, which the new store may replace.
     with atomic_path(path, replace=True, what="dataset store", error=StoreError) as staging:
         build_layout(staging, config)
-    return zarr.open_group(store=str(path), mode="r+", use_consolidated=False)
+    return _writable(where)
 
 
 def _create_in_object_store(where: Location, config: Config) -> zarr.Group:
@@ -76,7 +76,13 @@ def _create_in_object_store(where: Location, config: Config) -> zarr.Group:
                 write_object(where.joinpath("zarr.json"), (staging / "zarr.json").read_bytes(), create=True)
     group = open_store(where.url)
     _check_same_config(where.url, group, config)
-    return zarr.open_group(store=zarr_store(where, read_only=False), mode="r+", use_consolidated=False)
+    return _writable(where)
+
+
+def _writable(where: Location) -> zarr.Group:
+    """The dataset store at ``where`` opened to write chunks into: as Zarr v3, as it was built, so that zarr
+    never probes for Zarr v2 metadata (three requests more in an object store, once per chunk written)."""
+    return zarr.open_group(store=zarr_store(where, read_only=False), mode="r+", use_consolidated=False, zarr_format=3)
 
 
 def _check_free_space(path: Path, config: Config) -> None:
@@ -106,6 +112,12 @@ def _check_same_config(path: str | Path, group: zarr.Group, config: Config) -> N
 def open_store(path: str | Path, mode: Literal["r", "r+"] = "r") -> zarr.Group:
     """Open a dataset store (a path or an object-store URL) after checking its schema and arrays;
     :class:`StoreError` on anything else."""
+    return open_checked(path, mode)[0]
+
+
+def open_checked(path: str | Path, mode: Literal["r", "r+"] = "r") -> tuple[zarr.Group, dict[str, zarr.Array]]:
+    """:func:`open_store`'s group, with its six arrays by name as the checks opened them, once each (every
+    ``group[name]`` reads an array's metadata again: a request in an object store)."""
     where = location(path)
     shown = where.url if not where.is_local else path
     # Links, FIFOs and devices inside the store, and oversized metadata, are refused before zarr opens a file.
@@ -119,9 +131,9 @@ def open_store(path: str | Path, mode: Literal["r", "r+"] = "r") -> zarr.Group:
     if attrs.get("schema") != SCHEMA:
         raise StoreError(f"{shown} is not an mpi-lidar dataset (schema {attrs.get('schema')!r}, "
                          f"expected {SCHEMA!r})")
-    check_layout(shown, group, attrs)
-    check_chunk_files(shown, files, {name: store_array(group, name) for name in ARRAYS})
-    return group
+    arrays = check_layout(shown, group, attrs)
+    check_chunk_files(shown, files, arrays)
+    return group, arrays
 
 
 def _store_files(where: Location, shown: str | Path) -> dict[str, int]:
@@ -145,13 +157,15 @@ def store_config(group: zarr.Group) -> Config:
     return config_from_json(json.dumps(group.attrs["config"]))
 
 
-def completed_chunks(group: zarr.Group) -> NDArray[np.bool_]:
-    return _read_whole(group, "chunk_done").astype(bool)
+def completed_chunks(group: zarr.Group, arrays: Mapping[str, zarr.Array] | None = None) -> NDArray[np.bool_]:
+    """Which chunks are complete; ``arrays``: the store's arrays as :func:`open_checked` opened them, if at hand."""
+    return _read_whole(group, "chunk_done", arrays).astype(bool)
 
 
-def _read_whole(group: zarr.Group, name: str) -> NDArray:
-    """A small bookkeeping array, read at once; damage to it is one :class:`IntegrityError` naming it."""
-    array = store_array(group, name)
+def _read_whole(group: zarr.Group, name: str, arrays: Mapping[str, zarr.Array] | None = None) -> NDArray:
+    """A small bookkeeping array (taken from ``arrays`` where given, not opened again), read at once; damage to
+    it is one :class:`IntegrityError` naming it."""
+    array = arrays[name] if arrays is not None else store_array(group, name)
     return read_chunk(array, (slice(None),) * array.ndim, str(getattr(group.store, "root", group.store)), name, "(any)")
 
 
@@ -168,10 +182,10 @@ def is_complete(path: str | Path) -> bool:
     return bool(completed_chunks(open_store(path)).all())
 
 
-def chunk_fingerprints(group: zarr.Group) -> NDArray[np.uint8]:
+def chunk_fingerprints(group: zarr.Group, arrays: Mapping[str, zarr.Array] | None = None) -> NDArray[np.uint8]:
     """The fingerprints (chunks, arrays, 32) recorded by :func:`write_chunk` (every dataset has them:
-    :func:`open_store` refuses one without)."""
-    return _read_whole(group, "chunk_sha256")
+    :func:`open_store` refuses one without); ``arrays`` as for :func:`completed_chunks`."""
+    return _read_whole(group, "chunk_sha256", arrays)
 
 
 def write_chunk(path: str | Path, config: Config, index: int) -> bool:
@@ -180,7 +194,7 @@ def write_chunk(path: str | Path, config: Config, index: int) -> bool:
     Returns True when the chunk was written, False when it was already complete. The completion mark is
     written after the data, so a chunk interrupted part-way is redone on the next run.
     """
-    group = zarr.open_group(store=zarr_store(location(path), read_only=False), mode="r+", use_consolidated=False)
+    group = _writable(location(path))
     if store_array(group, "chunk_done")[index]:
         return False
     chunk = simulate_chunk(config, index)
