@@ -19,7 +19,6 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Iterable
-from pathlib import Path
 
 from prefect import flow, task
 from prefect.artifacts import create_link_artifact, create_markdown_artifact, create_table_artifact
@@ -31,11 +30,14 @@ from flows.runtime import PrefectExecutor, dask_task_runner, shared_api
 from mpi_lidar.correction import CorrectionOptions, GateName, ScanOutcome
 from mpi_lidar.correction.options import USER_OPTIONS, Baseline
 from mpi_lidar.errors import MpiLidarError
-from mpi_lidar.reporting.batch_report import batch_report, write_batch_report
+from mpi_lidar.locations import location
+from mpi_lidar.reporting.batch_report import batch_report
 from mpi_lidar.reporting.output_levels import OutputLevel
 from mpi_lidar.scans.pointcloud import PointCloudFormat, PointCloudFrame
+from mpi_lidar.storage.objects import exists
 from mpi_lidar.workflows.batch_options import BATCH_OPTIONS, BatchOptions, FailOn, batch_options
 from mpi_lidar.workflows.correct_archive import batch_failure, correct_archive, process_scan
+from mpi_lidar.workflows.remote_outputs import write_summary
 
 TABLE_ARTIFACT_KEY = "correction-table"
 SUMMARY_ARTIFACT_KEY = "correction-summary"
@@ -86,19 +88,27 @@ def publish_scan(outcome: ScanOutcome, slug: str) -> list[str]:
         lines.append(f"- outputs: `{outcome.output}/` (its report lists them)")
     create_markdown_artifact(markdown="\n".join(lines), key=f"scan-{slug}",
                              description=f"Correction of {outcome.name}")
-    report = Path(outcome.output) / "report.html" if outcome.output else None
-    if report is not None and report.is_file():
-        create_link_artifact(link=report.resolve().as_uri(), link_text=f"report of {outcome.name}",
-                             key=f"report-{slug}",
+    link = _report_link(outcome.output) if outcome.output else None
+    if link is not None:
+        create_link_artifact(link=link, link_text=f"report of {outcome.name}", key=f"report-{slug}",
                              description=f"Correction report of {outcome.source}")
         return [f"scan-{slug}", f"report-{slug}"]
     return [f"scan-{slug}"]
 
 
+def _report_link(output: str) -> str | None:
+    """The address of a scan's report where it was written: a file URI on disk, the object's URL in a store."""
+    report = location(output).joinpath("report.html")
+    if report.is_local:
+        path = report.local_path()
+        return path.resolve().as_uri() if path.is_file() else None
+    return report.url if exists(report) else None
+
+
 @task(name="write-summary", cache_policy=NO_CACHE)
 def summary_task(outcomes: list[ScanOutcome], wall_s: float, out: str) -> str:
     """The batch table as files and as an artifact under a key that keeps its history."""
-    write_batch_report(outcomes, wall_s, out)
+    write_summary(outcomes, wall_s, out)  # on disk or published into the store
     markdown = batch_report(outcomes, wall_s).markdown()
     create_markdown_artifact(markdown=markdown, key=SUMMARY_ARTIFACT_KEY, description=f"Batch correction into {out}")
     create_table_artifact(table=batch_rows(outcomes), key=TABLE_ARTIFACT_KEY,
