@@ -5,7 +5,6 @@ environment and nowhere else: not in the flow run's parameters, logs or artifact
 from __future__ import annotations
 
 import logging
-import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -26,6 +25,7 @@ from mpi_lidar.storage import objects
 from mpi_lidar.storage.manifest import MANIFEST_FILE
 from mpi_lidar.workflows.verify import verify_store
 from tests.flows.helpers import wait_for
+from tests.moto_server import moto_server
 from tests.scan_factory import two_path_scan
 
 pytestmark = pytest.mark.integration
@@ -50,21 +50,9 @@ def leaked(text: str) -> list[str]:
 def bucket_server() -> Iterator[str]:
     """moto's S3 server in a thread of this process, on a free port of 127.0.0.1, the AWS variables pointing
     at it with :data:`KEY_ID` and :data:`SECRET`, and :data:`BUCKET` created: its endpoint URL."""
-    from moto.server import ThreadedMotoServer
-
-    logging.getLogger("werkzeug").setLevel(logging.ERROR)
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    endpoint = f"http://127.0.0.1:{port}"
-    try:
-        with aws_environment(endpoint, KEY_ID, SECRET):
-            objects.filesystem(location(f"s3://{BUCKET}")).mkdir(BUCKET)
-            yield endpoint
-    finally:
-        server.stop()
+    with moto_server() as endpoint, aws_environment(endpoint, KEY_ID, SECRET):
+        objects.filesystem(location(f"s3://{BUCKET}")).mkdir(BUCKET)
+        yield endpoint
 
 
 @pytest.fixture(scope="module")

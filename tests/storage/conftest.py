@@ -6,13 +6,12 @@ afterwards), so each module's tests, and the Dask workers they start, reach it a
 
 from __future__ import annotations
 
-import logging
-import socket
 from collections.abc import Iterator
 
 import pytest
 
 from benchmarks.object_storage import aws_environment
+from tests.moto_server import moto_server
 
 SECRET = "p@ss:w/rd+S3cr3t"  # the secret access key: '@', ':' and '/' in it
 KEY_ID = "AKIAMPILIDARTEST"
@@ -22,16 +21,8 @@ BUCKET = "archive"
 @pytest.fixture(scope="session")
 def moto_endpoint() -> Iterator[str]:
     """moto's S3 server in a thread of this process, on a free port of 127.0.0.1: its endpoint URL."""
-    from moto.server import ThreadedMotoServer
-
-    logging.getLogger("werkzeug").setLevel(logging.ERROR)
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    yield f"http://127.0.0.1:{port}"
-    server.stop()
+    with moto_server() as endpoint:
+        yield endpoint
 
 
 @pytest.fixture(scope="module")
