@@ -26,9 +26,13 @@ test-quick: $(VENV)/.installed
 	$(VENV)/bin/python -m pytest -m unit -q || $(NO_TESTS)
 
 # System packages the tests need: chromium renders the HTML reports (tests/reporting/test_browser.py). Installed
-# here, as root, where /usr/bin/chromium is missing; never by a test.
+# here, as root, where /usr/bin/chromium is missing; never by a test. Azurite (npm), the Azure Blob server of the
+# az:// tests (tests/azurite_server.py), goes into .tools/azurite once per version: 3.35 is the last that runs on
+# Node 20.
 CHROMIUM ?= /usr/bin/chromium
-system-deps:
+AZURITE_VERSION := 3.35.0
+AZURITE_DIR := .tools/azurite
+system-deps: $(AZURITE_DIR)/.installed-$(AZURITE_VERSION)
 	@if [ ! -x $(CHROMIUM) ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	    DEBIAN_FRONTEND=noninteractive apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium; \
@@ -36,6 +40,12 @@ system-deps:
 	    echo "make system-deps: $(CHROMIUM) is missing; install chromium as root (apt-get install -y chromium)" >&2; \
 	  fi; \
 	fi
+
+$(AZURITE_DIR)/.installed-$(AZURITE_VERSION):
+	@command -v npm >/dev/null || { echo "make system-deps: npm is missing; install Node.js 20+ and npm (apt-get install -y npm)" >&2; exit 1; }
+	rm -rf $(AZURITE_DIR) && mkdir -p $(AZURITE_DIR)
+	npm install --prefix $(AZURITE_DIR) --no-audit --no-fund --save-exact --loglevel=error azurite@$(AZURITE_VERSION)
+	@touch $@
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check .

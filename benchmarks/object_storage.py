@@ -233,6 +233,8 @@ def archive(work: Path, plan: Plan) -> Path:
         return folder
     staging = Path(tempfile.mkdtemp(dir=work))
     for count, side, prefix in ((plan.scans, plan.side, "s"), (plan.big_scans, plan.big_side, "b")):
+        if count == 0:
+            continue
         source = rendered(work, side)
         for index in range(count):
             shutil.copytree(source, staging / f"{prefix}{index:04d}.scan.zarr")

@@ -6,7 +6,10 @@ the local file system, its child locations, and its text for messages. An object
 credential: one with a user part (``s3://key:secret@bucket/...``) is refused with one line that shows it
 masked. Credentials come only from the standard chains of the store's library (for S3: the environment's
 ``AWS_ACCESS_KEY_ID``/``AWS_SECRET_ACCESS_KEY``/``AWS_SESSION_TOKEN``, ``AWS_PROFILE`` and the shared files,
-an instance role; the endpoint from ``AWS_ENDPOINT_URL``), so no URL the tool stores or prints holds one.
+an instance role; the endpoint from ``AWS_ENDPOINT_URL``; for GCS ``GOOGLE_APPLICATION_CREDENTIALS`` and
+gcloud's login; for Azure ``AZURE_STORAGE_CONNECTION_STRING`` or ``AZURE_STORAGE_ACCOUNT_NAME`` with its key, a
+SAS or a managed identity), so no URL the tool stores or prints holds one. The Azure account is not part of an
+``az://`` URL either: ``abfs://container@account.dfs.core.windows.net/x`` is refused with one line saying so.
 :func:`display_url` shows any other URL the tool takes (a scheduler's, a database's) with its password masked;
 :func:`driver_url` percent-encodes what cannot stand unencoded in a URL's user part before a driver parses it.
 """
@@ -14,6 +17,7 @@ an instance role; the endpoint from ``AWS_ENDPOINT_URL``), so no URL the tool st
 from __future__ import annotations
 
 import posixpath
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote, unquote
@@ -24,6 +28,8 @@ from mpi_lidar.redact import redact, split_user_part
 OBJECT_STORE_SCHEMES = ("s3", "gs", "az")
 # Other spellings fsspec knows for the same stores.
 _ALIASES = {"s3a": "s3", "gcs": "gs", "abfs": "az", "abfss": "az"}
+# The host of adlfs's ``abfs://container@account.dfs.core.windows.net/path`` form, which names the account.
+_AZURE_HOST = re.compile(r"[a-z0-9]{3,24}\.(?:blob|dfs)\.core\.windows\.net", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -91,6 +97,9 @@ def location(given: str | Path | Location) -> Location:
         return Location("", given)
     scheme = scheme_sep.removesuffix("://").lower()
     scheme = _ALIASES.get(scheme, scheme)
+    if user and scheme == "az" and ":" not in user and _AZURE_HOST.fullmatch(rest.split("/", 1)[0]):
+        raise MpiLidarError(f"{redact(given)} names the account in the URL; give az://{user}/<path> and the account "
+                            "through AZURE_STORAGE_CONNECTION_STRING or AZURE_STORAGE_ACCOUNT_NAME")
     if user and ("/" not in user.split(":", 1)[0]):
         raise MpiLidarError(f"{redact(given)} carries a credential in the URL; give it through the environment "
                             "(AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, AWS_PROFILE, "

@@ -7,10 +7,14 @@ clear (``flows/tune.py`` refuses a ``storage`` parameter that carries one). A UR
 not, with an unencoded ``@``, ``:`` or ``/`` inside it (the user part ends at the last ``@`` that a host
 follows); as a query parameter that libpq accepts (``?password=secret``, ``&sslpassword=...``); as a
 ``key=value`` option of a libpq connection string (``host=h password=secret``) or a mapping's
-``'password': 'secret'``. ``passfile`` and ``sslkey`` name files whose paths say where a secret lives.
-:func:`redact` masks all of them, wherever they appear in a text, and every other occurrence of a password
-it found there (as written and %-decoded). Masking errs on the side of hiding: an ``@`` in a URL's path or
-query after the host masks up to it. A password with whitespace in it must be %-encoded to be found.
+``'password': 'secret'``; an Azure Storage connection string's ``AccountKey=...;`` or
+``SharedAccessSignature=...;``, a SAS token's ``sig=...``, ``account_key``/``sas_token``/``client_secret``
+options and the ``AZURE_STORAGE_*`` variables that hold a key (a ``key=value`` ends at ``;``, ``&``, a comma or
+whitespace, so an ``@``, ``:``, ``/``, ``+`` or ``=`` in a key is masked with it). ``passfile`` and ``sslkey``
+name files whose paths say where a secret lives. :func:`redact` masks all of them, wherever they appear in a
+text, and every other occurrence of a password it found there (as written and %-decoded). Masking errs on the
+side of hiding: an ``@`` in a URL's path or query after the host masks up to it. A password with whitespace in
+it must be %-encoded to be found.
 
 :func:`install_log_redaction` masks every log record of the process the same way (messages, arguments and
 tracebacks), whichever library logs it.
@@ -25,7 +29,12 @@ from collections.abc import Callable
 from urllib.parse import unquote
 
 MASK = "***"
-SECRET_KEYS = ("password", "passwd", "pwd", "passfile", "sslpassword", "sslkey", "token", "secret", "api_key")
+SECRET_KEYS = ("password", "passwd", "pwd", "passfile", "sslpassword", "sslkey", "token", "secret", "api_key",
+               # Azure Storage: a connection string's AccountKey and SharedAccessSignature, a SAS's signature (sig),
+               # adlfs's options and the AZURE_STORAGE_* variables that carry a key, a SAS or a client secret.
+               "accountkey", "account_key", "sharedaccesssignature", "sig", "sas_token", "client_secret",
+               "azure_storage_account_key", "azure_storage_sas_token", "azure_storage_client_secret",
+               "azure_storage_connection_string")
 # Where a password is also searched for elsewhere in the text: shorter ones would mask ordinary words.
 _MIN_REPEATED_SECRET = 3
 

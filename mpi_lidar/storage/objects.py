@@ -1,21 +1,26 @@
-"""Object stores (S3 and its compatibles; read-only ``gs://`` and ``az://``): opening, listing, reading, and
-publishing a directory of outputs (or a store, or a model) without a rename.
+"""Object stores (S3 and its compatibles, Google Cloud Storage, Azure Blob Storage): opening, listing, reading,
+and publishing a directory of outputs (or a store, or a model) without a rename.
 
-Stores are reached through fsspec (``s3fs`` for S3, ``gcsfs`` and ``adlfs`` where installed), zarr arrays
-through zarr's own :class:`zarr.storage.FsspecStore`; every process (each Dask worker too) opens its own. A
-store whose library is not installed, or that does not answer, is refused with one line naming the location
-and what to do (:func:`missing_library`, :func:`store_error`). Credentials and the
-endpoint come only from the store library's standard chains (for S3 the environment: ``AWS_ACCESS_KEY_ID``,
+Stores are reached through fsspec (``s3fs`` for ``s3://``, gcsfs's JSON-API file system for ``gs://``, ``adlfs``
+for ``az://``), zarr arrays through zarr's own :class:`zarr.storage.FsspecStore`; every process (each Dask
+worker too) opens its own. A store whose library is not installed, or that does not answer, is refused with one
+line naming the location and what to do (:func:`missing_library`, :func:`store_error`). Credentials and the
+endpoint come only from the store library's standard chains (S3: ``AWS_ACCESS_KEY_ID``,
 ``AWS_SECRET_ACCESS_KEY``, ``AWS_SESSION_TOKEN``, ``AWS_PROFILE``, ``AWS_ENDPOINT_URL``, ``AWS_DEFAULT_REGION``,
-the shared config files, an instance role): nothing here takes, stores or prints one.
+the shared config files, an instance role; GCS: ``GOOGLE_APPLICATION_CREDENTIALS``, gcloud's default login, the
+instance's service account, ``STORAGE_EMULATOR_HOST``; Azure: ``AZURE_STORAGE_CONNECTION_STRING``, or
+``AZURE_STORAGE_ACCOUNT_NAME`` with ``AZURE_STORAGE_ACCOUNT_KEY``, ``AZURE_STORAGE_SAS_TOKEN`` or a managed
+identity): nothing here takes, stores or prints one.
 
-Guarantees of :func:`publish_directory` (one scan's outputs under ``<out>/<scan>/``), on S3:
+Guarantees of :func:`publish_directory` (one scan's outputs under ``<out>/<scan>/``), on S3, GCS and Azure alike
+(each store's requests: :mod:`mpi_lidar.storage._conditional`):
 
-- Each object appears whole or not at all (one PUT each; S3 never shows a partial object).
+- Each object appears whole or not at all (one PUT or upload each; no store shows a partial object).
 - The outputs are published by their manifest (:data:`~mpi_lidar.storage.manifest.MANIFEST_FILE`, the size and
-  SHA-256 of every file), written last with a conditional create (``If-None-Match: *``): the folder's outputs
-  exist, for every reader of this package (the re-run's skip, ``mpi-lidar verify``, the summary), only once
-  the manifest does, and then every object it lists must have its size (the skip) and digest (``verify``).
+  SHA-256 of every file), written last with a conditional create (``If-None-Match: *``; on GCS
+  ``ifGenerationMatch=0``): the folder's outputs exist, for every reader of this package (the re-run's skip,
+  ``mpi-lidar verify``, the summary), only once the manifest does, and then every object it lists must have its
+  size (the skip) and digest (``verify``).
   Objects under a folder with no manifest are never outputs: a killed batch leaves at most such objects,
   and the next run deletes them before it writes the folder again.
 - Replacing published outputs first deletes the manifest (the folder is then unpublished), then the old
@@ -27,8 +32,8 @@ Guarantees of :func:`publish_directory` (one scan's outputs under ``<out>/<scan>
 :func:`publish_whole` (a scan or dataset store, a model directory) publishes by the one object its readers
 open it by, written last with a conditional create: the store's root ``zarr.json``, the model's ``card.json``.
 
-Not guaranteed: durability beyond the store's own, a reader that reads the objects without their manifest,
-and publication on ``gs://`` or ``az://`` (writing there is refused).
+Not guaranteed: durability beyond the store's own, a reader that reads the objects without their manifest, and
+GCS's zonal (Rapid) buckets, which gcsfs reaches over gRPC only.
 """
 
 from __future__ import annotations
@@ -45,6 +50,8 @@ from typing import TYPE_CHECKING, Any, cast
 
 from mpi_lidar.errors import MpiLidarError, StoreError
 from mpi_lidar.locations import Location
+from mpi_lidar.storage import _conditional
+from mpi_lidar.storage._stores import REACHED_BY, STORE_LIBRARIES, asynchronous_filesystem, filesystem_class
 from mpi_lidar.storage.integrity import MAX_METADATA_BYTES, IntegrityError
 from mpi_lidar.storage.manifest import MANIFEST_FILE, manifest_entries
 from mpi_lidar.storage.publication import LOCK_FILE, OutputLock, counted_hold
@@ -53,31 +60,17 @@ if TYPE_CHECKING:
     from fsspec import AbstractFileSystem
     from zarr.storage import FsspecStore
 
-WRITABLE_SCHEMES = ("s3",)
+WRITABLE_SCHEMES = ("s3", "gs", "az")
 # A lock whose holder has not renewed it for this long is taken over (a holder on this host that is gone at once).
 LOCK_LEASE_S = 60.0
 _RENEW_EVERY_S = LOCK_LEASE_S / 4
 
 
-# The fsspec library of each store's scheme, and where that library finds the store and its credentials.
-STORE_LIBRARIES = {"s3": "s3fs", "gs": "gcsfs", "az": "adlfs"}
-_REACHED_BY = {
-    "s3": "the endpoint (AWS_ENDPOINT_URL) and the credentials (AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, "
-          "AWS_PROFILE or an instance role)",
-    "gs": "the credentials (GOOGLE_APPLICATION_CREDENTIALS, gcloud's default login or the instance's service "
-          "account)",
-    "az": "the account and its credentials (AZURE_STORAGE_ACCOUNT_NAME with AZURE_STORAGE_ACCOUNT_KEY, "
-          "AZURE_STORAGE_CONNECTION_STRING or a managed identity)",
-}
-
-
 def filesystem(where: Location) -> AbstractFileSystem:
     """The fsspec file system of an object-store location (one per process and options, fsspec's cache);
     listings are not cached, so every listing sees what other processes published."""
-    import fsspec
-
     try:
-        return fsspec.filesystem(where.scheme, **storage_options(where))
+        return filesystem_class(where.scheme)(**storage_options(where))
     except ImportError:
         raise missing_library(where) from None
 
@@ -85,10 +78,8 @@ def filesystem(where: Location) -> AbstractFileSystem:
 def missing_library(where: Location) -> MpiLidarError:
     """One line for a store whose fsspec library is not installed: which, and how to get it."""
     library = STORE_LIBRARIES.get(where.scheme, "an fsspec implementation")
-    read_only = "" if where.scheme in WRITABLE_SCHEMES else (
-        f" to read from it (writing to {where.scheme}:// is not supported yet: write to s3:// or a path)")
     return MpiLidarError(f"{where}: {where.scheme}:// is reached through the {library} package, which is not "
-                         f"installed; install it (pip install {library}, on every Dask worker too){read_only}")
+                         f"installed; install it (pip install {library}, on every Dask worker too)")
 
 
 # s3fs asks an object's size (a HEAD request) before every whole read, to split one larger than its block
@@ -109,10 +100,9 @@ def zarr_store(where: Location, read_only: bool = True) -> str | FsspecStore:
         return where.path
     from zarr.storage import FsspecStore
 
-    try:
-        return FsspecStore.from_url(where.url, storage_options=storage_options(where), read_only=read_only)
-    except ImportError:
-        raise missing_library(where) from None
+    fs = filesystem(where)  # refused with one line where its library is not installed
+    return FsspecStore(fs=asynchronous_filesystem(where.scheme, fs, storage_options(where)), path=where.path,
+                       read_only=read_only)
 
 
 def store_error(where: Location, exc: BaseException, doing: str) -> MpiLidarError:
@@ -120,7 +110,7 @@ def store_error(where: Location, exc: BaseException, doing: str) -> MpiLidarErro
     reason = type(exc).__name__ if isinstance(exc, FileNotFoundError | PermissionError) else (
         str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__)
     return StoreError(f"cannot {doing} {where} ({reason}); check the URL, "
-                      f"{_REACHED_BY.get(where.scheme, 'the store and its credentials')}")
+                      f"{REACHED_BY.get(where.scheme, 'the store and its credentials')}")
 
 
 def list_files(where: Location) -> dict[str, int]:
@@ -180,36 +170,25 @@ def read_bytes(where: Location, max_bytes: int = MAX_METADATA_BYTES) -> bytes | 
 
 
 def check_writable(where: Location) -> None:
-    """Refuse, with one line, a store the tool cannot publish into: publication needs a conditional create
-    and overwrite (S3's ``If-None-Match`` and ``If-Match``), which fsspec does not offer for every store."""
+    """Refuse, with one line, a store the tool cannot publish into: publication needs a conditional create and
+    overwrite (:mod:`mpi_lidar.storage._conditional`), which only the stores of :data:`WRITABLE_SCHEMES` offer."""
     if where.scheme not in WRITABLE_SCHEMES:
-        raise MpiLidarError(f"{where}: writing to {where.scheme}:// is not supported yet (only "
-                            f"{', '.join(s + '://' for s in WRITABLE_SCHEMES)}); write the outputs to s3:// or a path")
+        raise MpiLidarError(f"{where}: writing to {where.scheme}:// is not supported (only "
+                            f"{', '.join(s + '://' for s in WRITABLE_SCHEMES)}); write the outputs to one or a path")
 
 
 def write_object(where: Location, data: bytes, *, create: bool = False, if_match: str | None = None) -> str:
     """Put one object (whole or not at all); ``create``: only if none is there (``If-None-Match: *``);
-    ``if_match``: only over the object of that ETag. A refused condition is :class:`FileExistsError`.
-    Returns the new object's ETag."""
+    ``if_match``: only over the object of that version (S3's and Azure's ETag, GCS's generation). A refused
+    condition is :class:`FileExistsError`. Returns the new object's version."""
     check_writable(where)
     fs = filesystem(where)
-    kwargs: dict[str, object] = {"mode": "create"} if create else {}
-    if if_match is not None:
-        kwargs["IfMatch"] = if_match
     try:
-        response = fs.pipe_file(where.path, data, **kwargs)
+        return _conditional.put(fs, where.scheme, where.path, data, create=create, if_match=if_match)
+    except FileExistsError:
+        raise FileExistsError(str(where)) from None
     except Exception as exc:
-        if _precondition_failed(exc):
-            raise FileExistsError(str(where)) from None
         raise store_error(where, exc, "write") from None
-    return str((response or {}).get("ETag", ""))
-
-
-def _precondition_failed(exc: BaseException) -> bool:
-    """Whether a store refused a conditional write (S3: 412 Precondition Failed, or 409 for a concurrent one)."""
-    text = f"{type(exc).__name__} {exc}"
-    return isinstance(exc, FileExistsError) or "PreconditionFailed" in text or "ConditionalRequestConflict" in text \
-        or "412" in text
 
 
 def remove_prefix(where: Location) -> None:
@@ -343,10 +322,11 @@ class ObjectOutputLock(OutputLock):
     Taken by a conditional create (``If-None-Match: *``); the object names its holder (process, host, start)
     and the time it was last renewed, which a thread of the holder does every :data:`LOCK_LEASE_S` / 4
     seconds. A lock not renewed for :data:`LOCK_LEASE_S`, or whose holder on this host is no longer running,
-    is stale: it is taken over by a conditional overwrite of that very object (``If-Match`` its ETag), so of
-    two batches taking it over at once only one succeeds. Released by deleting it. Nested holds in one thread
-    are one hold. There is nothing to clean up in a folder (:meth:`remove_interrupted`): objects a killed batch
-    left unpublished are replaced where their scan is written again.
+    is stale: it is taken over by a conditional overwrite of that very object (``If-Match`` its ETag; on GCS
+    ``ifGenerationMatch`` its generation), so of two batches taking it over at once only one succeeds. Renewals
+    are conditional overwrites of the version the last one wrote. Released by deleting it. Nested holds in one
+    thread are one hold. There is nothing to clean up in a folder (:meth:`remove_interrupted`): objects a killed
+    batch left unpublished are replaced where their scan is written again.
     """
 
     def __init__(self, out: Location):
@@ -402,7 +382,7 @@ class ObjectOutputLock(OutputLock):
     def _current(self) -> tuple[dict[str, object] | None, str]:
         fs = filesystem(self.lock)
         try:
-            etag = str(fs.info(self.lock.path).get("ETag", ""))
+            etag = _conditional.version(self.lock.scheme, fs.info(self.lock.path))
             data = json.loads(fs.cat_file(self.lock.path))
         except FileNotFoundError:
             return None, ""
