@@ -15,8 +15,11 @@ group of scenes (the edge straight, or turned / wide; the plate's range; the pla
 brighter than the wall), or per scene with ``--per-scene``:
 
 - the mixed pixels, and of them: reported as one valid depth more than 5 cm from both surfaces (the target: at most
-  2 %), of those the ones also more than 3 times their own uncertainty (the corrected depth's 1-sigma) from both,
-  flagged ``mixed``, resolved (``two_returns``), flagged ``inconsistent``;
+  2 %; a resolved pixel counts where its stronger return, its corrected depth, is that far), of those the resolved
+  ones, and the ones also more than 3 times their own uncertainty (the corrected depth's 1-sigma) from both; how
+  many of the unresolved valid ones a clean pixel of the same uncertainty would put more than 5 cm off (the sum
+  of erfc(5 cm / (sqrt(2) sigma)): the share of the misses the noise alone explains); flagged ``mixed``, resolved
+  (``two_returns``), flagged ``inconsistent``;
 - of the resolved: the nearer and the farther return's median and largest error against the plate's and the wall's
   range (per scene only), and the median of those errors over the two-return Cramer-Rao bound;
 - the share of the pixels of one surface whose valid depth lies more than 5 cm from it: where it is not near 0 the
@@ -39,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import erfc
 
 from benchmarks.correction import trained_model
 from mpi_lidar.config import Config
@@ -159,6 +163,8 @@ class SceneResult:
     near_errors: NDArray[np.float64]  # of the resolved pixels' nearer return, against the plate [m]
     far_errors: NDArray[np.float64]  # ...and of the farther, against the wall [m]
     crb_ratios: NDArray[np.float64]
+    far_resolved: int = 0  # of single_far, the resolved pixels (their stronger return that far)
+    noise_expected: float = 0.0  # of the unresolved valid ones, how many a clean pixel's noise puts > 5 cm off
 
 
 def crb_m(near: NDArray, far: NDArray, a_near: NDArray, a_far: NDArray, noise: NoiseModel) -> NDArray[np.float64]:
@@ -189,6 +195,8 @@ def evaluate(scene: PlateScene, model: CorrectionModel, config: Config, seed: in
     own = np.where(truth.plate_share == 1, truth.plate_m, truth.wall_m)
     surface = ~mixed & valid
     resolved = mixed & (flags == Flag.TWO_RETURNS)
+    single = mixed & valid & ~resolved
+    noise_expected = float(erfc(0.05 / (np.sqrt(2) * np.maximum(np.nan_to_num(sigma[single], nan=0.0), 1e-9))).sum())
     # The two returns by range, the nearer against the plate: which of them is the stronger is a coin's toss
     # where they are about equally bright, and not what is measured here.
     second = corrected.second_returns
@@ -205,7 +213,7 @@ def evaluate(scene: PlateScene, model: CorrectionModel, config: Config, seed: in
     return SceneResult(int(mixed.sum()), int((mixed & valid & far).sum()), int((mixed & valid & far_noise).sum()),
                        float((np.abs(depth - own)[surface] > 0.05).mean()), int((mixed & (flags == Flag.MIXED)).sum()),
                        int(resolved.sum()), int((mixed & (flags == Flag.INCONSISTENT)).sum()), near_err, far_err,
-                       ratios)
+                       ratios, int((resolved & far).sum()), noise_expected)
 
 
 def scan_light(truth: Truth, scene: PlateScene, config: Config) -> NDArray[np.float64]:
@@ -255,13 +263,14 @@ def all_scenes(quick: bool) -> tuple[PlateScene, ...]:
 
 
 def per_scene_table(results: list[tuple[PlateScene, SceneResult]]) -> list[str]:
-    lines = ["| plate | wall | mixed | single > 5 cm | single > 5 cm, 3 sigma | flagged mixed | resolved | "
-             "inconsistent | near error median / max [mm] | far error median / max [mm] | error / CRB | "
-             "surface > 5 cm |", "|" + "---|" * 12]
+    lines = ["| plate | wall | mixed | single > 5 cm | of them resolved | single > 5 cm, 3 sigma | noise alone | "
+             "flagged mixed | resolved | inconsistent | near error median / max [mm] | far error median / max [mm] | "
+             "error / CRB | surface > 5 cm |", "|" + "---|" * 14]
     for scene, r in results:
         ratio = f"{np.median(r.crb_ratios):.2f}" if r.crb_ratios.size else "-"
         lines.append(f"| {scene.label} | {r.mixed} | {r.single_far} ({_percent(r.single_far, r.mixed)}) | "
-                     f"{r.single_far_noise} | {r.flagged} | {r.resolved} | {r.inconsistent} | "
+                     f"{r.far_resolved} | {r.single_far_noise} | {r.noise_expected:.1f} | {r.flagged} | {r.resolved} | "
+                     f"{r.inconsistent} | "
                      f"{_median(r.near_errors)} / {_largest(r.near_errors)} | {_median(r.far_errors)} / "
                      f"{_largest(r.far_errors)} | {ratio} | {100 * r.surface_far:.0f} % |")
     return lines
@@ -297,7 +306,8 @@ def group_row(group: str, results: list[tuple[PlateScene, SceneResult]]) -> str:
             f"{sum(r.single_far_noise for _, r in results)} | {worst_text} | "
             f"{sum(r.flagged for _, r in results)} | {sum(r.resolved for _, r in results)} | "
             f"{sum(r.inconsistent for _, r in results)} | {ratio_text} | "
-            f"{100 * max(r.surface_far for _, r in results):.0f} % |")
+            f"{100 * max(r.surface_far for _, r in results):.0f} % | {sum(r.far_resolved for _, r in results)} | "
+            f"{sum(r.noise_expected for _, r in results):.1f} |")
 
 
 def summary_table(results: list[tuple[PlateScene, SceneResult]]) -> list[str]:
@@ -308,7 +318,8 @@ def summary_table(results: list[tuple[PlateScene, SceneResult]]) -> list[str]:
         groups.setdefault(scene_group(scene), []).append((scene, result))
     lines = ["| edge, plate range, albedos | scenes | mixed | single > 5 cm | single > 5 cm, 3 sigma | "
              "worst scene's single > 5 cm (plate / wall albedo, gap) | flagged mixed | resolved | inconsistent | "
-             "error / CRB, scenes' medians | surface > 5 cm, worst |", "|" + "---|" * 11]
+             "error / CRB, scenes' medians | surface > 5 cm, worst | single > 5 cm resolved | noise alone |",
+             "|" + "---|" * 13]
     return lines + [group_row(group, members) for group, members in groups.items()]
 
 

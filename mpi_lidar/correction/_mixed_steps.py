@@ -12,14 +12,28 @@ a clean surface almost never shows), each side's slope, measured from the next b
 ``BLOCK_FLAT_SHARE`` of the step's mean slope between them beyond ``BLOCK_FLAT_SIGMAS`` of its noise (a grazing
 surface's sides slope as steeply as the step), and the pixel must lie ``MIN_EDGE_M`` and ``BLOCK_PIXEL_SIGMAS``
 of its own and the side's noise from each side: two sigmas of the pixel's own noise, as the sides, not the pixel,
-carry the evidence of an edge. A second mixed pixel in a row is left to the one-line form of the test. A block
-whose depths spread more than ``MAX_SPREAD`` times their noise (beyond the light's reach, where depths lie
-anywhere, or across the edge) has no level; where they spread more than the noise model says, their spread is
-their noise.
+carry the evidence of an edge. A block whose depths spread more than ``MAX_SPREAD`` times their noise (beyond the
+light's reach, where depths lie anywhere, or across the edge) has no level; where they spread more than the noise
+model says, their spread is their noise.
+
+Where an edge runs diagonally, or the footprint is wider than the pixels' pitch, two or three pixels in a row are
+mixed, and the block beside a pixel holds some of them: its depths spread across the edge and it has no level.
+There a side's block may begin up to ``MAX_START`` pixels out, the pixels between (the run's other mixed pixels)
+lying in order between the pixel and that side's level, within ``ORDER_SIGMAS`` of their noise; the step's mean
+slope is then taken over the blocks' middles' greater distance, and the pixel must lie ``RUN_PIXEL_SIGMAS`` from
+each side (a side's own pixel beside a run has more chances to look stepped).
+
+A dark side far away is too noisy for its flatness to be shown below the step's share. Such a side may stand in
+for a flat one where the other side is flat, its slope is not significant (under ``HIDDEN_SLOPE_SIGMAS`` of its
+noise), and the pixel lies ``HIDDEN_PIXEL_SIGMAS`` of its own, the level's and the unknown slope's noise (over the
+distance to the block) from both its level and its surface carried back to the pixel along its measured slope (a
+grazing or cornered side's pixel lies on that surface); the pixel then lies as many sigmas from the flat side.
 """
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import numpy as np
@@ -37,7 +51,13 @@ MIN_FINITE = 4  # ...of whose six at least this many have a finite depth
 # The expected range of n normal draws less their lowest and highest, in sds, for n = 0..6 (inf for too few).
 INNER_RANGE_SDS = np.array([np.inf, np.inf, np.inf, np.inf, 0.594, 0.990, 1.284])
 MAX_SPREAD = 3.0  # a block's depths spread this many times their noise at most
-BLOCK_REACH = 5  # a side's outer block reaches four pixels along a diagonal and one across it
+MAX_START = 3  # a side's block begins at most this many pixels out, past a run of mixed pixels...
+ORDER_SIGMAS = 2.0  # ...which lie in order between the pixel and the side, within this many sigmas of their noise
+RUN_PIXEL_SIGMAS = 3.0  # ...and the pixel lies this many sigmas of its own and the side's noise from each side
+HIDDEN_SLOPE_SIGMAS = 2.0  # a side not shown flat may stand in where its slope is within this many sigmas of 0...
+HIDDEN_PIXEL_SIGMAS = 3.0  # ...and the pixel this many sigmas (its own, the level's, the slope's) off its level
+# A side's outer block reaches MAX_START + 2 BLOCK_ALONG - 1 pixels along a diagonal, and one across it.
+BLOCK_REACH = MAX_START + 2 * BLOCK_ALONG
 
 
 class _Side(NamedTuple):
@@ -48,6 +68,8 @@ class _Side(NamedTuple):
     level_sigma: NDArray
     slope: NDArray
     slope_sigma: NDArray
+    middle_px: float  # the level's block's middle lies this many pixels from the pixel
+    drift: NDArray  # the slope with its sign: the depth's change per pixel outwards [m per pixel]
 
 
 def stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDArray[np.bool_]:
@@ -62,8 +84,19 @@ def stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDA
     found = np.zeros(ys.size, bool)
     with np.errstate(invalid="ignore"):
         for (dy, dx), across in ACROSS.items():
-            one, other = (_side(padded, noisy, ys, xs, (sign * dy, sign * dx), across) for sign in (1, -1))
+            blocks = {sign: _blocks(padded, noisy, ys, xs, (sign * dy, sign * dx), across, (1, 1 + BLOCK_ALONG))
+                      for sign in (1, -1)}
+            one, other = _side_of(blocks[1], 1), _side_of(blocks[-1], 1)
             found |= _step(own, own_sigma, one, other)
+            # Past a run of mixed pixels: only where a side's first block has no level and its first pixel a
+            # depth (the run's next pixel), so that a clean surface's pixels, whose blocks have a level, and the
+            # pixels beside no return, cost nothing more.
+            again = np.flatnonzero(~found & ((np.isnan(one.level) & np.isfinite(padded[ys + dy, xs + dx]))
+                                             | (np.isnan(other.level) & np.isfinite(padded[ys - dy, xs - dx]))))
+            if again.size:
+                known = {sign: {k: (level[again], sigma[again]) for k, (level, sigma) in by_start.items()}
+                         for sign, by_start in blocks.items()}
+                found[again] = _past_a_run(padded, noisy, ys[again], xs[again], (dy, dx), across, known)
     out = np.zeros((h, w), bool)
     out[ys[found] - reach, xs[found] - reach] = True
     return out
@@ -82,16 +115,69 @@ def padded_band(depth: NDArray, sigma: NDArray, where: NDArray | None, reach: in
     return padded, noisy, ys + reach, xs + reach
 
 
-def _side(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],
-          across: tuple[int, int]) -> _Side:
-    """The side of the pixels (``ys``, ``xs``) of ``padded`` depths [m] (``noisy`` their noise [m]) ``along`` a
-    direction: its level is its first block's (``BLOCK_ALONG`` pixels from the neighbour on, three ``across``), its
-    slope the next block's level less that, over the blocks' distance."""
+def _past_a_run(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp],
+                along: tuple[int, int], across: tuple[int, int], known: dict[int, dict[int, tuple[NDArray, NDArray]]],
+                ) -> NDArray[np.bool_]:
+    """Whether the pixels (``ys``, ``xs``) of ``padded`` depths [m] (``noisy`` their noise [m]) lie at a step
+    whose sides' blocks begin 1 to ``MAX_START`` pixels out either way ``along`` a direction, at least one beyond
+    the neighbour, the pixels between lying in order between the pixel and the side (:func:`_in_order`).
+    ``known``: per side (1 along, -1 against) the blocks' levels already taken, by how far out they begin."""
     dy, dx = along
-    (level, level_sigma), (outer, outer_sigma) = (
-        block_level(padded, noisy, ys + k * dy, xs + k * dx, along, across) for k in (1, 1 + BLOCK_ALONG))
+    own, own_sigma = padded[ys, xs], noisy[ys, xs]
+    offsets = range(1, MAX_START + BLOCK_ALONG + 1)
+    blocks = {sign: known[sign] | _blocks(padded, noisy, ys, xs, (sign * dy, sign * dx), across,
+                                          [k for k in offsets if k not in known[sign]]) for sign in (1, -1)}
+    sides = {(sign, start): _side_of(blocks[sign], start) for sign in (1, -1) for start in range(1, MAX_START + 1)}
+    found = np.zeros(ys.size, bool)
+    for first in range(1, MAX_START + 1):
+        for second in range(1, MAX_START + 2 - first):
+            if first == second == 1:
+                continue
+            one, other = sides[1, first], sides[-1, second]
+            ordered = (_in_order(padded, noisy, ys, xs, (dy, dx), first, one.level, one.level_sigma)
+                       & _in_order(padded, noisy, ys, xs, (-dy, -dx), second, other.level, other.level_sigma))
+            found |= ordered & _step(own, own_sigma, one, other, first + second + BLOCK_ALONG - 1, RUN_PIXEL_SIGMAS)
+    return found
+
+
+def _in_order(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],
+              start: int, level: NDArray, level_sigma: NDArray) -> NDArray[np.bool_]:
+    """Whether the depths from the pixels (``ys``, ``xs``) ``along`` a direction up to ``start`` - 1 pixels out,
+    then the side's ``level`` (k,) [m] (noise ``level_sigma`` [m]), change one way (each from the one before by
+    no less than -``ORDER_SIGMAS`` of the two's noise): a run of mixed pixels between the pixel and the side."""
+    dy, dx = along
+    chain = [(padded[ys + k * dy, xs + k * dx], noisy[ys + k * dy, xs + k * dx]) for k in range(start)]
+    chain.append((level, level_sigma))
+    way = np.sign(level - chain[0][0])
+    ordered = np.ones(ys.size, bool)
+    for (before, before_sigma), (after, after_sigma) in itertools.pairwise(chain):
+        ordered &= way * (after - before) > -ORDER_SIGMAS * np.hypot(before_sigma, after_sigma)
+    return ordered
+
+
+def _blocks(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],
+            across: tuple[int, int], starts: Iterable[int]) -> dict[int, tuple[NDArray, NDArray]]:
+    """The levels (k,) [m] and their noise (k,) [m] (:func:`block_level`) of the blocks ``along`` a direction
+    from the pixels (``ys``, ``xs``) of ``padded`` depths [m] (``noisy`` their noise [m]), by how many pixels out
+    each begins (``starts``)."""
+    dy, dx = along
+    return {k: block_level(padded, noisy, ys + k * dy, xs + k * dx, along, across) for k in starts}
+
+
+def _side(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],
+          across: tuple[int, int], start: int = 1) -> _Side:
+    """The side of the pixels (``ys``, ``xs``) of ``padded`` depths [m] (``noisy`` their noise [m]) ``along`` a
+    direction: its level is its first block's (``BLOCK_ALONG`` pixels from ``start`` pixels out on, three
+    ``across``), its slope the next block's level less that, over the blocks' distance."""
+    return _side_of(_blocks(padded, noisy, ys, xs, along, across, (start, start + BLOCK_ALONG)), start)
+
+
+def _side_of(blocks: dict[int, tuple[NDArray, NDArray]], start: int) -> _Side:
+    """The side whose first block begins ``start`` pixels out, of ``blocks``' levels (:func:`_blocks`)."""
+    (level, level_sigma), (outer, outer_sigma) = blocks[start], blocks[start + BLOCK_ALONG]
     return _Side(level, level_sigma, np.abs(outer - level) / BLOCK_ALONG,
-                 np.hypot(level_sigma, outer_sigma) / BLOCK_ALONG)
+                 np.hypot(level_sigma, outer_sigma) / BLOCK_ALONG, start + (BLOCK_ALONG - 1) / 2,
+                 (outer - level) / BLOCK_ALONG)
 
 
 def block_level(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp], along: tuple[int, int],
@@ -118,19 +204,37 @@ def block_level(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArr
     return np.where(usable, (lower + upper) / 2, np.nan), np.sqrt(np.pi / 2 / np.maximum(count, 1)) * spread
 
 
-def _step(own: NDArray, own_sigma: NDArray, one: _Side, other: _Side) -> NDArray[np.bool_]:
+def _hidden(own: NDArray, own_sigma: NDArray, side: _Side) -> NDArray[np.bool_]:
+    """Whether a side too noisy to be shown flat may stand in for a flat one: its slope is not significant, and
+    the pixels of depth ``own`` (k,) [m] (noise ``own_sigma`` [m]) lie ``HIDDEN_PIXEL_SIGMAS`` of their own, the
+    level's and the slope's noise over the distance to the block from both its level and its surface carried back
+    to them along its slope (a grazing side's pixel lies on that surface)."""
+    margin = np.maximum(MIN_EDGE_M, HIDDEN_PIXEL_SIGMAS * np.sqrt(
+        own_sigma**2 + side.level_sigma**2 + (side.middle_px * side.slope_sigma) ** 2))
+    carried = side.level - side.middle_px * side.drift
+    return np.asarray((side.slope < HIDDEN_SLOPE_SIGMAS * side.slope_sigma) & (np.abs(side.level - own) > margin)
+                      & (np.abs(carried - own) > margin))
+
+
+def _step(own: NDArray, own_sigma: NDArray, one: _Side, other: _Side, apart_px: int = BLOCK_ALONG + 1,
+          pixel_sigmas: float = BLOCK_PIXEL_SIGMAS) -> NDArray[np.bool_]:
     """Whether pixels of depth ``own`` (k,) [m] and noise ``own_sigma`` (k,) [m] lie at a step between sides
     ``one`` and ``other``: the levels part by ``BLOCK_STEP_SIGMAS`` of their noise, each side's slope stays below
-    ``BLOCK_FLAT_SHARE`` of the step's mean slope between the blocks' middles by ``BLOCK_FLAT_SIGMAS`` of its
-    noise, and the pixel lies between them, ``MIN_EDGE_M`` and ``BLOCK_PIXEL_SIGMAS`` of the noise from each."""
+    ``BLOCK_FLAT_SHARE`` of the step's mean slope between the blocks' middles (``apart_px`` pixels apart) by
+    ``BLOCK_FLAT_SIGMAS`` of its noise, and the pixel lies between them, ``MIN_EDGE_M`` and ``pixel_sigmas`` of
+    the noise from each."""
     step = np.abs(one.level - other.level)
     significant = step > BLOCK_STEP_SIGMAS * np.hypot(one.level_sigma, other.level_sigma)
-    slope_bound = BLOCK_FLAT_SHARE * step / (BLOCK_ALONG + 1)  # the blocks' middles lie this many pixels apart
-    flat = ((one.slope + BLOCK_FLAT_SIGMAS * one.slope_sigma < slope_bound)
-            & (other.slope + BLOCK_FLAT_SIGMAS * other.slope_sigma < slope_bound))
+    slope_bound = BLOCK_FLAT_SHARE * step / apart_px
+    quiet = [side.slope + BLOCK_FLAT_SIGMAS * side.slope_sigma < slope_bound for side in (one, other)]
+    hidden = [_hidden(own, own_sigma, side) for side in (one, other)]
+    both_quiet = quiet[0] & quiet[1]
+    flat = both_quiet | (quiet[0] & hidden[1]) | (hidden[0] & quiet[1])
+    # Where a side stands in so, the pixel lies as far from the quiet side too: the noisy side's evidence is less.
+    sigmas = np.where(both_quiet, pixel_sigmas, max(pixel_sigmas, HIDDEN_PIXEL_SIGMAS))
     apart = np.ones(own.shape, bool)
     for side in (one, other):
-        margin = np.maximum(MIN_EDGE_M, BLOCK_PIXEL_SIGMAS * np.hypot(own_sigma, side.level_sigma))
+        margin = np.maximum(MIN_EDGE_M, sigmas * np.hypot(own_sigma, side.level_sigma))
         apart &= np.abs(side.level - own) > margin
     between = (one.level - own) * (own - other.level) > 0
     return np.asarray(significant & flat & apart & between)

@@ -33,7 +33,11 @@ each side's level as the median of a block of six pixels, half a pixel's noise: 
 sides' noise, and the pixel lie only two of its own sigmas (and ``MIN_EDGE_M``) from each. Where one side returns
 no usable light (NO_RETURN), a one-sided test (:func:`mpi_lidar.correction._mixed_dark.lost_light`) reads the
 lit side alone: the pixel's amplitude lies between the two sides' and its depth off the lit side's. Elsewhere the
-amplitude's level tells little: a mixture's lies between its neighbours' as a grazing surface's does.
+amplitude's level tells little: a mixture's lies between its neighbours' as a grazing surface's does. Where the
+sides lie metres apart, each frequency's mixture may wrap to about one depth near a side (the phasors part by about
+0.26 rad per metre of gap at the 6.25 MHz spacing), which none of these tests sees; the pixel's phasors still fit
+two returns at its sides' ranges, fixed by the neighbourhood, significantly better than one return
+(:func:`mpi_lidar.correction._mixed_ranges.two_ranges`).
 
 A clean surface passes the first test but for a share ``MIXED_P_VALUE`` of its pixels, and only those beside a
 jump of several centimetres (a grazing surface's) can be flagged. Where the phasors fit two returns within the
@@ -56,10 +60,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.correction import _mixed_dark as _dark
+from mpi_lidar.correction import _mixed_ranges as _ranges
 from mpi_lidar.correction import _mixed_steps as _blocks
 from mpi_lidar.correction.gating import GateDecision
 from mpi_lidar.correction.options import Flag
 from mpi_lidar.correction.validity import Validity
+from mpi_lidar.physics.inverse import measured_phasors
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.physics.two_returns import fit_two_returns, gap_ambiguity_m
 from mpi_lidar.scans.scan import Scan
@@ -284,9 +290,11 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
     ``EDGE_SIGMAS`` of the two depths' noise and ``MIN_EDGE_M`` away, or their depth lies off the line between two
     opposite neighbours (:func:`_between`: a weak second return biases the depth more than the frequencies'
     spread shows), or between two flat sides (:func:`_stepped`: two returns of about equal strength, or a gap
-    below a metre); ``raw`` (h*W, 2F) are the rows' measurements. The pixels ``beside_dark`` (h, W), beside one
-    with no usable return (``no_return`` (h, W)), are mixed where their footprint lost light to it and their depth
-    lies off the lit side's (:func:`mpi_lidar.correction._mixed_dark.lost_light`)."""
+    below a metre), or its phasors are two returns at its sides' ranges (:func:`_two_ranges`: sides metres apart,
+    where each frequency's mixture wraps to about one depth); ``raw`` (h*W, 2F) are the rows' measurements. The
+    pixels ``beside_dark`` (h, W), beside one with no usable return (``no_return`` (h, W)), are mixed where their
+    footprint lost light to it and their depth lies off the lit side's
+    (:func:`mpi_lidar.correction._mixed_dark.lost_light`)."""
     from scipy.special import chdtri  # the quantile without scipy.stats's imports
 
     f = len(noise.frequencies_hz)
@@ -296,7 +304,8 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
     ys, xs = np.nonzero(candidates)
     amplitude = raw[:, f:].reshape(*depth.shape, f)
     amplitude_chi2 = np.zeros(depth.shape)
-    amplitude_chi2[ys, xs] = amplitude_spread(amplitude[ys, xs], frequency_gains(amplitude, ys, xs), noise)
+    gains = frequency_gains(amplitude, ys, xs)
+    amplitude_chi2[ys, xs] = amplitude_spread(amplitude[ys, xs], gains, noise)
     # The step test reads the frequencies' fused depth, about 0.68 of the highest frequency's noise: the jumps it
     # looks for are a few sigmas. The lone-edge tests keep the highest frequency's depth their margins were set on.
     fused_depth = np.where(np.isfinite(depth), fused.depth_m.reshape(depth.shape), np.nan)
@@ -306,12 +315,41 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
         edge = np.nan_to_num(_jumps(depth, sigma), nan=0.0).max(axis=0) > MIN_EDGE_M
         disagree = frequencies_disagree | (amplitude_chi2 > chdtri(f - 1, AMPLITUDE_P_VALUE))
     found = candidates & ((edge & disagree) | _between(depth, sigma) | stepped)
+    found |= _two_ranges(raw, fused_depth, fused_sigma, candidates & ~found, (ys, xs, gains), noise)
     if no_return is not None and beside_dark is not None and beside_dark.any():
         light = raw[:, f:].astype(np.float64)
         light_sigma = np.sqrt((noise.quadrature_sigma_v2(light) ** 2).sum(axis=1)).reshape(depth.shape)
         found |= _dark.lost_light(fused_depth, fused_sigma, light.sum(axis=1).reshape(depth.shape), light_sigma,
                                   no_return, beside_dark)
     return np.asarray(found)
+
+
+def _two_ranges(raw: NDArray, depth: NDArray, sigma: NDArray, where: NDArray, gains_at: tuple[NDArray, ...],
+                noise: NoiseModel) -> NDArray[np.bool_]:
+    """The pixels ``where`` (h, W) beside a jump of half ``_ranges.MIN_GAP_M`` in the fused ``depth`` (h, W) [m]
+    (noise ``sigma`` (h, W) [m]) whose phasors are two returns at their sides' ranges
+    (:func:`mpi_lidar.correction._mixed_ranges.two_ranges`); ``raw`` (h*W, 2F) the rows' measurements,
+    ``gains_at`` the candidates' rows, columns and frequency gains (k, F), a superset of ``where``'s."""
+    ys, xs, gains = gains_at
+    h, w = depth.shape
+    padded = np.full((h + 2, w + 2), np.nan, dtype=np.float64)
+    padded[1:-1, 1:-1] = depth
+    jump = np.zeros(ys.size)
+    with np.errstate(invalid="ignore"):
+        for dy, dx in NEIGHBOURS:
+            jump = np.fmax(jump, np.abs(padded[ys + 1, xs + 1] - padded[ys + 1 + dy, xs + 1 + dx]))
+    asked = where[ys, xs] & (jump > _ranges.MIN_GAP_M / 2)
+    if not asked.any():
+        return np.zeros(depth.shape, bool)
+    ys, xs, gains = ys[asked], xs[asked], gains[asked]
+    rows = raw[ys * w + xs].astype(np.float64)
+    f = len(noise.frequencies_hz)
+    freqs, c = np.asarray(noise.frequencies_hz), noise.speed_of_light_m_per_s
+    phasor_sigma = noise.quadrature_sigma_v2(rows[:, f:]) / gains
+    selected = np.zeros(depth.shape, bool)
+    selected[ys, xs] = True
+    return _ranges.two_ranges(depth, sigma, measured_phasors(rows, freqs, c) / gains, phasor_sigma,
+                              4 * np.pi * freqs / c, selected)
 
 
 def frequency_gains(amplitude: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> NDArray[np.float64]:

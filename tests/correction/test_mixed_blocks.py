@@ -70,3 +70,44 @@ def test_stepped__only_the_pixels_asked_about():
     only = np.zeros(depth.shape, bool)
     only[H // 2, EDGE] = True
     assert np.array_equal(stepped(depth, quiet, only), only)
+
+
+def _rows_of(columns: np.ndarray, column_sigma: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Depths (H, W) whose columns are ``columns`` [m] with noise ``column_sigma`` [m], and that noise."""
+    sigma = np.tile(column_sigma, (H, 1)).astype(np.float32)
+    noise = sigma * np.random.default_rng(seed).standard_normal((H, W))
+    return (np.tile(columns, (H, 1)) + noise).astype(np.float32), sigma
+
+
+def test_stepped__a_run_of_three_mixed_pixels_between_precise_sides():
+    """Footprints two pitches wide on a diagonal edge mix three pixels in a row (0.84, 0.44 and 0.09 of equal
+    returns at 5 and 5.5 m): the block beside each holds the others, spreads across the edge and has no level; a
+    side's block taken past the run has one, and the run's pixels lie in order between. No other pixel is found."""
+    columns = np.where(np.arange(W) < EDGE, 5.0, 5.5)
+    columns[EDGE:EDGE + 3] = (5.06, 5.25, 5.44)
+    rows = slice(BLOCK_REACH, H - BLOCK_REACH)
+    found = []
+    for seed in range(3):
+        depth, sigma = _rows_of(columns, np.full(W, 0.008), seed)
+        flags = stepped(depth, sigma)
+        found.append(flags[rows, EDGE:EDGE + 3])
+        assert not np.delete(flags[rows], [EDGE, EDGE + 1, EDGE + 2], axis=1).any()
+    assert np.concatenate(found).mean(axis=0).min() > 0.7
+
+
+def test_stepped__a_side_too_noisy_to_be_shown_flat_stands_in_where_the_pixel_lies_far_off_it():
+    """A dark side (a pixel's noise 12 cm) at 5 m beside a quiet one at 5.5 m, the mixed column at 5.4 m: the
+    dark side's slope cannot be shown below the step's share, but the pixel lies far off its level and its surface
+    carried back to the pixel, and three sigmas off the quiet side: most of the column is found (a quarter was
+    before). A corner of a quiet flat side and a noisy sloping one is never found."""
+    columns = np.where(np.arange(W) < EDGE, 5.0, 5.5)
+    columns[EDGE] = 5.4
+    column_sigma = np.where(np.arange(W) < EDGE, 0.12, 0.005)
+    column_sigma[EDGE] = 0.03
+    rows = slice(BLOCK_REACH, H - BLOCK_REACH)
+    found = [stepped(*_rows_of(columns, column_sigma, seed))[rows, EDGE] for seed in range(3)]
+    assert np.concatenate(found).mean() > 0.45
+    x = np.arange(W)
+    kink = np.where(x < EDGE, 5.0 + 0.08 * (EDGE - x), 5.0)
+    for seed in range(10):
+        assert not stepped(*_rows_of(kink, np.where(x < EDGE, 0.06, 0.005), seed))[rows].any()
