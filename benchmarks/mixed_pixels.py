@@ -14,14 +14,18 @@ scans are corrected with default options (:func:`mpi_lidar.correction.correct_sc
 group of scenes (the edge straight, or turned / wide; the plate's range; the plate darker than, as bright as or
 brighter than the wall), or per scene with ``--per-scene``:
 
-- the mixed pixels, and of them: reported as one valid depth more than 5 cm from both surfaces (the target: at most
-  2 %; a resolved pixel counts where its stronger return, its corrected depth, is that far), of those the resolved
-  ones, and the ones also more than 3 times their own uncertainty (the corrected depth's 1-sigma) from both; how
-  many of the unresolved valid ones a clean pixel of the same uncertainty would put more than 5 cm off (the sum
-  of erfc(5 cm / (sqrt(2) sigma)): the share of the misses the noise alone explains); flagged ``mixed``, resolved
-  (``two_returns``), flagged ``inconsistent``;
-- of the resolved: the nearer and the farther return's median and largest error against the plate's and the wall's
-  range (per scene only), and the median of those errors over the two-return Cramer-Rao bound;
+- the mixed pixels, and of them: reported as one valid depth (not resolved) more than 5 cm from both surfaces (the
+  target: at most 2 %), of those the ones also more than 3 times their own uncertainty (the depth's 1-sigma) from
+  both, and how many a clean pixel of the same uncertainty would put more than 5 cm off (the sum of
+  erfc(5 cm / (sqrt(2) sigma)): the share of the misses the noise alone explains); the earlier count beside them,
+  which also took in the resolved pixels whose stronger return (their corrected depth) lies that far; flagged
+  ``mixed``, resolved (``two_returns``), flagged ``inconsistent``;
+- of the resolved, judged by their own target: those in its domain (a gap of 2 m or more, the weaker return
+  holding 20 % of the light or more; of the mixed pixels there), and the share of those whose nearer and farther
+  return lie within 3 times their two-return Cramer-Rao bound at the truth; the share of all resolved returns within
+  their stated 1-sigma (the corrected depth's uncertainty, the second return's ``sigma_m``; about 68 % where the
+  stated sigma is right); the nearer and the farther return's median and largest error against the plate's and the
+  wall's range (per scene only), and the median of those errors over the bound;
 - the share of the pixels of one surface whose valid depth lies more than 5 cm from it: where it is not near 0 the
   5 cm criterion lies within the noise, and mixed pixels miss it as often for that reason;
 - per group, also the worst scene's share of single depths more than 5 cm off, and the range of its scenes' median
@@ -46,7 +50,8 @@ from scipy.special import erfc
 
 from benchmarks.correction import trained_model
 from mpi_lidar.config import Config
-from mpi_lidar.correction import INVALID_FLAGS, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction import INVALID_FLAGS, Correction, CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction._mixed_bounds import range_sigmas
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans.scan import Scan
@@ -54,6 +59,11 @@ from mpi_lidar.simulation.scenes import corner, cornered_board, flat_wall, rende
 
 SUB = 4  # sub-rays per pixel pitch, along each side of a footprint
 NOISE_SIGMAS = 3.0  # a flying point in units of the noise: this many of its uncertainty from both surfaces
+# The resolution target's domain: a gap of 2 m or more, the weaker return holding 20 % of the light or more; there
+# both ranges lie within 3 times their two-return Cramer-Rao bound.
+DOMAIN_GAP_M = 2.0
+DOMAIN_SHARE = 0.2
+DOMAIN_BOUNDS = 3.0
 HEIGHT, WIDTH = 48, 64
 HALF_FOV_RAD = 0.12
 
@@ -154,7 +164,7 @@ def render_plate(scene: PlateScene, config: Config, rng: np.random.Generator) ->
 @dataclass(frozen=True)
 class SceneResult:
     mixed: int
-    single_far: int  # valid single depth > 5 cm from both surfaces
+    single_far: int  # unresolved, reported as one valid depth > 5 cm from both surfaces: the target's count
     single_far_noise: int  # ...and more than 3 of its own uncertainty from both
     surface_far: float  # the share of the valid pixels of one surface > 5 cm from it: the criterion's noise floor
     flagged: int
@@ -163,23 +173,28 @@ class SceneResult:
     near_errors: NDArray[np.float64]  # of the resolved pixels' nearer return, against the plate [m]
     far_errors: NDArray[np.float64]  # ...and of the farther, against the wall [m]
     crb_ratios: NDArray[np.float64]
-    far_resolved: int = 0  # of single_far, the resolved pixels (their stronger return that far)
+    far_resolved: int = 0  # resolved pixels whose stronger return (the corrected depth) lies > 5 cm from both
     noise_expected: float = 0.0  # of the unresolved valid ones, how many a clean pixel's noise puts > 5 cm off
+    domain_mixed: int = 0  # mixed pixels in the resolution target's domain: gap >= 2 m, weaker >= 20 % of the light
+    domain_resolved: int = 0  # ...of them resolved
+    near_within: int = 0  # ...of those, the nearer return within DOMAIN_BOUNDS of its Cramer-Rao bound
+    far_within: int = 0  # ...and the farther
+    stated_covered: int = 0  # resolved returns (two a pixel) within their stated 1-sigma
+
+    @property
+    def earlier_count(self) -> int:
+        """The earlier definition's count: valid depths > 5 cm from both surfaces, resolved pixels by their
+        stronger return."""
+        return self.single_far + self.far_resolved
 
 
 def crb_m(near: NDArray, far: NDArray, a_near: NDArray, a_far: NDArray, noise: NoiseModel) -> NDArray[np.float64]:
     """The two-return Cramer-Rao bound (k, 2) [m] of the near and far range, real amplitudes, at the truth."""
     freqs = np.asarray(noise.frequencies_hz)
-    w = 4 * np.pi * freqs / noise.speed_of_light_m_per_s
-    out = np.empty((near.size, 2))
-    for i in range(near.size):
-        e1, e2 = np.exp(1j * w * near[i]), np.exp(1j * w * far[i])
-        sigma = noise.quadrature_sigma_v2(np.abs(a_near[i] * e1 + a_far[i] * e2)[None, :])[0]
-        cols = [1j * w * a_near[i] * e1, 1j * w * a_far[i] * e2, e1, e2]
-        jac = np.stack([np.concatenate([c.real, c.imag]) / np.concatenate([sigma, sigma]) for c in cols], axis=1)
-        cov = np.linalg.pinv(jac.T @ jac)
-        out[i] = np.sqrt(np.diag(cov)[:2])
-    return out
+    c = noise.speed_of_light_m_per_s
+    w = 4 * np.pi * freqs / c
+    light = np.abs(a_near[:, None] * np.exp(1j * w * near[:, None]) + a_far[:, None] * np.exp(1j * w * far[:, None]))
+    return range_sigmas(near, far, a_near, a_far, freqs, noise.quadrature_sigma_v2(light), c)
 
 
 def evaluate(scene: PlateScene, model: CorrectionModel, config: Config, seed: int) -> SceneResult:
@@ -197,23 +212,43 @@ def evaluate(scene: PlateScene, model: CorrectionModel, config: Config, seed: in
     resolved = mixed & (flags == Flag.TWO_RETURNS)
     single = mixed & valid & ~resolved
     noise_expected = float(erfc(0.05 / (np.sqrt(2) * np.maximum(np.nan_to_num(sigma[single], nan=0.0), 1e-9))).sum())
+    weaker_light = np.minimum(truth.plate_light, 1 - truth.plate_light)
+    domain = mixed & (scene.wall_m - scene.plate_m >= DOMAIN_GAP_M) & (weaker_light >= DOMAIN_SHARE)
+    returns = resolved_returns(scene, truth, corrected, resolved, domain[resolved], config)
+    return SceneResult(int(mixed.sum()), int((single & far).sum()), int((single & far_noise).sum()),
+                       float((np.abs(depth - own)[surface] > 0.05).mean()), int((mixed & (flags == Flag.MIXED)).sum()),
+                       int(resolved.sum()), int((mixed & (flags == Flag.INCONSISTENT)).sum()), *returns[:3],
+                       far_resolved=int((resolved & far).sum()), noise_expected=noise_expected,
+                       domain_mixed=int(domain.sum()), domain_resolved=int((domain & resolved).sum()),
+                       near_within=returns[3], far_within=returns[4], stated_covered=returns[5])
+
+
+def resolved_returns(scene: PlateScene, truth: Truth, corrected: Correction, resolved: NDArray,
+                     in_domain: NDArray, config: Config) -> tuple[NDArray, NDArray, NDArray, int, int, int]:
+    """The resolved pixels' nearer and farther return's errors against the plate and the wall [m], both over their
+    Cramer-Rao bound at the truth; of those ``in_domain`` (one per resolved pixel), how many nearer and farther
+    returns lie within ``DOMAIN_BOUNDS`` bounds; and how many returns lie within their stated 1-sigma."""
     # The two returns by range, the nearer against the plate: which of them is the stronger is a coin's toss
     # where they are about equally bright, and not what is measured here.
     second = corrected.second_returns
-    other = second.depth_m[resolved] if second is not None else np.zeros(0)
-    near_err = np.abs(np.minimum(depth[resolved], other) - truth.plate_m[resolved])
-    far_err = np.abs(np.maximum(depth[resolved], other) - truth.wall_m[resolved])
-    ratios = np.zeros(0)
-    if resolved.any():
-        noise = NoiseModel.for_sensor(config.sensor, config.frequencies_hz)
-        total = np.abs(scan_light(truth, scene, config))[resolved]
-        a_plate, a_wall = total * truth.plate_light[resolved], total * (1 - truth.plate_light[resolved])
-        bound = crb_m(truth.plate_m[resolved], truth.wall_m[resolved], a_plate, a_wall, noise)
-        ratios = np.concatenate([near_err / bound[:, 0], far_err / bound[:, 1]])
-    return SceneResult(int(mixed.sum()), int((mixed & valid & far).sum()), int((mixed & valid & far_noise).sum()),
-                       float((np.abs(depth - own)[surface] > 0.05).mean()), int((mixed & (flags == Flag.MIXED)).sum()),
-                       int(resolved.sum()), int((mixed & (flags == Flag.INCONSISTENT)).sum()), near_err, far_err,
-                       ratios, int((resolved & far).sum()), noise_expected)
+    if second is None or not resolved.any():
+        return np.zeros(0), np.zeros(0), np.zeros(0), 0, 0, 0
+    depth, other = corrected.depth[resolved], second.depth_m[resolved]
+    near_err = np.abs(np.minimum(depth, other) - truth.plate_m[resolved])
+    far_err = np.abs(np.maximum(depth, other) - truth.wall_m[resolved])
+    noise = NoiseModel.for_sensor(config.sensor, config.frequencies_hz)
+    total = np.abs(scan_light(truth, scene, config))[resolved]
+    a_plate, a_wall = total * truth.plate_light[resolved], total * (1 - truth.plate_light[resolved])
+    bound = crb_m(truth.plate_m[resolved], truth.wall_m[resolved], a_plate, a_wall, noise)
+    near_ratio, far_ratio = near_err / bound[:, 0], far_err / bound[:, 1]
+    stated = (np.full(depth.shape, np.nan) if corrected.uncertainty_m is None else corrected.uncertainty_m[resolved],
+              np.full(depth.shape, np.nan) if second.sigma_m is None else second.sigma_m[resolved])
+    depth_truth = np.where(depth <= other, truth.plate_m[resolved], truth.wall_m[resolved])
+    other_truth = np.where(depth <= other, truth.wall_m[resolved], truth.plate_m[resolved])
+    covered = int((np.abs(depth - depth_truth) < stated[0]).sum() + (np.abs(other - other_truth) < stated[1]).sum())
+    return (near_err, far_err, np.concatenate([near_ratio, far_ratio]),
+            int((near_ratio[in_domain] <= DOMAIN_BOUNDS).sum()), int((far_ratio[in_domain] <= DOMAIN_BOUNDS).sum()),
+            covered)
 
 
 def scan_light(truth: Truth, scene: PlateScene, config: Config) -> NDArray[np.float64]:
@@ -262,15 +297,33 @@ def all_scenes(quick: bool) -> tuple[PlateScene, ...]:
     return ISSUE_SCENES + sweep(quick) + range_sweep(quick) + edge_sweep(quick)
 
 
+def _share(part: int, whole: int) -> str:
+    return f"{100 * part / whole:.0f} %" if whole else "-"
+
+
+def _resolved_cells(r: SceneResult | list[SceneResult]) -> str:
+    """The resolved pixels' cells: in the domain (of the mixed pixels there), their nearer and farther returns
+    within ``DOMAIN_BOUNDS`` bounds, all resolved returns within their stated 1-sigma."""
+    rs = r if isinstance(r, list) else [r]
+    domain, mixed = sum(x.domain_resolved for x in rs), sum(x.domain_mixed for x in rs)
+    near, far = sum(x.near_within for x in rs), sum(x.far_within for x in rs)
+    return (f"{domain} of {mixed} | {_share(near, domain)} / {_share(far, domain)} | "
+            f"{_share(sum(x.stated_covered for x in rs), 2 * sum(x.resolved for x in rs))}")
+
+
+PER_SCENE_HEADER = ("| plate | wall | mixed | single > 5 cm | single > 5 cm, 3 sigma | noise alone | earlier count | "
+                    "flagged mixed | resolved | inconsistent | resolved in domain | near / far within 3 CRB | "
+                    "within stated sigma | near error median / max [mm] | far error median / max [mm] | "
+                    "error / CRB | surface > 5 cm |")
+
+
 def per_scene_table(results: list[tuple[PlateScene, SceneResult]]) -> list[str]:
-    lines = ["| plate | wall | mixed | single > 5 cm | of them resolved | single > 5 cm, 3 sigma | noise alone | "
-             "flagged mixed | resolved | inconsistent | near error median / max [mm] | far error median / max [mm] | "
-             "error / CRB | surface > 5 cm |", "|" + "---|" * 14]
+    lines = [PER_SCENE_HEADER, "|" + "---|" * 17]
     for scene, r in results:
         ratio = f"{np.median(r.crb_ratios):.2f}" if r.crb_ratios.size else "-"
         lines.append(f"| {scene.label} | {r.mixed} | {r.single_far} ({_percent(r.single_far, r.mixed)}) | "
-                     f"{r.far_resolved} | {r.single_far_noise} | {r.noise_expected:.1f} | {r.flagged} | {r.resolved} | "
-                     f"{r.inconsistent} | "
+                     f"{r.single_far_noise} | {r.noise_expected:.1f} | {r.earlier_count} | {r.flagged} | "
+                     f"{r.resolved} | {r.inconsistent} | {_resolved_cells(r)} | "
                      f"{_median(r.near_errors)} / {_largest(r.near_errors)} | {_median(r.far_errors)} / "
                      f"{_largest(r.far_errors)} | {ratio} | {100 * r.surface_far:.0f} % |")
     return lines
@@ -294,33 +347,37 @@ def scene_group(scene: PlateScene) -> str:
 
 def group_row(group: str, results: list[tuple[PlateScene, SceneResult]]) -> str:
     """One summary row: the group's sums, its worst scene's miss share, the range of its scenes' error / CRB."""
-    mixed = sum(r.mixed for _, r in results)
-    single_far = sum(r.single_far for _, r in results)
+    rs = [r for _, r in results]
+    mixed = sum(r.mixed for r in rs)
+    single_far = sum(r.single_far for r in rs)
     worst_scene, worst = max(results, key=lambda sr: sr[1].single_far / max(sr[1].mixed, 1))
     worst_text = (f"{_percent(worst.single_far, worst.mixed, 1)} ({worst_scene.plate_albedo:g} / "
                   f"{worst_scene.wall_albedo:g}, gap {worst_scene.wall_m - worst_scene.plate_m:g} m)"
                   if worst.single_far else "-")
-    ratios = [float(np.median(r.crb_ratios)) for _, r in results if r.crb_ratios.size]
+    ratios = [float(np.median(r.crb_ratios)) for r in rs if r.crb_ratios.size]
     ratio_text = "-" if not ratios else f"{min(ratios):.2f}" + (f"-{max(ratios):.2f}" if len(ratios) > 1 else "")
+    earlier = sum(r.earlier_count for r in rs)
     return (f"| {group} | {len(results)} | {mixed} | {single_far} ({_percent(single_far, mixed, 1)}) | "
-            f"{sum(r.single_far_noise for _, r in results)} | {worst_text} | "
-            f"{sum(r.flagged for _, r in results)} | {sum(r.resolved for _, r in results)} | "
-            f"{sum(r.inconsistent for _, r in results)} | {ratio_text} | "
-            f"{100 * max(r.surface_far for _, r in results):.0f} % | {sum(r.far_resolved for _, r in results)} | "
-            f"{sum(r.noise_expected for _, r in results):.1f} |")
+            f"{sum(r.single_far_noise for r in rs)} | {sum(r.noise_expected for r in rs):.1f} | {worst_text} | "
+            f"{earlier} ({_percent(earlier, mixed, 1)}) | {sum(r.flagged for r in rs)} | "
+            f"{sum(r.resolved for r in rs)} | {sum(r.inconsistent for r in rs)} | {_resolved_cells(rs)} | "
+            f"{ratio_text} | {100 * max(r.surface_far for r in rs):.0f} % |")
+
+
+SUMMARY_HEADER = ("| edge, plate range, albedos | scenes | mixed | single > 5 cm | single > 5 cm, 3 sigma | "
+                  "noise alone | worst scene's single > 5 cm (plate / wall albedo, gap) | earlier count | "
+                  "flagged mixed | resolved | inconsistent | resolved in domain | near / far within 3 CRB | "
+                  "within stated sigma | error / CRB, scenes' medians | surface > 5 cm, worst |")
 
 
 def summary_table(results: list[tuple[PlateScene, SceneResult]]) -> list[str]:
     """One row per edge shape, plate range and albedo class (plate darker than, as bright as, brighter than the
-    wall): straight edges first, then by the plate's range."""
+    wall): straight edges first, then by the plate's range; then a row of all."""
     groups: dict[str, list[tuple[PlateScene, SceneResult]]] = {}
     for scene, result in sorted(results, key=lambda sr: (not straight_edge(sr[0]), sr[0].plate_m)):
         groups.setdefault(scene_group(scene), []).append((scene, result))
-    lines = ["| edge, plate range, albedos | scenes | mixed | single > 5 cm | single > 5 cm, 3 sigma | "
-             "worst scene's single > 5 cm (plate / wall albedo, gap) | flagged mixed | resolved | inconsistent | "
-             "error / CRB, scenes' medians | surface > 5 cm, worst | single > 5 cm resolved | noise alone |",
-             "|" + "---|" * 13]
-    return lines + [group_row(group, members) for group, members in groups.items()]
+    lines = [SUMMARY_HEADER, "|" + "---|" * 16]
+    return lines + [group_row(group, members) for group, members in groups.items()] + [group_row("all", results)]
 
 
 def clean_table(model: CorrectionModel, config: Config, quick: bool, per_scene: bool) -> list[str]:

@@ -100,7 +100,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
     release_freed_memory()
     part = ScenePart() if scene is None else ScenePart(scene.model_inputs, scene.bias_m, scene.footprint)
     offsets = frequency_offsets(validity.offsets, decision.flags, None if scene is None else scene.blocks, options)
-    pixels = estimate_pixels(scan, tiles, noise, decision.flags, validity, part, model, offsets, options, clock)
+    pixels = estimate_pixels(scan, tiles, noise, decision.flags, validity, part, model, offsets, options, clock,
+                             mixed.second_returns)
     release_freed_memory()  # before the outputs are written
     # Corrected pixels beyond the training prior keep the model's depth under their own flag.
     flags = (decision.flags if pixels.beyond_prior is None

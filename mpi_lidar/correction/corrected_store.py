@@ -48,7 +48,8 @@ def write_corrected_store(path: Path, scan: Scan, correction: Correction, identi
         ("estimate", correction.estimate), ("depth_uncertainty", correction.uncertainty_m),
         ("multipath_bias_m", correction.multipath_bias_m),
         *(() if (second := correction.second_returns) is None else
-          (("second_return_depth", second.depth_m), ("second_return_share", second.share))))
+          (("second_return_depth", second.depth_m), ("second_return_share", second.share),
+           ("second_return_uncertainty", second.sigma_m))))
     grid = regular_grid(scan)
     angles = (scan.azimuth_rad, scan.elevation_rad) if grid is None else grid
     dims = ANGLE_DIMS if grid is not None else {}

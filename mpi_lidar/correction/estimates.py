@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.correction.baseline import BASELINE_FLAGS, FrequencyOffsets, fuse_rows
 from mpi_lidar.correction.footprint import FootprintEstimate, PlaneModelInputs
+from mpi_lidar.correction.mixed import SecondReturns
 from mpi_lidar.correction.options import INVALID_FLAGS, Baseline, CorrectionOptions, Estimate, Flag
 from mpi_lidar.correction.prediction import predict_rows
 from mpi_lidar.correction.tiles import PARALLEL_MIN_ROWS, StageClock, raw_tiles
@@ -63,9 +64,10 @@ class ScenePart:
 
 def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: NDArray[np.uint8], validity: Validity,
                     scene: ScenePart, model: CorrectionModel, offsets: FrequencyOffsets, options: CorrectionOptions,
-                    clock: StageClock) -> PixelEstimates:
+                    clock: StageClock, second_returns: SecondReturns | None = None) -> PixelEstimates:
     """Every pixel's depth, estimate and uncertainty (:class:`PixelEstimates`), tile by tile; ``flags`` are the gate
-    stage's, ``scan`` the validity stage's (depths in one range, amplitudes in V^2)."""
+    stage's, ``scan`` the validity stage's (depths in one range, amplitudes in V^2); ``second_returns`` the mixed-
+    pixel stage's, whose fit gives the pixels it resolved their uncertainty."""
     depth = validity.usable_depth.copy()
     ambiguous = np.flatnonzero(flags == Flag.AMBIGUOUS)
     depth[ambiguous] = validity.measured_depth[ambiguous]  # a range that cannot be told: as measured
@@ -74,8 +76,11 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
     reach = model.card.dataset.prior.multipath_reach()
     fuse = Baseline(options.baseline) == Baseline.FUSED
     bias = None if scene.bias_m is None else scene.bias_m.reshape(-1)
-    # A pixel resolved into two returns keeps the stronger one's depth, with the measured depth's sd widened by its
-    # frequencies' disagreement (its Birge ratio): never fused, never without an uncertainty.
+    # A pixel resolved into two returns keeps the stronger one's depth, with its own sd from the two-return fit (its
+    # Cramer-Rao bound, or the measured sd widened by the frequencies' disagreement where it is not known; then, as
+    # every depth left alone, the multipath bias the scene expects): never fused, never without an uncertainty.
+    resolved_sigma = (None if second_returns is None or second_returns.stronger_sigma_m is None
+                      else second_returns.stronger_sigma_m.reshape(-1))
     known = [int(flag) for flag in (*BASELINE_FLAGS, Flag.CORRECTED, Flag.TWO_RETURNS)]
     invalid = [int(flag) for flag in INVALID_FLAGS]
     beyond, inference_s, inputs_s = 0, 0.0, 0.0
@@ -111,8 +116,12 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
             corrected = tile_flags[present] == Flag.CORRECTED
             expected = np.zeros(present.size) if bias is None else bias[index].astype(np.float64)
             sigma = np.array(measured_sigma)
+            resolved = tile_flags[present] == Flag.TWO_RETURNS
+            if resolved_sigma is not None and resolved.any():
+                bound = resolved_sigma[index[resolved]]
+                sigma[resolved] = np.where(np.isfinite(bound), bound, measured_sigma[resolved])
             if fuse:
-                take = ~corrected & fused.consistent & (tile_flags[present] != Flag.TWO_RETURNS)
+                take = ~corrected & fused.consistent & ~resolved
                 depth[index[take]] = fused.depth_m[take]
                 sigma[take] = fused.sigma_m[take]
                 estimate[index[take]] = Estimate.FUSED
@@ -128,3 +137,4 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
         if past is not None and read is not None and reach is not None:
             past[pixels] = beyond_prior(np.nan_to_num(read, nan=0.0), reach) & (flags[pixels] == Flag.CORRECTED)
     return PixelEstimates(depth, estimate, uncertainty, beyond, inference_s, inputs_s, past)
+

@@ -44,7 +44,8 @@ jump of several centimetres (a grazing surface's) can be flagged. Where the phas
 noise (:func:`mpi_lidar.physics.two_returns.fit_two_returns`: in closed form at evenly spaced frequencies, by least
 squares at others), at least ``MIN_GAP_M`` apart with the weaker holding at least ``MIN_SHARE`` of the light, the
 pixel is TWO_RETURNS instead: its depth is the stronger return's and the weaker's range and share are kept
-(:class:`SecondReturns`).
+(:class:`SecondReturns`), each range with its 1-sigma, the fit's Cramer-Rao bound
+(:func:`mpi_lidar.correction._mixed_bounds.range_sigmas`; the stronger's is the depth's uncertainty).
 
 The candidates are found on the validity stage's measured depths, which exist whole; the raw measurements (and
 the fused depth the step test reads) are read again only for the rows of the tiles that hold a candidate (a pixel
@@ -59,6 +60,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.correction import _mixed_bounds as _bounds
 from mpi_lidar.correction import _mixed_dark as _dark
 from mpi_lidar.correction import _mixed_ranges as _ranges
 from mpi_lidar.correction import _mixed_steps as _blocks
@@ -67,7 +69,7 @@ from mpi_lidar.correction.options import Flag
 from mpi_lidar.correction.validity import Validity
 from mpi_lidar.physics.inverse import measured_phasors
 from mpi_lidar.physics.noise import NoiseModel
-from mpi_lidar.physics.two_returns import fit_two_returns, gap_ambiguity_m
+from mpi_lidar.physics.two_returns import gap_ambiguity_m
 from mpi_lidar.scans.scan import Scan
 
 MIXED_P_VALUE = 1e-3  # the frequencies' chi-square p-value below which a pixel at a depth edge is mixed
@@ -100,10 +102,15 @@ class SecondReturns:
 
     depth_m : Its range along the ray. [m]
     share : Its share of the two returns' amplitudes. [1]
+    sigma_m : Its range's 1-sigma: the two-return fit's Cramer-Rao bound (None: not known). [m]
+    stronger_sigma_m : The stronger return's 1-sigma from the same fit, which the per-pixel estimate makes the
+        corrected depth's uncertainty (None: not known). [m]
     """
 
     depth_m: NDArray[np.float32]
     share: NDArray[np.float32]
+    sigma_m: NDArray[np.float32] | None = None
+    stronger_sigma_m: NDArray[np.float32] | None = None
 
 
 @dataclass(frozen=True)
@@ -382,33 +389,35 @@ def amplitude_spread(amplitude: NDArray, gains: NDArray, noise: NoiseModel) -> N
 
 
 def resolve(rows: NDArray, flat: NDArray[np.intp], depth: NDArray, noise: NoiseModel,
-            ) -> tuple[NDArray[np.intp], NDArray, NDArray, NDArray]:
+            ) -> tuple[NDArray[np.intp], NDArray, NDArray, NDArray, NDArray, NDArray]:
     """Fit two returns to the mixed pixels' ``rows`` (k, 2F) at flat indices ``flat`` (k,): those resolved
     (``MIN_GAP_M`` apart, ``MIN_SHARE`` of the light, a residual within the noise), with their stronger return's
-    range [m], the weaker's [m] and its share [1]. The fit is the closed form where the frequencies are evenly
-    spaced, a least-squares fit at other sets of four or more (:func:`~mpi_lidar.physics.two_returns.fit_two_returns`);
-    none with fewer."""
+    range [m], the weaker's [m], its share [1], its 1-sigma [m] and the stronger's (the fit's Cramer-Rao bounds,
+    :func:`mpi_lidar.correction._mixed_bounds.range_sigmas`). The fit is the closed form where the frequencies are
+    evenly spaced, a least-squares fit at other sets of four or more
+    (:func:`~mpi_lidar.physics.two_returns.fit_two_returns`); none with fewer."""
     f = len(noise.frequencies_hz)
     if not flat.size or f < 4:
-        return flat[:0], np.zeros(0), np.zeros(0), np.zeros(0)
+        return flat[:0], np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
     from scipy.special import chdtri
 
-    sigma = noise.quadrature_sigma_v2(rows[:, f:].astype(np.float64))
-    fit = fit_two_returns(rows, noise.frequencies_hz, sigma, noise.speed_of_light_m_per_s, depth[flat])
+    fit, stronger_sigma, weaker_sigma = _bounds.fit_with_sigmas(rows, depth[flat], noise)
     period = gap_ambiguity_m(noise.frequencies_hz, noise.speed_of_light_m_per_s)
     gap = fit.far_m - fit.near_m
     with np.errstate(invalid="ignore"):  # a gap near half the poles' ambiguity may be either of two
         good = ((gap >= MIN_GAP_M) & (gap <= period / 2 - MIN_GAP_M) & (fit.weaker_share >= MIN_SHARE)
                 & (fit.chi2 <= chdtri(2 * f - 4, TWO_RETURN_P_VALUE)) & (fit.near_m > 0))
-    return flat[good], fit.stronger_m[good], fit.weaker_m[good], fit.weaker_share[good]
+    return (flat[good], fit.stronger_m[good], fit.weaker_m[good], fit.weaker_share[good], weaker_sigma[good],
+            stronger_sigma[good])
 
 
 def _applied(decision: GateDecision, validity: Validity, mixed: NDArray[np.intp],
-             resolved_parts: list[tuple[NDArray[np.intp], NDArray, NDArray, NDArray]], shape: tuple[int, int],
-             ) -> MixedPixels:
+             resolved_parts: list[tuple[NDArray[np.intp], NDArray, NDArray, NDArray, NDArray, NDArray]],
+             shape: tuple[int, int]) -> MixedPixels:
     """The gate's decision and the validity's usable depth with the mixed (flat indices) and resolved pixels
     marked, and the second returns' maps where any pixel was resolved."""
-    at, stronger, weaker, share = (np.concatenate(part) for part in zip(*resolved_parts, strict=True))
+    at, stronger, weaker, share, sigma, stronger_sigma = (np.concatenate(part)
+                                                          for part in zip(*resolved_parts, strict=True))
     flags = decision.flags.copy()
     flags[mixed] = Flag.MIXED
     flags[at] = Flag.TWO_RETURNS
@@ -418,8 +427,8 @@ def _applied(decision: GateDecision, validity: Validity, mixed: NDArray[np.intp]
     gate = GateDecision(flags, int((flags == Flag.UNCALIBRATED).sum()), decision.served)
     second = None
     if at.size:
-        depth_m = np.full(shape[0] * shape[1], np.nan, dtype=np.float32)
-        weaker_share = np.full(shape[0] * shape[1], np.nan, dtype=np.float32)
-        depth_m[at], weaker_share[at] = weaker, share
-        second = SecondReturns(depth_m.reshape(shape), weaker_share.reshape(shape))
+        maps = [np.full(shape[0] * shape[1], np.nan, dtype=np.float32) for _ in range(4)]
+        for values, of_pixels in zip(maps, (weaker, share, sigma, stronger_sigma), strict=True):
+            values[at] = of_pixels
+        second = SecondReturns(*(values.reshape(shape) for values in maps))
     return MixedPixels(gate, replace(validity, usable_depth=usable), second, int(mixed.size - at.size), int(at.size))

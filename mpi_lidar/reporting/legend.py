@@ -88,8 +88,9 @@ FLAG_LEGEND: dict[Flag, FlagLegend] = {
     Flag.TWO_RETURNS: FlagLegend("T", "valid, mixed pixel resolved into two returns; the stronger one's depth",
                                  "a mixed pixel (as `mixed`) whose four equally spaced frequencies fit two returns "
                                  "within their noise, at least 2 m apart, the weaker holding at least 20 % of the "
-                                 "light: the depth is the stronger return's, the weaker's range and share are "
-                                 "`second_return_depth` and `second_return_share` in corrected.zarr",
+                                 "light: the depth is the stronger return's, the weaker's range, share and 1-sigma are "
+                                 "`second_return_depth`, `second_return_share` and `second_return_uncertainty` in "
+                                 "corrected.zarr",
                                  "the stronger return's", "#1dd1a1"),
     Flag.BEYOND_PRIOR: FlagLegend("P", "valid, corrected beyond the training prior; the model's depth",
                                   "corrected by the model (as flag 0), but the equivalent rho_ABA or d_AB the scene "

@@ -148,7 +148,8 @@ def two_return_fields(second: SecondReturns, fields: dict[str, NDArray], rows: s
     correction's :attr:`~mpi_lidar.correction.Correction.second_returns`): the pixels' ``fields`` (those of
     :func:`point_cloud_fields` for ``rows``) with each one's return number, number of returns (the nearer return
     is 1 of 2, a single one 1 of 1) and ``return_share`` of the light added; the second returns' ranges (h, W) [m]
-    (NaN where a pixel has none); and their fields (the pixel's, at the second range, its uncertainty unknown).
+    (NaN where a pixel has none); and their fields (the pixel's, at the second range, with the second return's
+    own uncertainty where the correction has one).
     A correction without a resolved pixel has none of these: its files hold what they always did."""
     ranges = np.asarray(second.depth_m[rows], dtype=np.float32)
     share = np.asarray(second.share[rows], dtype=np.float32)
@@ -157,7 +158,10 @@ def two_return_fields(second: SecondReturns, fields: dict[str, NDArray], rows: s
     count = np.where(resolved, 2, 1).astype(np.uint8)
     first = {**fields, "return_number": np.where(second_nearer, 2, 1).astype(np.uint8), "number_of_returns": count,
              "return_share": np.where(resolved, 1 - share, 1).astype(np.float32)}
-    uncertainty = np.full(ranges.shape, np.nan, np.float32) if "uncertainty_m" in fields else None
+    uncertainty = None
+    if "uncertainty_m" in fields:
+        uncertainty = (np.full(ranges.shape, np.nan, np.float32) if second.sigma_m is None
+                       else np.asarray(second.sigma_m[rows], dtype=np.float32))
     other = {**correction_fields(fields["raw_range_m"], ranges, fields["flag"], fields["amplitude_v2"], uncertainty),
              "return_number": np.where(second_nearer, 1, 2).astype(np.uint8), "number_of_returns": count,
              "return_share": np.where(resolved, share, np.nan).astype(np.float32)}

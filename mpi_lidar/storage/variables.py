@@ -129,7 +129,8 @@ VARIABLES: tuple[Variable, ...] = (
              "1-sigma uncertainty of the corrected depth",
              note="From the noise model (measured and fused depths); for corrected depths from the model's own "
                   "error, fitted on its validation rows (card.json: uncertainty_model), and the footprint "
-                  "estimate's uncertainty; NaN where the depth or the range is not known."),
+                  "estimate's uncertainty; for pixels resolved into two returns (flag two_returns) the two-return "
+                  "fit's Cramer-Rao bound of the stronger return; NaN where the depth or the range is not known."),
     Variable("multipath_bias_m", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
              "expected multipath bias (geometry gate)", note="Written by the geometry gate only."),
     Variable("second_return_depth", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
@@ -139,6 +140,10 @@ VARIABLES: tuple[Variable, ...] = (
     Variable("second_return_share", Store.CORRECTED, ("y", "x"), "f", "float32", "1",
              "share of the light of the weaker of two returns (flag two_returns)",
              note="Its amplitude over the two returns' amplitudes; written with second_return_depth."),
+    Variable("second_return_uncertainty", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
+             "1-sigma uncertainty of the weaker of two returns' range (flag two_returns)",
+             note="The two-return fit's Cramer-Rao bound of second_return_depth; written with it. "
+                  "depth_uncertainty holds the stronger return's from the same fit."),
     Variable("azimuth_rad", Store.CORRECTED, ("x",), "f", "as given", "rad", "azimuth of the pixel column",
              coordinate=True, note="The scan's, or worked out from its ray_directions where they form a regular "
              "grid. Where the grid is regular (each angle strictly monotonic), the maps' dimensions are "

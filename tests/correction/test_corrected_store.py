@@ -56,3 +56,24 @@ def test_corrected_store__scan_without_geometry_gets_pixel_indices(tmp_path):
     assert set(ds.data_vars) == {"corrected_depth", "flags"} and set(ds.indexes) == {"y", "x"}
     plot_strictly(ds.corrected_depth)
     assert verify_store(path).chunks == 4
+
+
+def test_corrected_store__second_returns_written_with_their_uncertainty(tmp_path):
+    """A pixel resolved into two returns: its weaker return's range, share and 1-sigma are read back as written,
+    NaN at every other pixel."""
+    from mpi_lidar.correction.mixed import SecondReturns
+
+    scan = two_path_scan("corrected")
+    flags = np.full(scan.shape, int(Flag.NO_MULTIPATH), np.uint8)
+    flags[1, 2] = Flag.TWO_RETURNS
+    maps = [np.full(scan.shape, np.nan, np.float32) for _ in range(4)]
+    for values, value in zip(maps, (7.5, 0.3, 0.02, 0.01), strict=True):
+        values[1, 2] = value
+    correction = replace(_correction(scan), flags=flags, second_returns=SecondReturns(*maps))
+    path = tmp_path / "corrected.zarr"
+    write_corrected_store(path, scan, correction, {}, CorrectionOptions())
+    ds = open_strictly(path)
+    for name, written in zip(("second_return_depth", "second_return_share", "second_return_uncertainty"), maps,
+                             strict=False):
+        np.testing.assert_array_equal(ds[name].values, written)
+    assert ds.second_return_uncertainty.attrs["units"] == "m"

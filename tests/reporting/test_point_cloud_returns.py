@@ -22,6 +22,9 @@ H, W = 10, 12
 RESOLVED = {(2, 3): (9.0, 0.3), (7, 8): (0.9, 0.25), (5, 11): (6.5, 0.45)}
 
 
+SECOND_SIGMA_M = 0.031  # the second returns' own 1-sigma, unlike every first return's 0.002 m
+
+
 def _corrected(resolved: bool = True):
     """A scan's correction with one mixed pixel (withheld) and, when ``resolved``, the pixels of :data:`RESOLVED`."""
     scan = two_path_scan("returns", height=H, width=W)
@@ -35,7 +38,8 @@ def _corrected(resolved: bool = True):
         for (row, column), (second_m, share) in RESOLVED.items():
             flags[row, column] = Flag.TWO_RETURNS
             ranges[row, column], shares[row, column] = second_m, share
-        second = SecondReturns(ranges, shares)
+        sigmas = np.where(np.isfinite(ranges), SECOND_SIGMA_M, np.nan).astype(np.float32)
+        second = SecondReturns(ranges, shares, sigmas)
     correction = Correction(depth=depth, flags=flags, measured_depth=measured,
                             uncertainty_m=np.full((H, W), 0.002, np.float32), second_returns=second)
     return scan, correction
@@ -66,7 +70,7 @@ def test_write_point_clouds__resolved_pixels_are_returns_one_and_two_of_two(tmp_
         second_point = at[np.argmin(np.abs(ranges[at] - second_m))]
         np.testing.assert_allclose(np.asarray(las.return_share)[at].sum(), 1.0, atol=1e-6)
         np.testing.assert_allclose(np.asarray(las.return_share)[second_point], share, atol=1e-6)
-        assert np.isnan(np.asarray(las.uncertainty_m)[second_point]), "the second range's uncertainty is unknown"
+        assert np.asarray(las.uncertainty_m)[second_point] == pytest.approx(SECOND_SIGMA_M), "its own sigma"
         assert (np.asarray(las.flag)[at] == Flag.TWO_RETURNS).all() and not np.asarray(las.withheld)[at].any()
         single[at] = False
     assert (numbers[single] == 1).all() and (counts[single] == 1).all()

@@ -64,6 +64,8 @@ def test_registry__attributes_the_stores_have_always_written():
         "depth_uncertainty": ("m", "1-sigma uncertainty of the corrected depth"),
         "second_return_depth": ("m", "range of the weaker of two returns (flag two_returns)"),
         "second_return_share": ("1", "share of the light of the weaker of two returns (flag two_returns)"),
+        "second_return_uncertainty": ("m",
+                                      "1-sigma uncertainty of the weaker of two returns' range (flag two_returns)"),
     }
     assert {name: (v.units, v.long_name) for name, v in CORRECTED.items()}.items() <= ARRAY_METADATA.items()
     assert {name: v.dims for name, v in DATASET.items()} == {
