@@ -27,7 +27,7 @@ def coupling_at(points: NDArray, normal_a: NDArray, centres_b: NDArray, area_b: 
     two normals (each side lies on one plane, so they split into a point's and a patch's part).
     """
     rays = points / np.maximum(np.linalg.norm(points, axis=1, keepdims=True), 1e-12)
-    cos_i = np.maximum(-(rays @ normal_a), 1e-3).astype(np.float32)
+    cos_i = np.maximum(-dot3(rays, normal_a), 1e-3).astype(np.float32)
     # Single precision about the patches' mean: offsets of centimetres to metres (the phases and sums are
     # accumulated in double precision).
     origin = centres_b.mean(0)
@@ -40,8 +40,8 @@ def coupling_at(points: NDArray, normal_a: NDArray, centres_b: NDArray, area_b: 
     for rows in np.array_split(np.arange(points.shape[0]), chunks):
         offset = b[None] - a[rows, None]
         r2 = np.maximum(np.einsum("nmk,nmk->nm", offset, offset), np.float32(1e-12))
-        along_a = (b @ normal_a)[None] - (a[rows] @ normal_a)[:, None]  # r cos_A
-        along_b = (a[rows] @ normal_b)[:, None] - (b @ normal_b)[None]  # r cos_B
+        along_a = dot3(b, normal_a)[None] - dot3(a[rows], normal_a)[:, None]  # r cos_A
+        along_b = dot3(a[rows], normal_b)[:, None] - dot3(b, normal_b)[None]  # r cos_B
         r = np.sqrt(r2)
         facing = (along_a > DEFAULT_MIN_COS * r) & (along_b > DEFAULT_MIN_COS * r)
         r_eff2 = np.maximum(r2, area_b[None])
@@ -50,6 +50,13 @@ def coupling_at(points: NDArray, normal_a: NDArray, centres_b: NDArray, area_b: 
         out[rows, 0] = kappa.sum(1)
         out[rows, 1:] = phasor_sums(kappa, r, wavenumbers)
     return out
+
+
+def dot3(vectors: NDArray, normal: NDArray) -> NDArray:
+    """Each vector (..., 3) dotted with one (3,), element by element: BLAS's matrix-vector product rounds a row
+    differently with the number of rows it comes with (on some CPUs), and a pixel's value must not depend on the
+    tile or chunk it was worked out in."""
+    return vectors[..., 0] * normal[0] + vectors[..., 1] * normal[1] + vectors[..., 2] * normal[2]
 
 
 def phasor_sums(kappa: NDArray, r: NDArray, wavenumbers: NDArray) -> NDArray[np.complex128]:
