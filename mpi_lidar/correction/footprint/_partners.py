@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from mpi_lidar.correction.footprint._plane_coupling import coupling_at
+from mpi_lidar.correction.footprint._plane_coupling import coupling_at, dot3
 from mpi_lidar.scans.geometry import FacingBlocks
 from mpi_lidar.scans.scan import Scan
 
@@ -162,7 +162,7 @@ class PlanePartners:
                 partner_plane, patches = self.planes[partner], self.patches[partner]
                 # Only patches in front of the receiving plane and points in front of the partner's face.
                 ahead = (patches.centres - own_plane.centre) @ own_plane.normal > 0
-                lit = (points - partner_plane.centre) @ partner_plane.normal > 0
+                lit = dot3(points - partner_plane.centre, partner_plane.normal) > 0
                 if not ahead.any() or not lit.any():
                     continue
                 values = coupling_at(points[lit], own_plane.normal, patches.centres[ahead],
@@ -230,7 +230,7 @@ class PlanePartners:
         for partner in self.facing[surface]:
             plane = self.planes[partner]
             within = np.linalg.norm(on_plane(rays, plane) - plane.centre, axis=1) <= HIDING_REACH * plane.visible_m
-            behind |= ((points - plane.centre) @ plane.normal < 0) & within
+            behind |= (dot3(points - plane.centre, plane.normal) < 0) & within
         return behind
 
     def near_other_surface(self, coordinates: tuple[NDArray, NDArray], surface: NDArray, labels: NDArray
@@ -379,5 +379,5 @@ def _block_pairs(blocks: FacingBlocks, components: NDArray, labels: NDArray, nar
 
 def on_plane(rays: NDArray, plane: SurfacePlane) -> NDArray[np.float64]:
     """Points (n, 3) [m] where unit rays (n, 3) meet a plane (from its front)."""
-    along = (plane.centre @ plane.normal) / np.minimum(rays @ plane.normal, -1e-3)
+    along = (plane.centre @ plane.normal) / np.minimum(dot3(rays, plane.normal), -1e-3)
     return rays * along[:, None]

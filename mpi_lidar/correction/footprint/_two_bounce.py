@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.correction.footprint._partners import Patches, PlanePartners, on_plane
+from mpi_lidar.correction.footprint._plane_coupling import dot3
 from mpi_lidar.physics.coupling import pair_geometry
 
 
@@ -142,6 +143,6 @@ def partner_two_bounce(partners: PlanePartners, rays: NDArray, surface: NDArray,
     for own in owners:
         rows = np.flatnonzero(surface == own)
         plane = partners.planes[own]
-        cos_i = -(rays[rows] @ plane.normal)
+        cos_i = -dot3(rays[rows], plane.normal)
         found[rows] = two_bounce.at_points(on_plane(rays[rows], plane), plane.normal, cos_i, column.get(own))
     return found
