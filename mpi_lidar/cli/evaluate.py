@@ -8,7 +8,8 @@ from mpi_lidar.terminal import Display, print_table
 
 
 @click.command()
-@click.option("--data", required=True, metavar="PATH|URL", help="Dataset store (.zarr): a path or an s3:// URL.")
+@click.option("--data", required=True, metavar="PATH|URL",
+              help="Dataset store (.zarr): a path or a URL (s3://, gs://, az://).")
 @click.option("--model", "model_dir", required=True, metavar="PATH|URL",
               help="Model directory, or its object-store URL (s3://bucket/models/m).")
 @click.option("--out", "--report", "report_dir", required=True, metavar="PATH|URL",

@@ -14,7 +14,7 @@ from mpi_lidar.locations import Location, is_url, location
 @click.argument("sources", nargs=-1, required=True)
 @click.option("--out", required=True,
               help="Scan store to write (X.scan.zarr) for one file, or a directory: OUT/<name>.scan.zarr per file; "
-                   "a path or an s3:// URL.")
+                   "a path or a URL (s3://, gs://, az://).")
 @click.option("--frequencies", help="Comma-separated frequencies in Hz, if the files do not hold frequencies_hz.")
 @click.option("--var", "variables", multiple=True, metavar="NAME=VARIABLE",
               help="Read the scan array NAME (depth, amplitude, taps, azimuth_rad, elevation_rad, azimuth_deg, "

@@ -14,7 +14,8 @@ from mpi_lidar.workflows.job_options import Workers
 
 
 @click.command()
-@click.option("--out", "out", required=True, help="Dataset store to write (.zarr): a path or an s3:// URL.")
+@click.option("--out", "out", required=True,
+              help="Dataset store to write (.zarr): a path or a URL (s3://, gs://, az://).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="TOML file overriding the preset.")
 @click.option("--preset", "preset_name", type=click.Choice(sorted(PRESETS)), default="quick", show_default=True)
 @click.option("--samples", type=bounded(DatasetConfig.model_fields["samples"]),

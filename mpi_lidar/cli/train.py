@@ -13,9 +13,11 @@ from mpi_lidar.terminal import Display, plural
 
 
 @click.command()
-@click.option("--data", required=True, metavar="PATH|URL", help="Dataset store (.zarr): a path or an s3:// URL.")
+@click.option("--data", required=True, metavar="PATH|URL",
+              help="Dataset store (.zarr): a path or a URL (s3://, gs://, az://).")
 @click.option("--out", required=True, metavar="PATH|URL",
-              help="Model directory to create: a path or an s3:// URL (published whole, never over a model there).")
+              help="Model directory to create: a path or a URL (s3://, gs://, az://), published whole, never over a "
+                   "model there.")
 @click.option("--params", "params_file", type=click.Path(path_type=Path), help="JSON or TOML file of parameters.")
 @click.option("--study", "study_name", help="Take the best parameters of this Optuna study.")
 @click.option("--storage", help="Optuna storage URL of --study (default: $MPI_LIDAR_STORAGE_URL, else sqlite file "

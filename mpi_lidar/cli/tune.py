@@ -11,7 +11,8 @@ from mpi_lidar.workflows.job_options import Trials, TuneRows
 
 
 @click.command()
-@click.option("--data", required=True, metavar="PATH|URL", help="Dataset store (.zarr): a path or an s3:// URL.")
+@click.option("--data", required=True, metavar="PATH|URL",
+              help="Dataset store (.zarr): a path or a URL (s3://, gs://, az://).")
 @click.option("--storage", help="Optuna storage URL (default: $MPI_LIDAR_STORAGE_URL, else sqlite file optuna.db "
                                 "beside a dataset on disk; a dataset in a bucket needs one).")
 @click.option("--study", "study_name", default="xgboost", show_default=True, help="Study name in the storage.")
