@@ -180,19 +180,12 @@ def s3_server() -> Iterator[str]:
 def aws_environment(endpoint: str, key_id: str, secret: str) -> Iterator[None]:
     """The standard AWS variables pointing at ``endpoint`` with these keys inside the block (processes started in
     it inherit them), and put back as they were after it."""
-    saved = {k: os.environ.get(k) for k in AWS_VARIABLES}
-    os.environ.update(AWS_ENDPOINT_URL=endpoint, AWS_ACCESS_KEY_ID=key_id, AWS_SECRET_ACCESS_KEY=secret,
-                      AWS_DEFAULT_REGION="us-east-1")
-    forget_s3_clients()
-    try:
+    from tests.environment import environment
+
+    with environment(AWS_VARIABLES, {"AWS_ENDPOINT_URL": endpoint, "AWS_ACCESS_KEY_ID": key_id,
+                                     "AWS_SECRET_ACCESS_KEY": secret, "AWS_DEFAULT_REGION": "us-east-1"},
+                     forget_s3_clients):
         yield
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-        forget_s3_clients()
 
 
 def forget_s3_clients() -> None:

@@ -7,7 +7,6 @@ this use (they open nothing else); :func:`azure_environment` points the standard
 
 from __future__ import annotations
 
-import os
 import socket
 import subprocess
 import tempfile
@@ -19,6 +18,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+
+from tests.environment import environment
 
 AZURITE = Path(__file__).resolve().parents[1] / ".tools" / "azurite" / "node_modules" / ".bin" / "azurite-blob"
 ACCOUNT = "devstoreaccount1"
@@ -81,17 +82,6 @@ def azure_environment(endpoint: str) -> Iterator[None]:
     (processes started in it inherit it; the other ``AZURE_STORAGE_*`` variables unset), put back after it."""
     from adlfs import AzureBlobFileSystem
 
-    saved = {k: os.environ.get(k) for k in AZURE_VARIABLES}
-    for k in AZURE_VARIABLES:
-        os.environ.pop(k, None)
-    os.environ["AZURE_STORAGE_CONNECTION_STRING"] = connection_string(endpoint)
-    AzureBlobFileSystem.clear_instance_cache()  # each read the variables when it was made
-    try:
+    with environment(AZURE_VARIABLES, {"AZURE_STORAGE_CONNECTION_STRING": connection_string(endpoint)},
+                     AzureBlobFileSystem.clear_instance_cache):
         yield
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-        AzureBlobFileSystem.clear_instance_cache()

@@ -8,13 +8,14 @@ it on simple media and resumable uploads, which nothing here sends with a condit
 
 from __future__ import annotations
 
-import os
 import socket
 import subprocess
 import time
 import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
+
+from tests.environment import environment
 
 GCS_VARIABLES = ("STORAGE_EMULATOR_HOST", "NO_GCE_CHECK", "GOOGLE_APPLICATION_CREDENTIALS")
 
@@ -62,16 +63,6 @@ def gcs_environment(url: str) -> Iterator[None]:
     that is not there; put back after the block."""
     from gcsfs.core import GCSFileSystem
 
-    saved = {k: os.environ.get(k) for k in GCS_VARIABLES}
-    os.environ.pop("GOOGLE_APPLICATION_CREDENTIALS", None)
-    os.environ.update(STORAGE_EMULATOR_HOST=url, NO_GCE_CHECK="true")
-    GCSFileSystem.clear_instance_cache()
-    try:
+    with environment(GCS_VARIABLES, {"STORAGE_EMULATOR_HOST": url, "NO_GCE_CHECK": "true"},
+                     GCSFileSystem.clear_instance_cache):
         yield
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-        GCSFileSystem.clear_instance_cache()
