@@ -1,6 +1,7 @@
 """Mixed pixels at depth edges: a plate before a wall, rendered with sub-ray footprints, through the correction.
 
 Run: .venv/bin/python -m benchmarks.mixed_pixels [--model DIR] [--work DIR] [--quick] [--per-scene]
+[--scene TEXT ...] [--no-clean]
 
 The scenes: the issue's three, a sweep of gaps (0.2-10 m) and albedo pairs (0.05-20) with the plate at 2 m, the
 plate at 1, 5 and 10 m with gaps of 0.2-5 m, and the plate at 2 and 5 m with its right edge turned 30 or 45 degrees
@@ -34,7 +35,8 @@ brighter than the wall), or per scene with ``--per-scene``:
   1-20 m; the target: under 0.1 %), per kind of surface (per scan with ``--per-scene``).
 
 The model is ``--model DIR``, or one trained here as the correction benchmark's (``--quick``: a small one and a
-smaller sweep).
+smaller sweep). ``--scene TEXT`` keeps the plate scenes whose label (as the per-scene table writes it) holds TEXT,
+each with the seed it has in the whole run; ``--no-clean`` leaves the clean scenes out.
 """
 
 from __future__ import annotations
@@ -394,12 +396,16 @@ def clean_table(model: CorrectionModel, config: Config, quick: bool, per_scene: 
                     for row, (flagged, measured) in counts.items()]
 
 
-def report(model: CorrectionModel, quick: bool, per_scene: bool = False) -> str:
-    """The plate scenes summarised per group (per scene with ``per_scene``), then the clean scenes' false flags."""
+def report(model: CorrectionModel, quick: bool, per_scene: bool = False, only: tuple[str, ...] = (),
+           clean: bool = True) -> str:
+    """The plate scenes summarised per group (per scene with ``per_scene``), then the clean scenes' false flags;
+    with ``only``, the plate scenes whose label holds one of its texts (each with its seed in the whole run), and
+    without ``clean`` no clean scenes."""
     config = Config()
-    results = [(scene, evaluate(scene, model, config, seed=100 + i)) for i, scene in enumerate(all_scenes(quick))]
+    results = [(scene, evaluate(scene, model, config, seed=100 + i)) for i, scene in enumerate(all_scenes(quick))
+               if not only or any(text in scene.label for text in only)]
     table = per_scene_table(results) if per_scene else summary_table(results)
-    return "\n".join([*table, "", *clean_table(model, config, quick, per_scene)])
+    return "\n".join([*table, *(["", *clean_table(model, config, quick, per_scene)] if clean else [])])
 
 
 def main() -> None:
@@ -409,11 +415,18 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="A small model and a smaller sweep.")
     parser.add_argument("--per-scene", action="store_true",
                         help="One row per scene and per clean scan (default: one per group of scenes).")
+    parser.add_argument("--scene", action="append", default=[], metavar="TEXT",
+                        help="Only the plate scenes whose label holds TEXT (repeatable; default: all).")
+    parser.add_argument("--no-clean", action="store_true", help="Leave the clean scenes out.")
     args = parser.parse_args()
+    labels = [scene.label for scene in all_scenes(args.quick)]
+    unmatched = [text for text in args.scene if not any(text in label for label in labels)]
+    if unmatched:
+        parser.error(f"--scene {unmatched[0]!r} matches no plate scene; the labels are those of --per-scene's rows")
     work = args.work or Path(tempfile.mkdtemp(prefix="mixed-pixels-"))
     rows, rounds = (2_000, 10) if args.quick else (20_000, 100)
     model_dir = args.model or trained_model(work / f"model-{rows}-{rounds}", rows, rounds)
-    print(report(load_model(model_dir), args.quick, args.per_scene))
+    print(report(load_model(model_dir), args.quick, args.per_scene, tuple(args.scene), not args.no_clean))
 
 
 if __name__ == "__main__":

@@ -18,9 +18,18 @@ from the phasors linearly, and the test is a regular one of one parameter more t
   1 - ``FIT_P_VALUE`` quantile, and better than one return at the pixel's own depth (within one of its sigmas) by
   ``DELTA_CHI2``: the chance a clean pixel, one return at one side's range, gains that much from a second
   amplitude is chi-square(1)'s beyond it.
+
+Where the far return is weak (a few tenths of the light) one pixel's gain is often under ``DELTA_CHI2``. Along a
+straight edge its neighbours hold about the same mixture: where the pixel and its two neighbours across the step
+(along the edge) are alike in depth (:func:`mpi_lidar.correction._mixed_steps.edge_level`), the three are
+fitted together, two returns at the same sides' ranges against one return each, and gain ``POOLED_DELTA_CHI2``
+(three amplitudes more: chi-square(3)'s same tail) with the sum of their mixtures' chi-squares within
+``FIT_P_VALUE``.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,17 +44,22 @@ MIN_EDGE_M = 0.05  # the pixel's depth lies this far from the nearer side's leve
 DELTA_CHI2 = 15.0
 FIT_P_VALUE = 1e-3  # ...and fit within chi-square's 1 - this quantile (2F - 2 degrees of freedom)
 MIN_SHARE = 0.05  # ...the weaker of them holding this share of the light at least [1]
+# A pixel and its two neighbours along the edge, alike, fitted together: chi-square(3)'s 1 - 1e-4 quantile [1].
+POOLED_DELTA_CHI2 = 21.1
 LEVEL_STEPS = (-1.0, 0.0, 1.0)  # each side's range: its level and one sigma either way [sigmas]
 OWN_STEPS = (-1.0, -0.5, 0.0, 0.5, 1.0)  # the single return's range about the pixel's depth [sigmas]
 
 
 def two_ranges(depth: NDArray, sigma: NDArray, phasors: NDArray, phasor_sigma: NDArray, w: NDArray,
-               where: NDArray[np.bool_]) -> NDArray[np.bool_]:
+               where: NDArray[np.bool_], around: tuple[NDArray, NDArray, NDArray] | None = None,
+               ) -> NDArray[np.bool_]:
     """Pixels (h, W) among ``where`` (h, W) whose phasors are two returns at their sides' ranges (the module's
     docstring). ``depth`` (h, W) [m] and ``sigma`` (h, W) [m]: the fused depth (NaN where not measured) and its
     noise; ``phasors`` (k, F) [V^2] and ``phasor_sigma`` (k, F) [V^2]: the pixels ``where``'s (in ``np.nonzero``
     order) phasors over the frequencies' gains and their quadrature noise so scaled; ``w`` (F,): 4 pi f / c
-    [rad/m]. Pixels whose blocks reach past the band's border keep the finite pixels there."""
+    [rad/m]. ``around``: each pixel's row (h, W) in the phasors (n, F) [V^2] and their noise (n, F) [V^2] of the
+    pixels a pixel may pool with along the edge (-1: none; None: no pooling). Pixels whose blocks reach past the
+    band's border keep the finite pixels there."""
     h, w_ = depth.shape
     reach = _blocks.BLOCK_REACH
     padded, noisy, ys, xs = _blocks.padded_band(depth, sigma, where, reach, np.nan)
@@ -68,9 +82,53 @@ def two_ranges(depth: NDArray, sigma: NDArray, phasors: NDArray, phasor_sigma: N
             found[asked] = _mixture_fits(weighted[asked], phasor_sigma[asked], w, own[asked], own_sigma[asked],
                                          (levels[0][asked], levels[1][asked]),
                                          (level_sigmas[0][asked], level_sigmas[1][asked]))
+            rest = asked[~found[asked]]
+            if around is not None and rest.size:
+                found[rest] = _pooled(padded, noisy, (ys[rest], xs[rest], reach), across, around, w,
+                                      (levels[0][rest], levels[1][rest]),
+                                      (level_sigmas[0][rest], level_sigmas[1][rest]))
     out = np.zeros((h, w_), bool)
     out[ys[found] - reach, xs[found] - reach] = True
     return out
+
+
+def _pooled(padded: NDArray, noisy: NDArray, at: tuple[NDArray, NDArray, int], across: tuple[int, int],
+            around: tuple[NDArray, NDArray, NDArray], w: NDArray, levels: tuple[NDArray, NDArray],
+            level_sigmas: tuple[NDArray, NDArray]) -> NDArray[np.bool_]:
+    """Whether the pixels at (``at``: rows and columns in the ``padded`` fused depths [m], ``noisy`` their noise
+    [m], and the padding) and their two neighbours ``across`` the step, alike in depth (along the edge, where a
+    straight edge's mixed pixels hold about one mixture:
+    :func:`mpi_lidar.correction._mixed_steps.edge_level`),
+    together fit two returns at the sides' ``levels`` (each (k,) [m], within one of ``level_sigmas`` [m], the
+    same for the three) within ``FIT_P_VALUE``, better than one return each about its own depth by
+    ``POOLED_DELTA_CHI2``. ``around``: rows (h, W) into phasors (n, F) [V^2] and their noise (n, F) [V^2]."""
+    from scipy.special import chdtri  # the quantile without scipy.stats's imports
+
+    ys, xs, reach = at
+    index, phasors, phasor_sigma = around
+    h, w_ = index.shape
+    (ay, ax), found = across, np.zeros(ys.size, bool)
+    spots = [(ys + k * ay, xs + k * ax) for k in (-1, 0, 1)]
+    inside = np.ones(ys.size, bool)
+    for y, x in spots:
+        inside &= (y >= reach) & (y < h + reach) & (x >= reach) & (x < w_ + reach)
+    rows = [np.where(inside, index[np.clip(y - reach, 0, h - 1), np.clip(x - reach, 0, w_ - 1)], -1) for y, x in spots]
+    alike = np.isfinite(_blocks.edge_level(padded, noisy, ys, xs, across)[0])
+    asked = np.flatnonzero(inside & alike & (np.min(rows, axis=0) >= 0))
+    if not asked.size:
+        return found
+    single, pairs = np.zeros(asked.size), np.full((len(LEVEL_STEPS) ** 2, asked.size), 0.0)
+    for (y, x), row in zip(spots, rows, strict=True):
+        z, z_sigma = phasors[row[asked]] / phasor_sigma[row[asked]], phasor_sigma[row[asked]]
+        own, own_sigma = padded[y[asked], x[asked]].astype(np.float64), noisy[y[asked], x[asked]].astype(np.float64)
+        single += np.min([_single_chi2(z, _basis(own + step * own_sigma, w, z_sigma)) for step in OWN_STEPS], axis=0)
+        for i, (near_step, far_step) in enumerate(itertools.product(LEVEL_STEPS, LEVEL_STEPS)):
+            pairs[i] += _pair_chi2(z, _basis(levels[0][asked] + near_step * level_sigmas[0][asked], w, z_sigma),
+                                   _basis(levels[1][asked] + far_step * level_sigmas[1][asked], w, z_sigma))
+    mixture = pairs.min(axis=0)
+    dof = 3 * (2 * phasors.shape[1] - 2)
+    found[asked] = (mixture <= chdtri(dof, FIT_P_VALUE)) & (single - mixture > POOLED_DELTA_CHI2)
+    return found
 
 
 def _mixture_fits(weighted: NDArray, phasor_sigma: NDArray, w: NDArray, own: NDArray, own_sigma: NDArray,

@@ -12,9 +12,17 @@ a clean surface almost never shows), each side's slope, measured from the next b
 ``BLOCK_FLAT_SHARE`` of the step's mean slope between them beyond ``BLOCK_FLAT_SIGMAS`` of its noise (a grazing
 surface's sides slope as steeply as the step), and the pixel must lie ``MIN_EDGE_M`` and ``BLOCK_PIXEL_SIGMAS``
 of its own and the side's noise from each side: two sigmas of the pixel's own noise, as the sides, not the pixel,
-carry the evidence of an edge. A block whose depths spread more than ``MAX_SPREAD`` times their noise (beyond the
-light's reach, where depths lie anywhere, or across the edge) has no level; where they spread more than the noise
-model says, their spread is their noise.
+carry the evidence of an edge. Or its level along the edge does: a straight edge's mixed pixels lie in a line along
+it, each holding about one mixture, so the median of the pixel and its two neighbours across the direction (along
+the edge) has two thirds of a pixel's noise. Equal returns a few tenths of a metre apart far away mix to a depth a
+few centimetres, two or three of a pixel's sigmas, from the nearer side, which the pixel alone often misses. The
+three must be alike (within ``ALONG_SPREAD`` of their noise: a side's pixel beside the edge, whose neighbours across
+lie on either side, has no level along it), both sides flat by ``ALONG_FLAT_SIGMAS`` of their slope's noise (a
+grazing surface's noisy rows climb alike too), and the level or the pixel ``MIN_EDGE_M`` off each side.
+
+A block whose depths spread more than ``MAX_SPREAD`` times their noise (beyond the light's reach, where depths lie
+anywhere, or across the edge) has no level; where they spread more than the noise model says, their spread is their
+noise.
 
 Where an edge runs diagonally, or the footprint is wider than the pixels' pitch, two or three pixels in a row are
 mixed, and the block beside a pixel holds some of them: its depths spread across the edge and it has no level.
@@ -56,6 +64,11 @@ ORDER_SIGMAS = 2.0  # ...which lie in order between the pixel and the side, with
 RUN_PIXEL_SIGMAS = 3.0  # ...and the pixel lies this many sigmas of its own and the side's noise from each side
 HIDDEN_SLOPE_SIGMAS = 2.0  # a side not shown flat may stand in where its slope is within this many sigmas of 0...
 HIDDEN_PIXEL_SIGMAS = 3.0  # ...and the pixel this many sigmas (its own, the level's, the slope's) off its level
+# The median of three alike depths' sd over one's [1]: a pixel's level along the edge, where a straight edge's
+# mixed pixels hold about one mixture, is known to this share of its noise.
+ALONG_SIGMA_SHARE = 0.67
+ALONG_SPREAD = 4.0  # ...where the three spread this many times their noise at most (1 % of alike ones spread more)
+ALONG_FLAT_SIGMAS = 2.0  # ...and both sides are flat by this many sigmas of their slope's noise
 # A side's outer block reaches MAX_START + 2 BLOCK_ALONG - 1 pixels along a diagonal, and one across it.
 BLOCK_REACH = MAX_START + 2 * BLOCK_ALONG
 
@@ -87,7 +100,8 @@ def stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDA
             blocks = {sign: _blocks(padded, noisy, ys, xs, (sign * dy, sign * dx), across, (1, 1 + BLOCK_ALONG))
                       for sign in (1, -1)}
             one, other = _side_of(blocks[1], 1), _side_of(blocks[-1], 1)
-            found |= _step(own, own_sigma, one, other)
+            along_edge = edge_level(padded, noisy, ys, xs, across)
+            found |= _step(own, own_sigma, one, other, along_edge=along_edge)
             # Past a run of mixed pixels: only where a side's first block has no level and its first pixel a
             # depth (the run's next pixel), so that a clean surface's pixels, whose blocks have a level, and the
             # pixels beside no return, cost nothing more.
@@ -96,7 +110,8 @@ def stepped(depth: NDArray, sigma: NDArray, where: NDArray | None = None) -> NDA
             if again.size:
                 known = {sign: {k: (level[again], sigma[again]) for k, (level, sigma) in by_start.items()}
                          for sign, by_start in blocks.items()}
-                found[again] = _past_a_run(padded, noisy, ys[again], xs[again], (dy, dx), across, known)
+                found[again] = _past_a_run(padded, noisy, ys[again], xs[again], (dy, dx), across, known,
+                                           (along_edge[0][again], along_edge[1][again]))
     out = np.zeros((h, w), bool)
     out[ys[found] - reach, xs[found] - reach] = True
     return out
@@ -117,11 +132,12 @@ def padded_band(depth: NDArray, sigma: NDArray, where: NDArray | None, reach: in
 
 def _past_a_run(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp],
                 along: tuple[int, int], across: tuple[int, int], known: dict[int, dict[int, tuple[NDArray, NDArray]]],
-                ) -> NDArray[np.bool_]:
+                along_edge: tuple[NDArray, NDArray] | None = None) -> NDArray[np.bool_]:
     """Whether the pixels (``ys``, ``xs``) of ``padded`` depths [m] (``noisy`` their noise [m]) lie at a step
     whose sides' blocks begin 1 to ``MAX_START`` pixels out either way ``along`` a direction, at least one beyond
     the neighbour, the pixels between lying in order between the pixel and the side (:func:`_in_order`).
-    ``known``: per side (1 along, -1 against) the blocks' levels already taken, by how far out they begin."""
+    ``known``: per side (1 along, -1 against) the blocks' levels already taken, by how far out they begin;
+    ``along_edge``: the pixels' level along the edge and its noise (:func:`edge_level`; None: not used)."""
     dy, dx = along
     own, own_sigma = padded[ys, xs], noisy[ys, xs]
     offsets = range(1, MAX_START + BLOCK_ALONG + 1)
@@ -136,7 +152,8 @@ def _past_a_run(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArr
             one, other = sides[1, first], sides[-1, second]
             ordered = (_in_order(padded, noisy, ys, xs, (dy, dx), first, one.level, one.level_sigma)
                        & _in_order(padded, noisy, ys, xs, (-dy, -dx), second, other.level, other.level_sigma))
-            found |= ordered & _step(own, own_sigma, one, other, first + second + BLOCK_ALONG - 1, RUN_PIXEL_SIGMAS)
+            found |= ordered & _step(own, own_sigma, one, other, first + second + BLOCK_ALONG - 1, RUN_PIXEL_SIGMAS,
+                                     along_edge)
     return found
 
 
@@ -217,12 +234,14 @@ def _hidden(own: NDArray, own_sigma: NDArray, side: _Side) -> NDArray[np.bool_]:
 
 
 def _step(own: NDArray, own_sigma: NDArray, one: _Side, other: _Side, apart_px: int = BLOCK_ALONG + 1,
-          pixel_sigmas: float = BLOCK_PIXEL_SIGMAS) -> NDArray[np.bool_]:
+          pixel_sigmas: float = BLOCK_PIXEL_SIGMAS, along_edge: tuple[NDArray, NDArray] | None = None,
+          ) -> NDArray[np.bool_]:
     """Whether pixels of depth ``own`` (k,) [m] and noise ``own_sigma`` (k,) [m] lie at a step between sides
     ``one`` and ``other``: the levels part by ``BLOCK_STEP_SIGMAS`` of their noise, each side's slope stays below
     ``BLOCK_FLAT_SHARE`` of the step's mean slope between the blocks' middles (``apart_px`` pixels apart) by
     ``BLOCK_FLAT_SIGMAS`` of its noise, and the pixel lies between them, ``MIN_EDGE_M`` and ``pixel_sigmas`` of
-    the noise from each."""
+    the noise from each, or its level along the edge does (``along_edge``: its depth (k,) [m] and noise (k,) [m],
+    :func:`edge_level`; None: not asked), itself lying between them."""
     step = np.abs(one.level - other.level)
     significant = step > BLOCK_STEP_SIGMAS * np.hypot(one.level_sigma, other.level_sigma)
     slope_bound = BLOCK_FLAT_SHARE * step / apart_px
@@ -232,9 +251,32 @@ def _step(own: NDArray, own_sigma: NDArray, one: _Side, other: _Side, apart_px: 
     flat = both_quiet | (quiet[0] & hidden[1]) | (hidden[0] & quiet[1])
     # Where a side stands in so, the pixel lies as far from the quiet side too: the noisy side's evidence is less.
     sigmas = np.where(both_quiet, pixel_sigmas, max(pixel_sigmas, HIDDEN_PIXEL_SIGMAS))
+    between = (one.level - own) * (own - other.level) > 0
     apart = np.ones(own.shape, bool)
     for side in (one, other):
-        margin = np.maximum(MIN_EDGE_M, sigmas * np.hypot(own_sigma, side.level_sigma))
-        apart &= np.abs(side.level - own) > margin
-    between = (one.level - own) * (own - other.level) > 0
+        apart &= np.abs(side.level - own) > np.maximum(MIN_EDGE_M, sigmas * np.hypot(own_sigma, side.level_sigma))
+    if along_edge is not None:  # or its level along the edge does, itself or the pixel MIN_EDGE_M off
+        level, level_sigma = along_edge
+        firm = [side.slope + ALONG_FLAT_SIGMAS * side.slope_sigma < slope_bound for side in (one, other)]
+        along = firm[0] & firm[1] & ((one.level - level) * (level - other.level) > 0)
+        for side in (one, other):
+            off = np.abs(side.level - level)
+            along &= (off > sigmas * np.hypot(level_sigma, side.level_sigma)) \
+                & (np.fmax(off, np.abs(side.level - own)) > MIN_EDGE_M)
+        apart |= along
     return np.asarray(significant & flat & apart & between)
+
+
+def edge_level(padded: NDArray, noisy: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp],
+               across: tuple[int, int]) -> tuple[NDArray, NDArray]:
+    """The pixels' level along the edge: the median (k,) [m] of the depths at (``ys``, ``xs``) of ``padded`` and
+    one pixel either way ``across`` the step (along the edge, where its mixed pixels hold about one mixture), and
+    its noise (k,) [m], ``ALONG_SIGMA_SHARE`` of the three's mean (``noisy``); NaN where any is not finite or the
+    three are not alike, spreading more than ``ALONG_SPREAD`` times their mean noise (a side's pixel beside the
+    edge, whose neighbours across lie on either side of it, has no level along it)."""
+    dy, dx = across
+    at = [(ys - dy, xs - dx), (ys, xs), (ys + dy, xs + dx)]
+    three = np.stack([padded[a] for a in at])
+    sigma = np.stack([noisy[a] for a in at]).mean(axis=0)
+    alike = three.max(axis=0) - three.min(axis=0) <= ALONG_SPREAD * sigma
+    return np.where(alike, np.median(three, axis=0), np.nan), ALONG_SIGMA_SHARE * sigma

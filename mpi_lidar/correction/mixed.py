@@ -30,14 +30,15 @@ steps look flat now and then. One side may begin a pixel further out, past a pix
 pixels in a row, where an edge runs diagonally or the footprint is wider than the pixels' pitch. Far away, where a
 pixel's noise is centimetres, a second form of the test (:func:`mpi_lidar.correction._mixed_steps.stepped`) takes
 each side's level as the median of a block of six pixels, half a pixel's noise: the step must be significant in the
-sides' noise, and the pixel lie only two of its own sigmas (and ``MIN_EDGE_M``) from each. Where one side returns
+sides' noise, and the pixel (or its median with its two neighbours along the edge) lie only two of its own sigmas
+(and ``MIN_EDGE_M``) from each. Where one side returns
 no usable light (NO_RETURN), a one-sided test (:func:`mpi_lidar.correction._mixed_dark.lost_light`) reads the
 lit side alone: the pixel's amplitude lies between the two sides' and its depth off the lit side's. Elsewhere the
 amplitude's level tells little: a mixture's lies between its neighbours' as a grazing surface's does. Where the
 sides lie metres apart, each frequency's mixture may wrap to about one depth near a side (the phasors part by about
 0.26 rad per metre of gap at the 6.25 MHz spacing), which none of these tests sees; the pixel's phasors still fit
-two returns at its sides' ranges, fixed by the neighbourhood, significantly better than one return
-(:func:`mpi_lidar.correction._mixed_ranges.two_ranges`).
+two returns at its sides' ranges, fixed by the neighbourhood, significantly better than one return, alone or with
+its two neighbours along the edge (:func:`mpi_lidar.correction._mixed_ranges.two_ranges`).
 
 A clean surface passes the first test but for a share ``MIXED_P_VALUE`` of its pixels, and only those beside a
 jump of several centimetres (a grazing surface's) can be flagged. Where the phasors fit two returns within the
@@ -335,9 +336,10 @@ def _two_ranges(raw: NDArray, depth: NDArray, sigma: NDArray, where: NDArray, ga
                 noise: NoiseModel) -> NDArray[np.bool_]:
     """The pixels ``where`` (h, W) beside a jump of half ``_ranges.MIN_GAP_M`` in the fused ``depth`` (h, W) [m]
     (noise ``sigma`` (h, W) [m]) whose phasors are two returns at their sides' ranges
-    (:func:`mpi_lidar.correction._mixed_ranges.two_ranges`); ``raw`` (h*W, 2F) the rows' measurements,
-    ``gains_at`` the candidates' rows, columns and frequency gains (k, F), a superset of ``where``'s."""
-    ys, xs, gains = gains_at
+    (:func:`mpi_lidar.correction._mixed_ranges.two_ranges`, each alone or with its neighbours along the edge);
+    ``raw`` (h*W, 2F) the rows' measurements, ``gains_at`` the candidates' rows and columns, a superset of
+    ``where``'s, and frequency gains (k, F)."""
+    ys, xs = gains_at[0], gains_at[1]
     h, w = depth.shape
     padded = np.full((h + 2, w + 2), np.nan, dtype=np.float64)
     padded[1:-1, 1:-1] = depth
@@ -348,15 +350,21 @@ def _two_ranges(raw: NDArray, depth: NDArray, sigma: NDArray, where: NDArray, ga
     asked = where[ys, xs] & (jump > _ranges.MIN_GAP_M / 2)
     if not asked.any():
         return np.zeros(depth.shape, bool)
-    ys, xs, gains = ys[asked], xs[asked], gains[asked]
-    rows = raw[ys * w + xs].astype(np.float64)
+    selected, near = np.zeros(depth.shape, bool), np.zeros((h + 2, w + 2), bool)
+    selected[ys[asked], xs[asked]] = True
+    for dy, dx in ((0, 0), *NEIGHBOURS):  # the pixels and those they pool with along the edge, margin rows too
+        near[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx] |= selected
+    ys, xs = np.nonzero(near[1:-1, 1:-1])
     f = len(noise.frequencies_hz)
+    gains = frequency_gains(raw[:, f:].reshape(h, w, f), ys, xs)
+    rows = raw[ys * w + xs].astype(np.float64)
     freqs, c = np.asarray(noise.frequencies_hz), noise.speed_of_light_m_per_s
-    phasor_sigma = noise.quadrature_sigma_v2(rows[:, f:]) / gains
-    selected = np.zeros(depth.shape, bool)
-    selected[ys, xs] = True
-    return _ranges.two_ranges(depth, sigma, measured_phasors(rows, freqs, c) / gains, phasor_sigma,
-                              4 * np.pi * freqs / c, selected)
+    phasors, phasor_sigma = measured_phasors(rows, freqs, c) / gains, noise.quadrature_sigma_v2(rows[:, f:]) / gains
+    index = np.full(depth.shape, -1, np.intp)
+    index[ys, xs] = np.arange(ys.size)
+    own = index[selected]
+    return _ranges.two_ranges(depth, sigma, phasors[own], phasor_sigma[own], 4 * np.pi * freqs / c, selected,
+                              (index, phasors, phasor_sigma))
 
 
 def frequency_gains(amplitude: NDArray, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> NDArray[np.float64]:

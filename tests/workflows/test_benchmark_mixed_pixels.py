@@ -5,6 +5,9 @@ resolved pixels judged by their own target in its domain."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -55,3 +58,12 @@ def test_per_scene_table__a_resolved_pixel_is_not_a_single_depth():
     cells = [c.strip() for c in lines[2].strip("|").split("|")]
     assert cells[2] == "63" and cells[3:10] == ["1 (2 %)", "0", "0.2", "3", "62", "4", "0"]
     assert cells[10:13] == ["2 of 40", "100 % / 50 %", "38 %"]
+
+
+@pytest.mark.unit
+def test_main__a_scene_text_matching_no_scene_is_one_usage_line_before_any_work(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "benchmarks.mixed_pixels", "--quick", "--scene", "no such plate",
+                           "--work", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stdout == ""
+    assert "--scene 'no such plate' matches no plate scene" in done.stderr.splitlines()[-1]
+    assert list(tmp_path.iterdir()) == []  # no model trained, nothing written
