@@ -119,8 +119,8 @@ class PlaneCoupling:
         # Per block and partner plane: the unit-footprint sums (Hb*Wb, P, F) and (Hb*Wb,) of the planes.
         self.unit_plane_phasor_at_blocks, plane_kappa = self.at_points(self.partners.block_rays, block_surface)
         self.plane_coupling_at_blocks = plane_kappa.sum(1)
-        # Per block and ordered pair of partner planes: the two-bounce sums (Hb*Wb, P, P, F) (F16); None with
-        # fewer than three partner planes (a corner of two has no such light).
+        # Per block: the light among the partner planes, two bounces (F16) and three (F17); None with fewer than
+        # three partner planes (a corner of two has no such light).
         self.unit_two_bounce_at_blocks = partner_two_bounce(self.partners, self.partners.block_rays, block_surface,
                                                             scan.frequencies_hz, sensor.speed_of_light_m_per_s)
         # The block pairs of receivers on a plane with curved partners, and of receivers on no plane.
@@ -159,13 +159,11 @@ class PlaneCoupling:
         return albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.unit_plane_phasor_at_blocks)
 
     def two_bounce_phasor_at_blocks(self, albedo: NDArray) -> NDArray[np.complex128] | None:
-        """The two-bounce S_f (Hb*Wb, F) (F16) each block's centre gets for the albedos per block ``albedo``
-        (Hb*Wb,), None where the scan has no such light."""
+        """The S_f (Hb*Wb, F) of the light among the partner planes, two bounces (F16) and three (F17), each block's
+        centre gets for the albedos per block ``albedo`` (Hb*Wb,), None where the scan has no such light."""
         if self.unit_two_bounce_at_blocks is None:
             return None
-        partner_albedo = albedo[self.partners.partner_block]
-        return albedo[:, None] * np.einsum("p,q,npqf->nf", partner_albedo, partner_albedo,
-                                           self.unit_two_bounce_at_blocks)
+        return albedo[:, None] * self.unit_two_bounce_at_blocks.phasor(albedo[self.partners.partner_block])
 
 
 class PixelCoupling:

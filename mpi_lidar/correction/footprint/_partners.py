@@ -13,9 +13,11 @@ blocks describe that geometry poorly where it matters most:
 
 :class:`PlanePartners` therefore models every flat surface (:func:`._surfaces.surface_labels`) by its plane
 (:class:`SurfacePlane`), tiled with square patches (:class:`Patches`): where the scan sees that surface or
-something behind it, and beyond the view where the scan's border shows the surface running on, out to
-:data:`REACH` times its visible size from its visible centre. The patches are :data:`PATCH_M` wide next to the
-other surfaces and grow with the distance from them. Each patch B of area dA_B couples to a point A as
+something behind it, and beyond the view where the scan's border shows the surface running on (or a surface it
+meets, in front of which it runs on: a floor below the wall seen at the border), out to :data:`REACH` times its
+visible size from its visible centre, and nowhere behind the plane of a surface that bounds it (a wall its
+floor). The patches are :data:`PATCH_M` wide next to the other surfaces and grow with the distance from them.
+Each patch B of area dA_B couples to a point A as
 
 (F4)  kappa_B = (cos_A cos_B)^2 dA_B / (pi^2 max(r, sqrt(dA_B))^4 cos_i)   at A_fp = 1 m^2,
 
@@ -58,6 +60,9 @@ TWO_BOUNCE_GRADING_M = 0.15
 # Within the view a patch counts where it lies no nearer than this [m] in front of what the scan measured
 # there (the multipath moves the measured surface by centimetres near an edge).
 FRONT_TOLERANCE_M = 0.05
+# A block whose normal lies more than 66 degrees from its ray (the cosine below this) is seen at a grazing angle:
+# its range runs across it at tan(66 deg) = 2.2 times its width or more, and a ray's own range on its plane stands.
+GRAZING_COSINE = 0.4
 # A surface's plane hides what lies behind it up to this many times its visible size from its visible centre.
 HIDING_REACH = 1.25
 
@@ -310,8 +315,9 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
     """The patches of every modelled surface's plane that faces another, by surface label, ``patch_m`` [m] wide next
     to a receiving surface and one such side wider every ``grading_m`` [m] further from it.
 
-    Within the view a patch counts where the scan measured something at its range or behind it; beyond the
-    view where the block nearest to its direction, on the view's border, belongs to the surface.
+    Within the view a patch counts where the scan measured something at its range or behind it; beyond the view
+    where the block nearest to its direction, on the view's border, shows the surface running on
+    (:func:`_runs_on`). Neither counts behind the plane of a surface that bounds it (:func:`_bounding_surfaces`).
     """
     from scipy.spatial import cKDTree  # imported where used: the start-up does not pay for it
 
@@ -320,6 +326,7 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
     # The second neighbour of each ray is the nearest other one (the first is the ray itself).
     spacing = float(np.median(directions.query(block_rays, k=2)[0][:, 1])) if block_rays.shape[0] > 1 else 0.0
     block_centres = blocks.centres.reshape(-1, 3)
+    meeting = _meeting_surfaces(blocks, components, planes)
     found = {}
     for surface, plane in planes.items():
         normal, centre = plane.normal, plane.centre
@@ -336,12 +343,71 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
         distance, nearest = directions.query(centres / np.maximum(patch_range, 1e-12)[:, None])
         outside = distance > 0.75 * spacing
         with np.errstate(invalid="ignore"):
-            seen = ~outside & (patch_range >= block_range[nearest] - FRONT_TOLERANCE_M)
-        continued = outside & (components[nearest] == surface)
+            seen = ~outside & (patch_range >= _measured_range(centres / np.maximum(patch_range, 1e-12)[:, None],
+                                                              nearest, blocks, block_range) - FRONT_TOLERANCE_M)
+        others = meeting.get(surface, set())
+        bounds = _bounding_surfaces(block_centres[components == surface], planes, others)
+        continued = outside & _runs_on(centres, components[nearest], surface, planes, others, bounds)
         keep = (seen | continued) & (np.hypot(u, v) <= reach_m)
+        for other in bounds:
+            keep &= dot3(centres - planes[other].centre, planes[other].normal) > 0
         if keep.any():
             found[surface] = Patches(centres[keep], sides[keep] ** 2)
     return found
+
+
+def _measured_range(rays: NDArray, nearest: NDArray, blocks: FacingBlocks, block_range: NDArray) -> NDArray:
+    """The range [m] (m,) the scan measured along unit rays (m, 3) within the view: where a block seen at a grazing
+    angle (the cosine of its normal with the ray under :data:`GRAZING_COSINE`) has its plane meet the ray, else that
+    block's range ``block_range`` (its nearest block, ``nearest`` (m,); NaN for an unusable block).
+
+    A block's centre stands for its ray alone: on a floor seen at a grazing angle the range changes by a decimetre
+    across half a block, and a patch compared with the centre's range would read as lying in front of the floor
+    it lies on (the holes then fall along the folds, where the coupling is strongest). A block seen more squarely
+    (a corner's boards at 45 degrees) keeps its centre's range."""
+    normals = blocks.normals.reshape(-1, 3)[nearest]
+    along = np.einsum("ij,ij->i", rays, normals)
+    offset = np.einsum("ij,ij->i", blocks.centres.reshape(-1, 3)[nearest], normals)
+    grazing = (np.abs(along) > 0.1) & (np.abs(along) < GRAZING_COSINE)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(grazing, offset / along, block_range[nearest])
+
+
+def _meeting_surfaces(blocks: FacingBlocks, components: NDArray, planes: dict[int, SurfacePlane]
+                      ) -> dict[int, set[int]]:
+    """Per modelled surface, the other modelled surfaces it meets: those with which its blocks have facing pairs."""
+    a, b = components[blocks.index[blocks.pairs.a]], components[blocks.index[blocks.pairs.b]]
+    pairs = np.unique(np.concatenate([np.stack([a, b], 1), np.stack([b, a], 1)]), axis=0)
+    found: dict[int, set[int]] = {}
+    for one, other in pairs.tolist():
+        if one != other and one in planes and other in planes:
+            found.setdefault(one, set()).add(other)
+    return found
+
+
+def _bounding_surfaces(members: NDArray, planes: dict[int, SurfacePlane], meeting: set[int]) -> set[int]:
+    """The surfaces of ``meeting`` that bound a surface of block centres ``members`` (k, 3) [m]: those whose plane
+    has the whole of it in front (to :data:`FRONT_TOLERANCE_M`). A wall bounds its floor and the floor a box's face;
+    a box's face, whose plane cuts through the floor it stands on, bounds neither."""
+    return {other for other in meeting
+            if members.size and dot3(members - planes[other].centre, planes[other].normal).min() > -FRONT_TOLERANCE_M}
+
+
+def _runs_on(centres: NDArray, owner: NDArray, surface: int, planes: dict[int, SurfacePlane], meeting: set[int],
+             bounds: set[int]) -> NDArray[np.bool_]:
+    """Which patches (m, 3) [m] of ``surface``'s plane beyond the view continue the surface, given the surface
+    ``owner`` (m,) of the border block nearest to each patch's direction: where the border shows the surface, or a
+    surface it meets (``meeting``) that does not bound it (a box's face in front of a floor) or in front of whose
+    plane the patch lies (a floor runs on beyond the view below the wall seen at the border)."""
+    keep = owner == surface
+    if not keep.any():  # the surface does not reach the view's border: it ends within the view
+        return keep
+    for other in meeting:
+        if other in bounds:
+            keep |= (owner == other) & (dot3(centres - planes[other].centre, planes[other].normal) > 0)
+        else:
+            keep |= owner == other
+    return keep
 
 
 def _graded_patches(centre: NDArray, e1: NDArray, e2: NDArray, reach_m: float, receivers: cKDTree,

@@ -153,10 +153,21 @@ class FootprintProblem:
         return {int(label): planes[k] for k, label in enumerate(kept.labels)}
 
     def _anchor_rows(self) -> NDArray[np.bool_]:
-        """Pixels that fix the surfaces' planes: the share ``ANCHOR_SHARE`` of all with the least coupling."""
+        """Pixels that fix the surfaces' planes: the share ``ANCHOR_SHARE`` of all with the least coupling, and of
+        a surface that share leaves under ``MIN_ANCHOR_PIXELS``, its own share with the least coupling.
+
+        A small surface next to a strongly lit one (a room's side wall beside the floor) lies near its partners
+        throughout: the global share would leave it no plane, though its own least-coupled pixels fix one.
+        """
         if self.coupling.size == 0:
             return np.zeros(0, dtype=bool)
-        return self.coupling <= np.quantile(self.coupling, ANCHOR_SHARE)
+        anchor = self.coupling <= np.quantile(self.coupling, ANCHOR_SHARE)
+        short = np.flatnonzero(np.bincount(self.surface, anchor, minlength=self.surfaces) < MIN_ANCHOR_PIXELS)
+        for surface in short:
+            members = self.surface == surface
+            if members.any():
+                anchor |= members & (self.coupling <= np.quantile(self.coupling[members], ANCHOR_SHARE))
+        return anchor
 
     def _plane_range(self, bias: NDArray, anchor: NDArray) -> tuple[NDArray, NDArray]:
         """Range (n,) [m] of each pixel's surface plane, fitted to the anchors' depth less the predicted bias (F7).
