@@ -13,13 +13,10 @@ import pytest
 from mpi_lidar.config import Config, SensorConfig
 from mpi_lidar.correction import _mixed_ranges as ranges
 from mpi_lidar.correction._mixed_steps import BLOCK_REACH, stepped
-from mpi_lidar.correction.gating import GateDecision
-from mpi_lidar.correction.mixed import find_mixed
-from mpi_lidar.correction.options import CorrectionOptions, Flag
-from mpi_lidar.correction.tiles import scan_tiles
-from mpi_lidar.correction.validity import check_validity
+from mpi_lidar.correction.options import Flag
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.simulation.scenes import flat_wall, render, scan_from_phasors
+from tests.correction.mixed_stage import mixed_stage
 
 pytestmark = pytest.mark.unit
 
@@ -31,13 +28,8 @@ SIGMA_M = 0.025  # a pixel's fused noise at 10 m, albedo 0.5 [m]
 
 def _flags(scan):
     """The stage's flags (H, W), read in tiles of four rows, and whether the gate's decision came back as it was."""
-    noise = NoiseModel.for_sensor(SensorConfig(), scan.frequencies_hz)
-    tiles = scan_tiles(scan, 4 * scan.shape[1])
-    validity = check_validity(scan, noise, CorrectionOptions(), tiles)
-    flags = np.where(validity.flags == Flag.NOT_NEEDED, np.uint8(Flag.NO_MULTIPATH), validity.flags)
-    decision = GateDecision(flags.astype(np.uint8), 0, served=True)
-    result = find_mixed(validity.scan, tiles, validity, decision, noise)
-    return result.decision.flags.reshape(scan.shape), result.decision is decision, validity
+    result, decision, flags, validity = mixed_stage(scan)
+    return flags, result.decision is decision, validity
 
 
 def _edge_scan(gap_m: float, seed: int):

@@ -8,13 +8,11 @@ import numpy as np
 import pytest
 
 from mpi_lidar.config import Config, SensorConfig
-from mpi_lidar.correction.gating import GateDecision
-from mpi_lidar.correction.mixed import _stepped, find_mixed
-from mpi_lidar.correction.options import CorrectionOptions, Flag
-from mpi_lidar.correction.tiles import scan_tiles
-from mpi_lidar.correction.validity import check_validity
+from mpi_lidar.correction.mixed import _stepped
+from mpi_lidar.correction.options import Flag
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.simulation.scenes import corner, flat_wall, render, scan_from_phasors
+from tests.correction.mixed_stage import mixed_stage
 
 pytestmark = pytest.mark.unit
 
@@ -34,17 +32,6 @@ def _scan(share, plate_m: float, plate_albedo: float, wall_m: float, wall_albedo
     return scan_from_phasors("edge", phasor, CONFIG, np.random.default_rng(seed))
 
 
-def _mixed(scan):
-    """The stage's flags (H, W) and the validity stage's result, read in tiles of four rows."""
-    noise = NoiseModel.for_sensor(SensorConfig(), scan.frequencies_hz)
-    tiles = scan_tiles(scan, 4 * scan.shape[1])
-    validity = check_validity(scan, noise, CorrectionOptions(), tiles)
-    flags = np.where(validity.flags == Flag.NOT_NEEDED, np.uint8(Flag.NO_MULTIPATH), validity.flags)
-    decision = GateDecision(flags.astype(np.uint8), 0, served=True)
-    result = find_mixed(validity.scan, tiles, validity, decision, noise)
-    return result, decision, result.decision.flags.reshape(scan.shape), validity
-
-
 def _diagonal_share(footprint_px: float) -> np.ndarray:
     """The plate's share of each footprint (a box ``footprint_px`` pitches wide along the row) left of an edge
     running at 45 degrees, between pixel centres, on a grid H x (H + 8)."""
@@ -60,7 +47,7 @@ def test_find_mixed__a_diagonal_edge_with_two_mixed_pixels_in_a_row_is_flagged(s
     share = _diagonal_share(2.0)
     mixed = (share > 0) & (share < 1)
     assert (mixed.sum(axis=1) >= 2).all()
-    _, _, flags, _ = _mixed(_scan(share, 5.0, 0.5, 5.5, 0.5, seed))
+    _, _, flags, _ = mixed_stage(_scan(share, 5.0, 0.5, 5.5, 0.5, seed))
     inner = mixed.copy()
     inner[:3] = inner[-3:] = False  # a side reaches three pixels out along a diagonal
     assert np.isin(flags[inner], [Flag.MIXED, Flag.TWO_RETURNS]).all()
@@ -91,7 +78,7 @@ def test_find_mixed__a_dark_plate_far_away_is_flagged_where_its_light_moves_the_
     flagged = []
     for seed in range(3):
         scan = _scan(share, 5.0, 0.05, 7.0, 1.0, seed)
-        _, _, flags, validity = _mixed(scan)
+        _, _, flags, validity = mixed_stage(scan)
         noise = NoiseModel.for_sensor(SensorConfig(), scan.frequencies_hz)
         fused = noise.fuse(validity.scan.raw_pixels())
         depth, sigma = (values.reshape(H, W)[2:-2, EDGE_COLUMN] for values in (fused.depth_m, fused.sigma_m))
@@ -112,6 +99,6 @@ def test_find_mixed__a_clean_wall_or_corner_far_away_is_left_as_the_gate_left_it
     """At 15-20 m a pixel's depth is noisy by centimetres and a grazing wall steps by as much: no pixel is mixed,
     and the gate's decision comes back as it went in."""
     scan = render(scene, CONFIG, np.random.default_rng(3), patch_spacing_m=0.05 * distance_m)
-    result, decision, flags, _ = _mixed(scan)
+    result, decision, flags, _ = mixed_stage(scan)
     assert not np.isin(flags, [Flag.MIXED, Flag.TWO_RETURNS]).any()
     assert result.decision is decision and result.mixed_pixels == result.resolved_pixels == 0
