@@ -323,7 +323,7 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
         edge = np.nan_to_num(_jumps(depth, sigma), nan=0.0).max(axis=0) > MIN_EDGE_M
         disagree = frequencies_disagree | (amplitude_chi2 > chdtri(f - 1, AMPLITUDE_P_VALUE))
     found = candidates & ((edge & disagree) | _between(depth, sigma) | stepped)
-    found |= _two_ranges(raw, fused_depth, fused_sigma, candidates & ~found, (ys, xs, gains), noise)
+    found |= _two_ranges(raw, fused_depth, fused_sigma, candidates & ~found, (ys, xs), noise)
     if no_return is not None and beside_dark is not None and beside_dark.any():
         light = raw[:, f:].astype(np.float64)
         light_sigma = np.sqrt((noise.quadrature_sigma_v2(light) ** 2).sum(axis=1)).reshape(depth.shape)
@@ -332,14 +332,14 @@ def mixed_in_rows(raw: NDArray, depth: NDArray, candidates: NDArray, noise: Nois
     return np.asarray(found)
 
 
-def _two_ranges(raw: NDArray, depth: NDArray, sigma: NDArray, where: NDArray, gains_at: tuple[NDArray, ...],
+def _two_ranges(raw: NDArray, depth: NDArray, sigma: NDArray, where: NDArray, at: tuple[NDArray, NDArray],
                 noise: NoiseModel) -> NDArray[np.bool_]:
     """The pixels ``where`` (h, W) beside a jump of half ``_ranges.MIN_GAP_M`` in the fused ``depth`` (h, W) [m]
     (noise ``sigma`` (h, W) [m]) whose phasors are two returns at their sides' ranges
     (:func:`mpi_lidar.correction._mixed_ranges.two_ranges`, each alone or with its neighbours along the edge);
-    ``raw`` (h*W, 2F) the rows' measurements, ``gains_at`` the candidates' rows and columns, a superset of
-    ``where``'s, and frequency gains (k, F)."""
-    ys, xs = gains_at[0], gains_at[1]
+    ``raw`` (h*W, 2F) the rows' measurements, ``at`` the candidates' rows and columns, a superset of
+    ``where``'s."""
+    ys, xs = at
     h, w = depth.shape
     padded = np.full((h + 2, w + 2), np.nan, dtype=np.float64)
     padded[1:-1, 1:-1] = depth

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from mpi_lidar.config import SensorConfig
 from mpi_lidar.correction.footprint._partners import BlockPairs, PlanePartners
 from mpi_lidar.correction.footprint._surfaces import SurfaceLabels
-from mpi_lidar.correction.footprint._two_bounce import partner_two_bounce
+from mpi_lidar.correction.footprint._two_bounce import partner_bounces
 from mpi_lidar.scans.geometry import FacingBlocks
 from mpi_lidar.scans.scan import Scan
 
@@ -121,7 +121,7 @@ class PlaneCoupling:
         self.plane_coupling_at_blocks = plane_kappa.sum(1)
         # Per block: the light among the partner planes, two bounces (F16) and three (F17); None with fewer than
         # three partner planes (a corner of two has no such light).
-        self.unit_two_bounce_at_blocks = partner_two_bounce(self.partners, self.partners.block_rays, block_surface,
+        self.unit_bounces_at_blocks = partner_bounces(self.partners, self.partners.block_rays, block_surface,
                                                             scan.frequencies_hz, sensor.speed_of_light_m_per_s)
         # The block pairs of receivers on a plane with curved partners, and of receivers on no plane.
         self.pair_groups = [
@@ -146,7 +146,7 @@ class PlaneCoupling:
         ``area_m2`` [m^2] and albedos ``albedo`` (Hb*Wb,): the light the partner planes and curved partners send
         back to the block's centre, capped as in (F5)."""
         phasor = self.plane_phasor_at_blocks(albedo)
-        two_bounce = self.two_bounce_phasor_at_blocks(albedo)
+        two_bounce = self.bounces_phasor_at_blocks(albedo)
         if two_bounce is not None:
             phasor += two_bounce
         for group in self.pair_groups:
@@ -158,12 +158,12 @@ class PlaneCoupling:
         partner_albedo = albedo[self.partners.partner_block]
         return albedo[:, None] * np.einsum("p,npf->nf", partner_albedo, self.unit_plane_phasor_at_blocks)
 
-    def two_bounce_phasor_at_blocks(self, albedo: NDArray) -> NDArray[np.complex128] | None:
+    def bounces_phasor_at_blocks(self, albedo: NDArray) -> NDArray[np.complex128] | None:
         """The S_f (Hb*Wb, F) of the light among the partner planes, two bounces (F16) and three (F17), each block's
         centre gets for the albedos per block ``albedo`` (Hb*Wb,), None where the scan has no such light."""
-        if self.unit_two_bounce_at_blocks is None:
+        if self.unit_bounces_at_blocks is None:
             return None
-        return albedo[:, None] * self.unit_two_bounce_at_blocks.phasor(albedo[self.partners.partner_block])
+        return albedo[:, None] * self.unit_bounces_at_blocks.phasor(albedo[self.partners.partner_block])
 
 
 class PixelCoupling:
@@ -210,7 +210,7 @@ class PixelCoupling:
         """S_f (n, F) and K (n,) of the pixels for the albedos per block ``albedo`` (Hb*Wb,)."""
         return self.at_block_sums(albedo, self.plane.plane_phasor_at_blocks(albedo),
                                   [group.phasors(albedo) for group in self.plane.pair_groups],
-                                  self.plane.two_bounce_phasor_at_blocks(albedo))
+                                  self.plane.bounces_phasor_at_blocks(albedo))
 
     def at_block_sums(self, albedo: NDArray, plane_phasor: NDArray, pair_phasors: list[NDArray],
                       two_bounce_phasor: NDArray | None = None) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:

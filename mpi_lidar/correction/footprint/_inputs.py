@@ -45,7 +45,7 @@ class PlaneModelInputs:
             self.frequency_hz = float(plane.scan.frequencies_hz[lowest])
             self.plane_phasor = plane.plane_phasor_at_blocks(albedo)[:, [lowest]]
             self.pair_phasors = [group.phasors(albedo)[:, [lowest]] for group in plane.pair_groups]
-            two_bounce = plane.two_bounce_phasor_at_blocks(albedo)
+            two_bounce = plane.bounces_phasor_at_blocks(albedo)
             self.two_bounce_phasor = None if two_bounce is None else two_bounce[:, [lowest]]
             self.wavenumber = 4 * np.pi * self.frequency_hz / plane.speed_of_light_m_per_s
 

@@ -191,7 +191,7 @@ class PlaneBounces:
         return found
 
 
-def partner_two_bounce(partners: PlanePartners, rays: NDArray, surface: NDArray, frequencies_hz: tuple[float, ...],
+def partner_bounces(partners: PlanePartners, rays: NDArray, surface: NDArray, frequencies_hz: tuple[float, ...],
                        speed_of_light_m_per_s: float) -> PlaneBounces | None:
     """The light among the partner planes (:attr:`PlanePartners.partners`) of the points where the rays (n, 3) meet
     the planes of their surfaces ``surface`` (n,): two bounces (F16) and three (F17), at unit footprint and white

@@ -35,7 +35,7 @@ def test_plane_model_inputs__two_planes_have_no_two_bounce_light():
     without the two-bounce term)."""
     inputs, depth = inputs_of(corner(90.0, 2.0, 0.8, height=32, width=64), 0.041)
     assert inputs.plane is not None and len(inputs.plane.partners.partners) == 2
-    assert inputs.plane.unit_two_bounce_at_blocks is None and inputs.two_bounce_phasor is None
+    assert inputs.plane.unit_bounces_at_blocks is None and inputs.two_bounce_phasor is None
     bias = inputs.bias_m(np.arange(depth.size), depth, 31.25e6)
     assert np.nanmax(bias) > 1e-3 and np.nanmin(bias) >= 0.0
 
