@@ -28,7 +28,7 @@ from mpi_lidar.correction.footprint import (
     plane_model_inputs,
     surface_labels,
 )
-from mpi_lidar.correction.options import AUTO, CorrectionOptions, GateName
+from mpi_lidar.correction.options import AUTO, MAX_FOOTPRINT_AREA_M2, CorrectionOptions, GateName
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans import geometry
 from mpi_lidar.scans.scan import Scan
@@ -70,6 +70,12 @@ class SceneGeometry:
     uncalibrated : NDArray[np.bool_] | None
         Bool (H*W,), only where the scan's own estimate is not significant: the pixels whose bias could reach
         ``min_multipath_bias_m`` at the estimate's upper bound (they are left as measured).
+    uncertainty_bias_m : NDArray[np.float32] | None
+        Where the scan measured its own footprint: the multipath bias per pixel (H, W) the uncertainty of a depth
+        left alone carries, at :func:`uncertainty_footprint_m2` (where the estimate is not significant, the
+        footprint's root mean square under its uncertainty) and with each partner weighed by its measured albedo
+        (``bias_m`` is the gate's: white partners, the most the geometry allows). None: ``bias_m`` stands for
+        it. The gate does not read it. [m]
     model_inputs : PlaneModelInputs | None
         A geometric model's per-pixel inputs (rho_ABA, d_AB) at ``footprint_m2``; None unless asked for.
     notes : tuple[str, ...]
@@ -86,6 +92,13 @@ class SceneGeometry:
     uncalibrated: NDArray[np.bool_] | None = None
     model_inputs: PlaneModelInputs | None = None
     notes: tuple[str, ...] = ()
+    uncertainty_bias_m: NDArray[np.float32] | None = None
+
+    @property
+    def left_alone_bias_m(self) -> NDArray[np.float32] | None:
+        """The multipath bias (H, W) [m] a depth left alone carries in its uncertainty: ``uncertainty_bias_m``,
+        else ``bias_m``."""
+        return self.bias_m if self.uncertainty_bias_m is None else self.uncertainty_bias_m
 
     @property
     def has_geometry(self) -> bool:
@@ -175,18 +188,51 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         if estimate.significant:
             footprint_m2 = estimate.area_m2
         else:
-            upper = blocks.block_potential(min(estimate.upper_m2(), 1.0))
+            upper = blocks.block_potential(min(estimate.upper_m2(), MAX_FOOTPRINT_AREA_M2))
             uncalibrated = _reaches_min_bias(upper, options)
             footprint_m2 = 0.0
         potential = blocks.block_potential(footprint_m2)
     bias_m = np.empty(scan.shape, dtype=np.float32)
     reaches = _reaches_min_bias(potential, options, bias_m)
+    blocks_bias = None if measured_albedo is None else bias_m.copy()
     inputs = None
     if with_model_inputs or (surfaces is not None and footprint_m2 > 0):
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels)
         _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches)
+    uncertainty_bias = None
+    if estimate is not None and measured_albedo is not None and blocks_bias is not None:
+        uncertainty_bias = _bias_with_albedos(blocks, measured_albedo, uncertainty_footprint_m2(estimate), options,
+                                              bias_m, blocks_bias)
     return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated,
-                         inputs if with_model_inputs else None)
+                         inputs if with_model_inputs else None, uncertainty_bias_m=uncertainty_bias)
+
+
+def uncertainty_footprint_m2(estimate: FootprintEstimate) -> float:
+    """The footprint [m^2] whose multipath the uncertainty of a depth left alone carries: a significant estimate's
+    own, else :func:`rms_footprint_m2`."""
+    return estimate.area_m2 if estimate.significant else rms_footprint_m2(estimate)
+
+
+def _bias_with_albedos(blocks: geometry.FacingBlocks, albedo: NDArray, footprint_m2: float,
+                       options: CorrectionOptions, bias_m: NDArray, blocks_bias: NDArray) -> NDArray[np.float32]:
+    """The multipath bias (H, W) [m] for the uncertainty: where the facing blocks set ``bias_m`` (it equals
+    ``blocks_bias``, theirs for white partners), their bias at ``footprint_m2`` [m^2] with each partner weighed by
+    its measured ``albedo`` (Hb*Wb,) [1]; where the partner planes set it (they weigh the albedos already), theirs."""
+    weighted = np.empty(bias_m.shape, dtype=np.float32)
+    _reaches_min_bias(blocks.block_potential(footprint_m2, albedo), options, weighted)
+    return np.where(bias_m == blocks_bias, weighted, bias_m).astype(np.float32)
+
+
+def rms_footprint_m2(estimate: FootprintEstimate) -> float:
+    """The footprint [m^2] whose bias stands for a scan's multipath where its own estimate is not significant: the
+    root mean square of the footprint under the estimate's uncertainty, hypot(estimate, sd) (the bias grows about
+    as the footprint, so its mean square is the bias at this footprint's, squared), capped at
+    :data:`~mpi_lidar.correction.options.MAX_FOOTPRINT_AREA_M2` (as the estimate's upper bound for the pixels
+    left uncalibrated); 0 where nothing was measured (no facing surfaces to tell it: the scan then says nothing
+    of its multipath)."""
+    area = max(float(estimate.area_m2), 0.0) if np.isfinite(estimate.area_m2) else 0.0
+    sd = float(estimate.sigma_m2) if np.isfinite(estimate.sigma_m2) else 0.0
+    return min(float(np.hypot(area, sd)), MAX_FOOTPRINT_AREA_M2)
 
 
 def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOptions,

@@ -114,13 +114,18 @@ class FacingBlocks:
         """The multipath potential of every pixel for the footprint A_fp [m^2] (:func:`multipath_potential`)."""
         return self.block_potential(footprint_area_m2).rows()
 
-    def block_potential(self, footprint_area_m2: float) -> BlockPotential:
-        """Coupling and bias per block for the receiver footprint A_fp [m^2]; pixels interpolate them."""
+    def block_potential(self, footprint_area_m2: float, albedo: NDArray | None = None) -> BlockPotential:
+        """Coupling and bias per block for the receiver footprint A_fp [m^2]; pixels interpolate them.
+
+        ``albedo`` (Hb*Wb,) [1]: each pair's coupling weighed by its partner block's albedo, the share of the
+        light it sends back; None: white partners, the largest multipath the geometry allows (the gate's)."""
         hb, wb = self.usable.shape
         coupling_blocks = np.zeros(hb * wb)
         weighted_r = np.zeros(hb * wb)
         if self.pairs.a.size:
             kappa = self.pairs.kappa(footprint_area_m2)
+            if albedo is not None:
+                kappa = kappa * albedo[self.index[self.pairs.b]]
             coupling_blocks[self.index] = np.bincount(self.pairs.a, kappa, minlength=self.index.size)
             weighted_r[self.index] = np.bincount(self.pairs.a, kappa * self.pairs.distance_m,
                                                  minlength=self.index.size)
