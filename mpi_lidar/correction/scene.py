@@ -194,15 +194,15 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         potential = blocks.block_potential(footprint_m2)
     bias_m = np.empty(scan.shape, dtype=np.float32)
     reaches = _reaches_min_bias(potential, options, bias_m)
-    blocks_bias = None if measured_albedo is None else bias_m.copy()
+    plane_bias = np.zeros(scan.shape, dtype=np.float32)
     inputs = None
     if with_model_inputs or (surfaces is not None and footprint_m2 > 0):
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels)
-        _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches)
+        _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches, plane_bias)
     uncertainty_bias = None
-    if estimate is not None and measured_albedo is not None and blocks_bias is not None:
+    if estimate is not None and measured_albedo is not None:
         uncertainty_bias = _bias_with_albedos(blocks, measured_albedo, uncertainty_footprint_m2(estimate), options,
-                                              bias_m, blocks_bias)
+                                              plane_bias)
     return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated,
                          inputs if with_model_inputs else None, uncertainty_bias_m=uncertainty_bias)
 
@@ -214,13 +214,13 @@ def uncertainty_footprint_m2(estimate: FootprintEstimate) -> float:
 
 
 def _bias_with_albedos(blocks: geometry.FacingBlocks, albedo: NDArray, footprint_m2: float,
-                       options: CorrectionOptions, bias_m: NDArray, blocks_bias: NDArray) -> NDArray[np.float32]:
-    """The multipath bias (H, W) [m] for the uncertainty: where the facing blocks set ``bias_m`` (it equals
-    ``blocks_bias``, theirs for white partners), their bias at ``footprint_m2`` [m^2] with each partner weighed by
-    its measured ``albedo`` (Hb*Wb,) [1]; where the partner planes set it (they weigh the albedos already), theirs."""
-    weighted = np.empty(bias_m.shape, dtype=np.float32)
+                       options: CorrectionOptions, plane_bias: NDArray) -> NDArray[np.float32]:
+    """The multipath bias (H, W) [m] for the uncertainty: the facing blocks' at ``footprint_m2`` [m^2] with each
+    partner weighed by its measured ``albedo`` (Hb*Wb,) [1], or the partner planes' ``plane_bias`` (H, W) [m] (they
+    weigh the albedos already; 0 where not worked out) where larger in size."""
+    weighted = np.empty(plane_bias.shape, dtype=np.float32)
     _reaches_min_bias(blocks.block_potential(footprint_m2, albedo), options, weighted)
-    return np.where(bias_m == blocks_bias, weighted, bias_m).astype(np.float32)
+    return np.where(np.abs(plane_bias) > np.abs(weighted), plane_bias, weighted).astype(np.float32)
 
 
 def rms_footprint_m2(estimate: FootprintEstimate) -> float:
@@ -252,10 +252,13 @@ def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOpt
 
 
 def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usable_depth: NDArray,
-                    frequency_hz: float, options: CorrectionOptions, bias_out: NDArray, reaches: NDArray) -> None:
+                    frequency_hz: float, options: CorrectionOptions, bias_out: NDArray, reaches: NDArray,
+                    plane_out: NDArray) -> None:
     """Where the partner planes predict a larger bias than the blocks (:meth:`PlaneModelInputs.bias_m` at
     ``frequency_hz`` [Hz], the highest), it replaces the blocks' in ``bias_out`` (H, W) [m] and reaches the gate in
-    ``reaches`` (H*W,) where at least ``options.min_multipath_bias_m`` in size; a band of rows at a time.
+    ``reaches`` (H*W,) where at least ``options.min_multipath_bias_m`` in size; a band of rows at a time. The
+    planes' bias goes into ``plane_out`` (H, W) [m] wherever it was worked out (where the blocks' does not reach
+    the gate).
 
     The blocks see only the block pairs that face each other within the partner range and in view; a room's
     far wall, floor or ceiling lights a pixel from beyond either, and the planes continue the surfaces there. A
@@ -263,7 +266,7 @@ def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usa
     if inputs.plane is None:
         return
     width = blocks.shape[1]
-    flat_bias = bias_out.reshape(-1)
+    flat_bias, flat_plane = bias_out.reshape(-1), plane_out.reshape(-1)
 
     def band(rows: slice) -> None:
         pixels = np.arange(rows.start * width, rows.stop * width)
@@ -271,6 +274,7 @@ def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usa
         for start in range(0, pixels.size, PLANE_BIAS_PIXELS):
             chunk = pixels[start:start + PLANE_BIAS_PIXELS]
             plane = inputs.bias_m(chunk, usable_depth[chunk].astype(np.float64), frequency_hz)
+            flat_plane[chunk] = plane
             larger = np.abs(plane) > flat_bias[chunk]
             flat_bias[chunk[larger]] = plane[larger]
             reaches[chunk] |= np.abs(plane) >= options.min_multipath_bias_m
