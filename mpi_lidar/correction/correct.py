@@ -111,8 +111,9 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
                 if reading.unit_trusted else untrusted_unit(reading.unit_contradiction, options))
     return Correction(
         depth=pixels.depth.reshape(h, w), flags=flags.reshape(h, w), inference_s=pixels.inference_s,
-        total_s=time.perf_counter() - started, gate_s=gate_s + pixels.inputs_s, multipath_bias_m=part.bias_m,
-        cpu_s=clock.seconds, calibration=part.footprint, unserved=unserved,
+        total_s=time.perf_counter() - started, gate_s=gate_s + pixels.inputs_s,
+        multipath_bias_m=None if scene is None else scene.bias_m, cpu_s=clock.seconds, calibration=part.footprint,
+        unserved=unserved,
         measured_depth=validity.measured_depth.reshape(h, w),
         unwrap_confidence=None if validity.confidence is None else validity.confidence.reshape(h, w),
         estimate=pixels.estimate.reshape(h, w), uncertainty_m=pixels.uncertainty_m.reshape(h, w),

@@ -194,13 +194,14 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         potential = blocks.block_potential(footprint_m2)
     bias_m = np.empty(scan.shape, dtype=np.float32)
     reaches = _reaches_min_bias(potential, options, bias_m)
-    plane_bias = np.zeros(scan.shape, dtype=np.float32)
+    # The planes' bias, kept for the uncertainty's where the scan measured its footprint (and so its albedos).
+    plane_bias = None if measured_albedo is None else np.zeros(scan.shape, dtype=np.float32)
     inputs = None
     if with_model_inputs or (surfaces is not None and footprint_m2 > 0):
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels)
         _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches, plane_bias)
     uncertainty_bias = None
-    if estimate is not None and measured_albedo is not None:
+    if estimate is not None and measured_albedo is not None and plane_bias is not None:
         uncertainty_bias = _bias_with_albedos(blocks, measured_albedo, uncertainty_footprint_m2(estimate), options,
                                               plane_bias)
     return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated,
@@ -220,7 +221,9 @@ def _bias_with_albedos(blocks: geometry.FacingBlocks, albedo: NDArray, footprint
     weigh the albedos already; 0 where not worked out) where larger in size."""
     weighted = np.empty(plane_bias.shape, dtype=np.float32)
     _reaches_min_bias(blocks.block_potential(footprint_m2, albedo), options, weighted)
-    return np.where(np.abs(plane_bias) > np.abs(weighted), plane_bias, weighted).astype(np.float32)
+    for rows in blocks.bands(options.tile_pixels):  # in place, a band at a time: no full-scan temporaries
+        np.copyto(weighted[rows], plane_bias[rows], where=np.abs(plane_bias[rows]) > np.abs(weighted[rows]))
+    return weighted
 
 
 def rms_footprint_m2(estimate: FootprintEstimate) -> float:
@@ -253,12 +256,12 @@ def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOpt
 
 def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usable_depth: NDArray,
                     frequency_hz: float, options: CorrectionOptions, bias_out: NDArray, reaches: NDArray,
-                    plane_out: NDArray) -> None:
+                    plane_out: NDArray | None = None) -> None:
     """Where the partner planes predict a larger bias than the blocks (:meth:`PlaneModelInputs.bias_m` at
     ``frequency_hz`` [Hz], the highest), it replaces the blocks' in ``bias_out`` (H, W) [m] and reaches the gate in
     ``reaches`` (H*W,) where at least ``options.min_multipath_bias_m`` in size; a band of rows at a time. The
     planes' bias goes into ``plane_out`` (H, W) [m] wherever it was worked out (where the blocks' does not reach
-    the gate).
+    the gate; None: not kept).
 
     The blocks see only the block pairs that face each other within the partner range and in view; a room's
     far wall, floor or ceiling lights a pixel from beyond either, and the planes continue the surfaces there. A
@@ -266,7 +269,8 @@ def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usa
     if inputs.plane is None:
         return
     width = blocks.shape[1]
-    flat_bias, flat_plane = bias_out.reshape(-1), plane_out.reshape(-1)
+    flat_bias = bias_out.reshape(-1)
+    flat_plane = None if plane_out is None else plane_out.reshape(-1)
 
     def band(rows: slice) -> None:
         pixels = np.arange(rows.start * width, rows.stop * width)
@@ -274,7 +278,8 @@ def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usa
         for start in range(0, pixels.size, PLANE_BIAS_PIXELS):
             chunk = pixels[start:start + PLANE_BIAS_PIXELS]
             plane = inputs.bias_m(chunk, usable_depth[chunk].astype(np.float64), frequency_hz)
-            flat_plane[chunk] = plane
+            if flat_plane is not None:
+                flat_plane[chunk] = plane
             larger = np.abs(plane) > flat_bias[chunk]
             flat_bias[chunk[larger]] = plane[larger]
             reaches[chunk] |= np.abs(plane) >= options.min_multipath_bias_m

@@ -127,7 +127,8 @@ VARIABLES: tuple[Variable, ...] = (
              note="CF flag_values and flag_meanings name the codes: none, measured, fused, corrected."),
     Variable("depth_uncertainty", Store.CORRECTED, ("y", "x"), "f", "float32", "m",
              "1-sigma uncertainty of the corrected depth",
-             note="From the noise model (measured and fused depths); for corrected depths from the model's own "
+             note="From the noise model and the multipath the scene geometry expects (measured and fused depths; "
+                  "docs/explanation/footprint.md); for corrected depths from the model's own "
                   "error, fitted on its validation rows (card.json: uncertainty_model), and the footprint "
                   "estimate's uncertainty; for pixels resolved into two returns (flag two_returns) the two-return "
                   "fit's Cramer-Rao bound of the stronger return; NaN where the depth or the range is not known."),

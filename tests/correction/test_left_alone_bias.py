@@ -91,3 +91,14 @@ def test_left_alone_depths__are_covered_near_their_one_sigma_share(pixelwise_mod
     left = (run.estimate == Estimate.FUSED).reshape(scan.shape) & np.isfinite(scan.reference_depth)
     covered = np.abs(run.depth - scan.reference_depth)[left] <= run.uncertainty_m[left]
     assert left.sum() > 500 and 0.60 <= covered.mean() <= 0.76
+
+
+def test_the_published_bias_map__stays_the_gates(pixelwise_model: Path):
+    scan = scan_of(0.4, 2)
+    run = correct_scan(scan, load_model(pixelwise_model))
+    scene = analyse_geometry(scan, usable(scan), CorrectionOptions(), Config().sensor)
+    faced = np.abs(scene.bias_m) > 0
+    # The white partners' bound (the correction's own footprint estimate differs in the last digits), not the
+    # albedo-weighted bias of the uncertainty, which reads about 0.4 of it here.
+    assert np.median(run.multipath_bias_m[faced] / scene.bias_m[faced]) == pytest.approx(1.0, abs=0.01)
+    assert np.median(scene.uncertainty_bias_m[faced] / scene.bias_m[faced]) < 0.5
