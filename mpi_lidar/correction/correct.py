@@ -98,7 +98,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
         decision, validity = mixed.decision, mixed.validity
     gate_s = time.perf_counter() - gate_started
     release_freed_memory()
-    part = ScenePart() if scene is None else ScenePart(scene.model_inputs, scene.left_alone_bias_m, scene.footprint)
+    part = ScenePart() if scene is None else ScenePart(
+        scene.model_inputs, None if scene.bias_m is None else scene.left_alone_bias_m, scene.footprint)
     offsets = frequency_offsets(validity.offsets, decision.flags, None if scene is None else scene.blocks, options)
     pixels = estimate_pixels(scan, tiles, noise, decision.flags, validity, part, model, offsets, options, clock,
                              mixed.second_returns)

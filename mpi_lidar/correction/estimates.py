@@ -8,6 +8,7 @@ is goes with them (:class:`~mpi_lidar.correction.options.Estimate`).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,11 +55,13 @@ class PixelEstimates:
 
 @dataclass(frozen=True)
 class ScenePart:
-    """What the per-pixel estimate reads of the scene geometry: the geometric model's inputs, the expected
-    multipath bias (H*W,) [m] and the scan's own footprint estimate (each None where the scene has none)."""
+    """What the per-pixel estimate reads of the scene geometry: the geometric model's inputs, the multipath bias
+    [m] a depth left alone carries in its uncertainty at flat pixel indices (n,)
+    (:meth:`~mpi_lidar.correction.scene.SceneGeometry.left_alone_bias_m`), and the scan's own footprint estimate
+    (each None where the scene has none)."""
 
     inputs: PlaneModelInputs | None = None
-    bias_m: NDArray[np.float32] | None = None
+    left_alone_bias_m: Callable[[NDArray], NDArray[np.float64]] | None = None
     footprint: FootprintEstimate | None = None
 
 
@@ -75,7 +78,6 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
     uncertainty = np.full(flags.size, np.nan, dtype=np.float32)
     reach = model.card.dataset.prior.multipath_reach()
     fuse = Baseline(options.baseline) == Baseline.FUSED
-    bias = None if scene.bias_m is None else scene.bias_m.reshape(-1)
     # A pixel resolved into two returns keeps the stronger one's depth, with its own sd from the two-return fit (its
     # Cramer-Rao bound, or the measured sd widened by the frequencies' disagreement where it is not known; then, as
     # every depth left alone, the multipath bias the scene expects): never fused, never without an uncertainty.
@@ -114,7 +116,8 @@ def estimate_pixels(scan: Scan, tiles: list[slice], noise: NoiseModel, flags: ND
             measured_sigma = measured_sigma_m(fused)
             index = where.start + present
             corrected = tile_flags[present] == Flag.CORRECTED
-            expected = np.zeros(present.size) if bias is None else bias[index].astype(np.float64)
+            expected = (np.zeros(present.size) if scene.left_alone_bias_m is None
+                        else scene.left_alone_bias_m(index))
             sigma = np.array(measured_sigma)
             resolved = tile_flags[present] == Flag.TWO_RETURNS
             if resolved_sigma is not None and resolved.any():

@@ -70,12 +70,12 @@ class SceneGeometry:
     uncalibrated : NDArray[np.bool_] | None
         Bool (H*W,), only where the scan's own estimate is not significant: the pixels whose bias could reach
         ``min_multipath_bias_m`` at the estimate's upper bound (they are left as measured).
-    uncertainty_bias_m : NDArray[np.float32] | None
-        Where the scan measured its own footprint: the multipath bias per pixel (H, W) the uncertainty of a depth
-        left alone carries, at :func:`uncertainty_footprint_m2` (where the estimate is not significant, the
-        footprint's root mean square under its uncertainty) and with each partner weighed by its measured albedo
-        (``bias_m`` is the gate's: white partners, the most the geometry allows). None: ``bias_m`` stands for
-        it. The gate does not read it. [m]
+    left_alone_potential : geometry.BlockPotential | None
+        Where the scan measured its own footprint: the facing blocks' multipath for the uncertainty of a depth
+        left alone, at :func:`uncertainty_footprint_m2` (where the estimate is not significant, the footprint's
+        root mean square under its uncertainty) with each partner weighed by its measured albedo (``bias_m`` is the
+        gate's: white partners, the most the geometry allows). :meth:`left_alone_bias_m` reads it; the gate
+        does not.
     model_inputs : PlaneModelInputs | None
         A geometric model's per-pixel inputs (rho_ABA, d_AB) at ``footprint_m2``; None unless asked for.
     notes : tuple[str, ...]
@@ -92,13 +92,21 @@ class SceneGeometry:
     uncalibrated: NDArray[np.bool_] | None = None
     model_inputs: PlaneModelInputs | None = None
     notes: tuple[str, ...] = ()
-    uncertainty_bias_m: NDArray[np.float32] | None = None
+    left_alone_potential: geometry.BlockPotential | None = None
 
-    @property
-    def left_alone_bias_m(self) -> NDArray[np.float32] | None:
-        """The multipath bias (H, W) [m] a depth left alone carries in its uncertainty: ``uncertainty_bias_m``,
-        else ``bias_m``."""
-        return self.bias_m if self.uncertainty_bias_m is None else self.uncertainty_bias_m
+    def left_alone_bias_m(self, pixels: NDArray) -> NDArray[np.float64]:
+        """The multipath bias (n,) [m] a depth left alone carries in its uncertainty, at flat pixel indices (n,):
+        where the facing blocks set ``bias_m``, theirs from ``left_alone_potential``; where the partner planes
+        set it (larger than the blocks'; they weigh the albedos already), ``bias_m``. Worked out per call from the
+        blocks, so no map of the whole scan is kept for it."""
+        assert self.bias_m is not None, "a scan with geometry"
+        bias = self.bias_m.reshape(-1)[pixels].astype(np.float64)
+        if self.left_alone_potential is None or self.potential is None:
+            return bias
+        white = self.potential.pixels(pixels).bias_m
+        # The planes replace the blocks' bias only where larger; a relative margin absorbs float32 storage.
+        from_blocks = np.abs(bias) <= np.abs(white) * (1 + 1e-5) + 1e-12
+        return np.where(from_blocks, self.left_alone_potential.pixels(pixels).bias_m, bias)
 
     @property
     def has_geometry(self) -> bool:
@@ -194,36 +202,21 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         potential = blocks.block_potential(footprint_m2)
     bias_m = np.empty(scan.shape, dtype=np.float32)
     reaches = _reaches_min_bias(potential, options, bias_m)
-    # The planes' bias, kept for the uncertainty's where the scan measured its footprint (and so its albedos).
-    plane_bias = None if measured_albedo is None else np.zeros(scan.shape, dtype=np.float32)
     inputs = None
     if with_model_inputs or (surfaces is not None and footprint_m2 > 0):
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels)
-        _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches, plane_bias)
-    uncertainty_bias = None
-    if estimate is not None and measured_albedo is not None and plane_bias is not None:
-        uncertainty_bias = _bias_with_albedos(blocks, measured_albedo, uncertainty_footprint_m2(estimate), options,
-                                              plane_bias)
+        _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches)
+    # No partner returns more than a white one: a block read above 1 (its own multipath's gain) counts as white.
+    left_alone = (None if estimate is None or measured_albedo is None
+                  else blocks.block_potential(uncertainty_footprint_m2(estimate), np.minimum(measured_albedo, 1.0)))
     return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated,
-                         inputs if with_model_inputs else None, uncertainty_bias_m=uncertainty_bias)
+                         inputs if with_model_inputs else None, left_alone_potential=left_alone)
 
 
 def uncertainty_footprint_m2(estimate: FootprintEstimate) -> float:
     """The footprint [m^2] whose multipath the uncertainty of a depth left alone carries: a significant estimate's
     own, else :func:`rms_footprint_m2`."""
     return estimate.area_m2 if estimate.significant else rms_footprint_m2(estimate)
-
-
-def _bias_with_albedos(blocks: geometry.FacingBlocks, albedo: NDArray, footprint_m2: float,
-                       options: CorrectionOptions, plane_bias: NDArray) -> NDArray[np.float32]:
-    """The multipath bias (H, W) [m] for the uncertainty: the facing blocks' at ``footprint_m2`` [m^2] with each
-    partner weighed by its measured ``albedo`` (Hb*Wb,) [1], or the partner planes' ``plane_bias`` (H, W) [m] (they
-    weigh the albedos already; 0 where not worked out) where larger in size."""
-    weighted = np.empty(plane_bias.shape, dtype=np.float32)
-    _reaches_min_bias(blocks.block_potential(footprint_m2, albedo), options, weighted)
-    for rows in blocks.bands(options.tile_pixels):  # in place, a band at a time: no full-scan temporaries
-        np.copyto(weighted[rows], plane_bias[rows], where=np.abs(plane_bias[rows]) > np.abs(weighted[rows]))
-    return weighted
 
 
 def rms_footprint_m2(estimate: FootprintEstimate) -> float:
@@ -255,13 +248,10 @@ def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOpt
 
 
 def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usable_depth: NDArray,
-                    frequency_hz: float, options: CorrectionOptions, bias_out: NDArray, reaches: NDArray,
-                    plane_out: NDArray | None = None) -> None:
+                    frequency_hz: float, options: CorrectionOptions, bias_out: NDArray, reaches: NDArray) -> None:
     """Where the partner planes predict a larger bias than the blocks (:meth:`PlaneModelInputs.bias_m` at
     ``frequency_hz`` [Hz], the highest), it replaces the blocks' in ``bias_out`` (H, W) [m] and reaches the gate in
-    ``reaches`` (H*W,) where at least ``options.min_multipath_bias_m`` in size; a band of rows at a time. The
-    planes' bias goes into ``plane_out`` (H, W) [m] wherever it was worked out (where the blocks' does not reach
-    the gate; None: not kept).
+    ``reaches`` (H*W,) where at least ``options.min_multipath_bias_m`` in size; a band of rows at a time.
 
     The blocks see only the block pairs that face each other within the partner range and in view; a room's
     far wall, floor or ceiling lights a pixel from beyond either, and the planes continue the surfaces there. A
@@ -270,7 +260,6 @@ def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usa
         return
     width = blocks.shape[1]
     flat_bias = bias_out.reshape(-1)
-    flat_plane = None if plane_out is None else plane_out.reshape(-1)
 
     def band(rows: slice) -> None:
         pixels = np.arange(rows.start * width, rows.stop * width)
@@ -278,8 +267,6 @@ def _add_plane_bias(inputs: PlaneModelInputs, blocks: geometry.FacingBlocks, usa
         for start in range(0, pixels.size, PLANE_BIAS_PIXELS):
             chunk = pixels[start:start + PLANE_BIAS_PIXELS]
             plane = inputs.bias_m(chunk, usable_depth[chunk].astype(np.float64), frequency_hz)
-            if flat_plane is not None:
-                flat_plane[chunk] = plane
             larger = np.abs(plane) > flat_bias[chunk]
             flat_bias[chunk[larger]] = plane[larger]
             reaches[chunk] |= np.abs(plane) >= options.min_multipath_bias_m

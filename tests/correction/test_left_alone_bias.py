@@ -67,18 +67,19 @@ def test_not_significant__left_alone_depths_carry_the_bias_at_the_rms_footprint(
     scan, scene = dark_corner
     assert scene.footprint is not None and not scene.footprint.significant and scene.footprint_m2 == 0.0
     assert not scene.bias_m.any()  # the gate's: no multipath at an unknown footprint
-    albedo = block_albedo(scan, scene.blocks, Config().sensor)
-    expected = scene.blocks.block_potential(rms_footprint_m2(scene.footprint), albedo).bias_rows()
-    np.testing.assert_allclose(scene.uncertainty_bias_m, expected, rtol=1e-6, atol=1e-9)
-    assert np.abs(scene.uncertainty_bias_m).max() > 4e-3  # near the edge the unknown footprint could hold much
+    albedo = np.minimum(block_albedo(scan, scene.blocks, Config().sensor), 1.0)
+    expected = scene.blocks.block_potential(rms_footprint_m2(scene.footprint), albedo).bias_rows().ravel()
+    left_alone = scene.left_alone_bias_m(np.arange(expected.size))
+    np.testing.assert_allclose(left_alone, expected, rtol=1e-6, atol=1e-9)
+    assert np.abs(left_alone).max() > 4e-3  # near the edge the unknown footprint could hold much
 
 
 def test_left_alone_bias__is_below_the_white_partners_bound_on_a_dark_corner():
     scan = scan_of(0.4, 2)
     scene = analyse_geometry(scan, usable(scan), CorrectionOptions(), Config().sensor)
     assert scene.footprint is not None and scene.footprint.significant
-    faced = np.abs(scene.bias_m) > 0
-    ratio = np.abs(scene.uncertainty_bias_m[faced]) / np.abs(scene.bias_m[faced])
+    faced = np.flatnonzero(np.abs(scene.bias_m) > 0)
+    ratio = np.abs(scene.left_alone_bias_m(faced)) / np.abs(scene.bias_m.ravel()[faced])
     # The partner blocks read an albedo near 0.4 (the scan's amplitude), and the planes weigh theirs already.
     assert np.median(ratio) == pytest.approx(0.4, abs=0.05) and ratio.max() <= 1.0 + 1e-6
 
@@ -101,4 +102,5 @@ def test_the_published_bias_map__stays_the_gates(pixelwise_model: Path):
     # The white partners' bound (the correction's own footprint estimate differs in the last digits), not the
     # albedo-weighted bias of the uncertainty, which reads about 0.4 of it here.
     assert np.median(run.multipath_bias_m[faced] / scene.bias_m[faced]) == pytest.approx(1.0, abs=0.01)
-    assert np.median(scene.uncertainty_bias_m[faced] / scene.bias_m[faced]) < 0.5
+    left_alone = scene.left_alone_bias_m(np.flatnonzero(faced))
+    assert np.median(left_alone / scene.bias_m[faced]) < 0.5

@@ -94,3 +94,18 @@ def test_analyse_geometry__flat_wall_keeps_the_blocks_bias_to_the_bit(footprint)
     np.testing.assert_array_equal(scene.bias_m.ravel(), block_bias.astype(np.float32))
     np.testing.assert_array_equal(scene.reaches_min_bias, block_reaches)
 
+
+
+def test_left_alone_bias__is_the_planes_where_they_set_the_bias_and_the_albedo_weighted_blocks_elsewhere(room):
+    scan, _ = room
+    scene = analyse_geometry(scan, usable_depth(scan), CorrectionOptions(), Config().sensor)
+    assert scene.footprint is not None and scene.footprint.significant and scene.left_alone_potential is not None
+    pixels = np.flatnonzero(np.isfinite(usable_depth(scan)))
+    bias = scene.bias_m.ravel()[pixels].astype(np.float64)
+    white = scene.potential.pixels(pixels).bias_m
+    left_alone = scene.left_alone_bias_m(pixels)
+    planes = np.abs(bias) > 1.001 * np.abs(white) + 1e-9
+    assert planes.sum() > 100 and (~planes & (white > 0)).sum() > 100
+    np.testing.assert_array_equal(left_alone[planes], bias[planes])
+    np.testing.assert_allclose(left_alone[~planes], scene.left_alone_potential.pixels(pixels[~planes]).bias_m)
+    assert np.all(np.abs(left_alone) <= np.abs(bias) * (1 + 1e-5) + 1e-12)  # the room's albedo, 0.7, is below 1
