@@ -3,6 +3,7 @@ where the scan's footprint estimate is not significant, the footprint's root mea
 
 from __future__ import annotations
 
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,7 @@ def test_uncertainty_footprint__is_a_significant_estimates_own():
     assert uncertainty_footprint_m2(estimate(0.004, 0.004)) == pytest.approx(np.hypot(0.004, 0.004))
 
 
+@cache
 def scan_of(albedo: float, seed: int):
     return render(corner(90.0, 2.0, albedo, height=32, width=64), Config(), np.random.default_rng(seed))
 
