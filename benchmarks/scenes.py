@@ -2,7 +2,8 @@
 
 Run: .venv/bin/python -m benchmarks.scenes --model DIR [--model DIR ...] [--gate geometry --gate all]
      [--min-bias-mm 1.0 ...] [--seed 0] [--matched-footprint]
- or: .venv/bin/python -m benchmarks.scenes --estimation-error  (geometric estimates against the renderer's)
+ or: .venv/bin/python -m benchmarks.scenes --estimation-error  (geometric estimates against the renderer's,
+     per scene and by true d_AB)
  or: .venv/bin/python -m benchmarks.scenes --baselines --model DIR  (the fused baseline against the raw one)
 Renders every scene of :func:`scene_set` once (Table I noise, seeded by the scene's position), corrects it
 with each model, gate and geometry-gate threshold, and prints one markdown row per combination: MAE of
@@ -160,15 +161,17 @@ def mae_mm(values: np.ndarray, reference: np.ndarray, where: np.ndarray) -> floa
     return float(1e3 * np.abs(values[where] - reference[where]).mean()) if where.any() else float("nan")
 
 
-def estimation_error(config: Config, seed: int) -> None:
+def estimation_error(config: Config, seed: int, shrink: int = 1) -> None:
     """How well the scan's geometry estimates the renderer's true coupling, equivalent rho_ABA (a correction
-    model's input) and d_AB, from the noisy raw depth and amplitude."""
+    model's input) and d_AB, from the noisy raw depth and amplitude: a row per scene, then the d_AB error of all
+    scenes' pixels by their true d_AB (:func:`print_distance_error`)."""
     print("| scene | estimate / true coupling, median (IQR) | estimate / true equivalent rho_ABA, median (IQR) "
           "| d_AB error [cm], median (sd) | the blocks' rho_ABA / true, median (IQR) | their d_AB error [cm] "
           "| pixels |")
     print("|---|---|---|---|---|---|---|")
     options = CorrectionOptions(footprint_area_m2=DEFAULT_FOOTPRINT_AREA_M2)
-    for index, (label, factory, _) in enumerate(scene_set()):
+    pooled: list[np.ndarray] = []  # (true d_AB, estimated d_AB) [m] of every scene's pixels
+    for index, (label, factory, _) in enumerate(scene_set(shrink)):
         truth: dict[str, np.ndarray] = {}
         scan = render(factory(), config, np.random.default_rng([seed, index]), truth_out=truth)
         depth_top = np.where(np.isfinite(scan.reference_depth), scan.depth[-1], np.nan)  # sky: no return
@@ -192,6 +195,31 @@ def estimation_error(config: Config, seed: int) -> None:
         print(f"| {label} | {quartiles(coupling_ratio)} | {quartiles(rho_ratio)} | {np.nanmedian(error):.1f} "
               f"({np.nanstd(error):.1f}) | {quartiles(block_ratio)} | {np.nanmedian(block_error):.1f} "
               f"({np.nanstd(block_error):.1f}) | {int(where.sum())} |", flush=True)
+        pooled.append(np.column_stack([truth["d_ab_m"][flat], d_ab[flat]]))
+    print_distance_error(np.concatenate(pooled) if pooled else np.zeros((0, 2)))
+
+
+# Bins of the true d_AB [m] the pooled d_AB error is told in (lower edges; the last is open).
+DISTANCE_BINS_M = (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.6)
+
+
+def print_distance_error(pairs: np.ndarray) -> None:
+    """The d_AB estimate's error by true d_AB, from pairs (n, 2) of true and estimated d_AB [m]: per bin, the
+    median, a robust sd (half the 16-84 % spread, which a few wrong partners do not blow up) and the share of
+    pixels more than 2 cm off, in cm and %."""
+    print("\n| true d_AB [m] | d_AB error [cm], median | robust sd [cm] | off by > 2 cm [%] | pixels |")
+    print("|---|---|---|---|---|")
+    finite = pairs[np.isfinite(pairs).all(axis=1)]
+    uppers = (*DISTANCE_BINS_M[1:], np.inf)
+    for lower, upper in zip(DISTANCE_BINS_M, uppers, strict=True):
+        error = 100 * np.diff(finite[(finite[:, 0] >= lower) & (finite[:, 0] < upper)], axis=1).ravel()
+        told = f"{lower:g}-{upper:g}" if np.isfinite(upper) else f"{lower:g}+"
+        if error.size == 0:
+            print(f"| {told} | | | | 0 |")
+            continue
+        low, median, high = np.quantile(error, [0.16, 0.5, 0.84])
+        print(f"| {told} | {median:.2f} | {(high - low) / 2:.2f} | {100 * np.mean(np.abs(error) > 2):.1f} "
+              f"| {error.size} |")
 
 
 def quartiles(values: np.ndarray) -> str:
@@ -319,10 +347,11 @@ def main() -> None:
     parser.add_argument("--baselines", action="store_true",
                         help="Only compare the default fused baseline with --baseline raw, default options.")
     parser.add_argument("--shrink", type=int, default=1,
-                        help="With --baselines: divide every scene's height and width by this (a quick look).")
+                        help="With --baselines or --estimation-error: divide every scene's height and width by "
+                             "this (a quick look).")
     args = parser.parse_args()
     if args.estimation_error:
-        estimation_error(Config(), args.seed)
+        estimation_error(Config(), args.seed, args.shrink)
         return
     if not args.model:
         parser.error("give at least one --model (or --estimation-error)")

@@ -30,7 +30,6 @@ from distributed import LocalCluster
 from prefect import Task, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
-from prefect.server.api.server import SubprocessASGIServer
 from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
 from prefect_dask import DaskTaskRunner
 
@@ -52,6 +51,8 @@ def api_url(startup_timeout_s: int | None = None) -> tuple[str, bool]:
     configured = get_current_settings().api.url
     if configured:
         return configured, False
+    from prefect.server.api.server import SubprocessASGIServer  # 2 s of imports a process with an API never needs
+
     server = SubprocessASGIServer()  # the process-wide default instance, shared with prefect.get_client()
     started = not server.running
     server.start(timeout=startup_timeout_s)
@@ -77,6 +78,8 @@ def shared_api(startup_timeout_s: int | None = None, stop_started: bool = False)
         else:
             os.environ[API_URL_VARIABLE] = previous
         if started and stop_started:
+            from prefect.server.api.server import SubprocessASGIServer
+
             SubprocessASGIServer().stop()
 
 

@@ -67,3 +67,13 @@ def test_load_model__imports_xgboost_without_scikit_learn_which_still_imports_af
     assert _loaded_after(statement) == ["xgboost"]
     after = _loaded_after(f"{statement}\nimport sklearn.neighbors")
     assert after == ["sklearn", "xgboost"]
+
+
+@pytest.mark.unit
+def test_import_flows__the_temporary_server_waits_for_a_process_without_an_api():
+    """Prefect's server modules (about 2 s of imports) load where a process starts its own server, not in every
+    process that runs a flow or a task (Dask workers, runs reporting to a configured API)."""
+    code = ("import sys\nimport flows.correct, flows.generate_dataset, flows.regenerate\n"
+            "print('prefect.server.api.server' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip().splitlines()[-1] == "False"

@@ -93,6 +93,51 @@ def path_phasor(amplitude: ArrayLike, depth_m: ArrayLike, frequency_hz: ArrayLik
     return phasor(amplitude, round_trip_phase(frequency_hz, depth_m, c))
 
 
+# Largest multiple of a common base frequency that :func:`harmonic_path_phasors` raises a phasor to.
+MAX_HARMONIC = 8
+
+
+def harmonic_multiples(frequencies_hz: ArrayLike) -> tuple[float, NDArray[np.int64]] | None:
+    """(f0 [Hz], m (F,)) with every frequency m f0 for small whole m (at most :data:`MAX_HARMONIC`), or None.
+
+    The sensor's 12.5, 18.75, 25 and 31.25 MHz are 2, 3, 4 and 5 times 6.25 MHz."""
+    freqs = np.asarray(frequencies_hz, dtype=np.float64).ravel()
+    if freqs.size == 0 or np.any(freqs <= 0):
+        return None
+    for divisor in range(1, MAX_HARMONIC + 1):
+        base = freqs.min() / divisor
+        multiples = np.rint(freqs / base)
+        if multiples.max() <= MAX_HARMONIC and np.allclose(freqs, multiples * base, rtol=1e-12, atol=0):
+            return base, multiples.astype(np.int64)
+    return None
+
+
+def phasor_sums(weights: ArrayLike, depth_m: ArrayLike, frequencies_hz: ArrayLike, c: float
+                ) -> NDArray[np.complex128]:
+    """sum_j w_j path_phasor(1, d_j, f) over the last axis of weights and one-way path lengths (..., J) [1, m],
+    at every frequency (F,) [Hz]: shape (..., F), in the unit of the weights.
+
+    Where the frequencies are small multiples of a common one (:func:`harmonic_multiples`), each frequency's
+    phasors are powers of that one's: one complex exponential instead of F, the bulk of a scene render's time.
+    The sums then differ from those of F exponentials by a few units in the last place."""
+    weights = np.asarray(weights, dtype=np.float64)
+    depth = np.asarray(depth_m, dtype=np.float64)
+    freqs = np.asarray(frequencies_hz, dtype=np.float64)
+    harmonics = harmonic_multiples(freqs)
+    if harmonics is None:
+        return np.einsum("...j,...jf->...f", weights, path_phasor(1.0, depth[..., None], freqs, c))
+    base_hz, multiples = harmonics
+    unit = path_phasor(1.0, depth, base_hz, c)
+    sums = np.zeros((*np.broadcast_shapes(weights.shape, depth.shape)[:-1], freqs.size), dtype=np.complex128)
+    term = weights * unit
+    for m in range(1, int(multiples.max()) + 1):
+        if m > 1:
+            term *= unit
+        if np.any(multiples == m):
+            sums[..., multiples == m] = term.sum(-1)[..., None]
+    return sums
+
+
 def two_path_phasors(
     theta: NDArray[np.float64], frequencies_hz: ArrayLike, gamma_r: float, c: float, multipath: bool = True
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:

@@ -12,9 +12,11 @@ from mpi_lidar.physics import demod, make_sensor
 from mpi_lidar.physics.sensor import received_voltage_amplitude
 from mpi_lidar.physics.transport import (
     direct_amplitude,
+    harmonic_multiples,
     multipath_amplitude,
     path_phasor,
     phasor,
+    phasor_sums,
     round_trip_phase,
     two_path_phase_bias,
     two_path_phasors,
@@ -142,3 +144,23 @@ def test_two_path_phase_bias__predicts_noiseless_waveform_depth():
     np.testing.assert_allclose(depth, expected, rtol=0, atol=1e-6)
     # the multipath bias itself is millimetres, far above the tolerance: the comparison is not vacuous
     assert np.abs(expected - theta[:, :1]).max() > 1e-3
+
+
+def test_harmonic_multiples__whole_multiples_of_a_common_frequency_or_none():
+    base, multiples = harmonic_multiples(FREQS)
+    assert base == pytest.approx(6.25e6, rel=1e-12) and multiples.tolist() == [2, 3, 4, 5]
+    assert harmonic_multiples([20e6, 10e6])[1].tolist() == [2, 1], "any order"
+    assert harmonic_multiples([10e6, 10e6 * np.pi]) is None, "incommensurate"
+    assert harmonic_multiples([10e6, 90e6]) is None, "a multiple past 8: exponentials are cheaper than powers"
+    assert harmonic_multiples([10e6, 10e6 + 1.0]) is None, "1 Hz apart is not a multiple"
+
+
+@pytest.mark.parametrize("freqs", [FREQS, np.array([10e6, 10e6 * np.pi, 31e6]), np.array([15e6])])
+def test_phasor_sums__equal_the_sum_of_the_weighted_path_phasors(freqs):
+    rng = np.random.default_rng(3)
+    depth, weights = rng.uniform(0.0, 40.0, (7, 300)), rng.uniform(0.0, 1.0, (7, 300))
+    expected = np.array([[np.sum(w * path_phasor(1.0, d, f, C)) for f in freqs] for w, d in zip(weights, depth,
+                                                                                                   strict=True)])
+    sums = phasor_sums(weights, depth, freqs, C)
+    assert sums.shape == (7, freqs.size)
+    np.testing.assert_allclose(sums, expected, rtol=0, atol=1e-12 * np.abs(weights).sum(1).max())

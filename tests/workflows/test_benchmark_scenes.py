@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
-from benchmarks.scenes import BASELINE_HEADER, BaselineComparison, scene_set
+from benchmarks.scenes import BASELINE_HEADER, DISTANCE_BINS_M, BaselineComparison, print_distance_error, scene_set
 from tests.model_factory import tiny_model
 
 NAN = math.nan
@@ -25,6 +27,31 @@ def test_baseline_comparison__fused_must_be_no_worse_on_the_whole_map_and_the_ma
     assert _comparison((1.2, 0.9), (NAN, NAN)).fused_no_worse, "a convex scene has no mask: the whole map decides"
     assert not _comparison((1.2, 0.9), (1.1, 1.2)).fused_no_worse
     assert not _comparison((1.2, 1.3), (1.1, 0.8)).fused_no_worse
+
+
+def _distance_rows(printed: str) -> dict[str, list[str]]:
+    rows = [line.strip("|").split("|") for line in printed.splitlines() if line.startswith("| ") and
+            not line.startswith("| true")]
+    return {cells[0].strip(): [cell.strip() for cell in cells[1:]] for cells in rows}
+
+
+@pytest.mark.unit
+def test_print_distance_error__median_robust_sd_and_outliers_per_true_distance_bin(capsys):
+    rng = np.random.default_rng(4)
+    true = np.concatenate([np.full(10_000, 0.07), np.full(10_000, 0.5), [np.nan]])
+    error = np.concatenate([0.001 + 0.004 * rng.standard_normal(10_000), -0.02 + 0.05 * rng.standard_normal(10_000),
+                            [0.0]])
+    error[:100] = 0.5  # one pixel in a hundred took a wrong partner: the robust sd stays the core's
+    print_distance_error(np.column_stack([true, true + error]))
+    rows = _distance_rows(capsys.readouterr().out)
+    assert list(rows) == [f"{lo:g}-{hi:g}" for lo, hi in itertools.pairwise(DISTANCE_BINS_M)] + ["0.6+"]
+    near, far = rows["0.05-0.1"], rows["0.45-0.6"]
+    assert float(near[0]) == pytest.approx(0.1, abs=0.02) and float(near[1]) == pytest.approx(0.4, rel=0.05)
+    assert float(near[2]) == pytest.approx(1.0, abs=0.05) and near[3] == "10000"
+    assert float(far[0]) == pytest.approx(-2.0, abs=0.15) and float(far[1]) == pytest.approx(5.0, rel=0.05)
+    beyond_2_cm = 0.5 + 0.5 * math.erfc(0.8 / math.sqrt(2))  # N(-2, 5) cm: below -2 half, above +2 0.8 sd out
+    assert float(far[2]) == pytest.approx(100 * beyond_2_cm, abs=1.5)
+    assert rows["0-0.05"] == ["", "", "", "0"], "an empty bin is said, not skipped"
 
 
 @pytest.mark.slow

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
 from mpi_lidar.physics.coupling import footprint_area, footprint_coupling, pair_geometry
-from mpi_lidar.physics.transport import path_phasor
+from mpi_lidar.physics.transport import path_phasor, phasor_sums
 from mpi_lidar.scans.scan import grid_rays
 from mpi_lidar.simulation.scenes._geometry import Scene, Surface, first_hits, surface_hits
 from mpi_lidar.simulation.scenes._multibounce import multibounce_transport
@@ -77,8 +77,7 @@ def light_transport(scene: Scene, config: Config, footprint_radius_m: float, pat
                 continue  # planar and convex surfaces do not see themselves
             ratio, r = patch_coupling(points, normals, cos_i, surface.albedo, scene.surfaces[other],
                                        centres, patch_normals, areas, effective_footprint, patch_spacing_m)
-            wave = path_phasor(1.0, r[:, :, None], freqs[None, None, :], c)  # eq 15: d_AS + r
-            multipath += np.einsum("nm,nmf->nf", ratio, wave)  # eq 13, 15: one term per patch
+            multipath += phasor_sums(ratio, r, freqs, c)  # eq 13, 15: one term per patch at d_AS + r
             multipath_dc += ratio.sum(1)
             kappa += ratio.sum(1) / (surface.albedo * scene.surfaces[other].albedo)
             ratio_r += (ratio * r).sum(1)
