@@ -93,12 +93,13 @@ def path_phasor(amplitude: ArrayLike, depth_m: ArrayLike, frequency_hz: ArrayLik
     return phasor(amplitude, round_trip_phase(frequency_hz, depth_m, c))
 
 
-# Largest multiple of a common base frequency that :func:`harmonic_path_phasors` raises a phasor to.
+# Largest multiple of a common base frequency whose phasor :func:`phasor_sums` takes as a power of the base's.
 MAX_HARMONIC = 8
 
 
 def harmonic_multiples(frequencies_hz: ArrayLike) -> tuple[float, NDArray[np.int64]] | None:
-    """(f0 [Hz], m (F,)) with every frequency m f0 for small whole m (at most :data:`MAX_HARMONIC`), or None.
+    """(f0, m (F,)) with every frequency m f0 for small whole m (at most :data:`MAX_HARMONIC`), or None; f0 in the
+    frequencies' unit (Hz, or rad/m of wavenumbers).
 
     The sensor's 12.5, 18.75, 25 and 31.25 MHz are 2, 3, 4 and 5 times 6.25 MHz."""
     freqs = np.asarray(frequencies_hz, dtype=np.float64).ravel()

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from mpi_lidar.config import Config
 from mpi_lidar.physics.coupling import footprint_area, pair_geometry
-from mpi_lidar.physics.transport import path_phasor
+from mpi_lidar.physics.transport import harmonic_multiples, path_phasor
 from mpi_lidar.scans.scan import grid_rays
 from mpi_lidar.simulation.scenes._geometry import Rectangle, Scene, first_hits, surface_hits
 
@@ -173,17 +173,18 @@ def phase_columns(length_m: NDArray, wavenumbers: NDArray) -> NDArray[np.complex
     Where the wavenumbers are small multiples of a common one (the sensor's frequencies are 2, 3, 4 and 5 times
     6.25 MHz), one complex exponential and its powers replace one per wavenumber.
     """
-    positive = wavenumbers[wavenumbers > 0]
-    for lowest in range(1, 9 if positive.size else 0):
-        base_k = positive.min() / lowest
-        multiples = np.rint(wavenumbers / base_k).astype(int)
-        if np.allclose(wavenumbers / base_k, multiples, rtol=0, atol=1e-9) and multiples.max() <= 8:
-            base = np.exp(1j * (base_k * length_m).astype(np.float32))
-            powers = [np.ones_like(base)]
-            for _ in range(multiples.max()):
-                powers.append(powers[-1] * base)
-            return np.stack([powers[m] for m in multiples], axis=-1)
-    return np.exp(1j * (length_m[..., None] * wavenumbers).astype(np.float32))
+    positive = wavenumbers > 0
+    harmonics = harmonic_multiples(wavenumbers[positive]) if positive.any() else None
+    if harmonics is None:
+        return np.exp(1j * (length_m[..., None] * wavenumbers).astype(np.float32))
+    base_k, positive_multiples = harmonics
+    multiples = np.zeros(wavenumbers.size, dtype=np.int64)  # k = 0: the power 0, a phasor of 1
+    multiples[positive] = positive_multiples
+    base = np.exp(1j * (base_k * length_m).astype(np.float32))
+    powers = [np.ones_like(base)]
+    for _ in range(int(multiples.max())):
+        powers.append(powers[-1] * base)
+    return np.stack([powers[m] for m in multiples], axis=-1)
 
 
 def transfer_powers(patches: Patches, occluders: Occluders, wavenumbers: NDArray, bounces: int) -> NDArray:
