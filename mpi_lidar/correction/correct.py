@@ -91,7 +91,8 @@ def correct_scan(scan: Scan, model: CorrectionModel, options: CorrectionOptions 
         scene = None
         if gate.uses_geometry or model.geometric:  # also for an untrusted unit: the offsets and the uncertainty
             scene = analyse_geometry(scan, validity.usable_depth, options, sensor,
-                                     with_model_inputs=model.geometric and reading.unit_trusted, noise=noise)
+                                     with_model_inputs=model.geometric and reading.unit_trusted, noise=noise,
+                                     unit_trusted=reading.unit_trusted)
         decision = (decide(validity, gate, scene, model.card.dataset.prior.d_as_m, options, model.geometric)
                     if reading.unit_trusted else _model_not_applied(validity))
         mixed = find_mixed(scan, tiles, validity, decision, noise)  # flying pixels at depth edges, after the gate

@@ -27,6 +27,7 @@ from mpi_lidar.correction.footprint import (
     estimate_footprint,
     plane_model_inputs,
     surface_labels,
+    white_albedo,
 )
 from mpi_lidar.correction.options import AUTO, MAX_FOOTPRINT_AREA_M2, CorrectionOptions, GateName
 from mpi_lidar.physics.noise import NoiseModel
@@ -149,7 +150,8 @@ def depth_sigma_map(scan: Scan, usable_depth: NDArray, noise: NoiseModel, tile_p
 
 
 def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, sensor: SensorConfig, *,
-                     with_model_inputs: bool = False, noise: NoiseModel | None = None) -> SceneGeometry:
+                     with_model_inputs: bool = False, noise: NoiseModel | None = None,
+                     unit_trusted: bool = True) -> SceneGeometry:
     """The scene-geometry stage of one scan.
 
     Parameters
@@ -170,6 +172,11 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     noise : NoiseModel | None
         The scan's noise model, which sets how far noise can turn the block planes and weighs the footprint fit
         (None: the sensor's, scaled by ``options.noise_scale``).
+    unit_trusted : bool
+        Whether the amplitudes are in V^2 (:attr:`SensorReading.unit_trusted`). Where not, no albedo is read from
+        them: the footprint is measured and the bias worked out with white surfaces
+        (:func:`estimate_footprint`'s ``white_partners``), so the estimate is the footprint times the albedos the
+        light returns from and the bias a depth left alone carries is the scan's own.
 
     Returns
     -------
@@ -190,9 +197,11 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         footprint_m2 = cast(float, options.footprint_area_m2)
         potential = blocks.block_potential(footprint_m2)
     else:
-        measured_albedo = block_albedo(scan, blocks, sensor, options.tile_pixels)
+        measured_albedo = (block_albedo(scan, blocks, sensor, options.tile_pixels) if unit_trusted
+                           else white_albedo(blocks))
         estimate = estimate_footprint(scan, blocks, np.isfinite(usable_depth), sensor, noise=noise,
-                                      measured_albedo=measured_albedo, surfaces=surfaces)
+                                      measured_albedo=measured_albedo, surfaces=surfaces,
+                                      white_partners=not unit_trusted)
         if estimate.significant:
             footprint_m2 = estimate.area_m2
         else:
@@ -204,7 +213,8 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     reaches = _reaches_min_bias(potential, options, bias_m)
     inputs = None
     if with_model_inputs or (surfaces is not None and footprint_m2 > 0):
-        inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels)
+        inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels,
+                                    white_surfaces=not unit_trusted)
         _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches)
     # No partner returns more than a white one: a block read above 1 (its own multipath's gain) counts as white.
     left_alone = (None if estimate is None or measured_albedo is None

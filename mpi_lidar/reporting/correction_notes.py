@@ -57,6 +57,9 @@ def calibration_note(estimate: FootprintEstimate, uncalibrated: int) -> str:
                 "were not corrected (flag uncalibrated)")
     measured = (f"footprint auto: {estimate.area_m2:.4g} +- {estimate.sigma_m2:.2g} m^2 from {estimate.pixels:,} "
                 f"pixels on {estimate.surfaces} surfaces")
+    if estimate.significant and estimate.white_surfaces:
+        return (f"{measured}, taken as white: the amplitude unit is not known, so this is the footprint times the "
+                "albedos the light returns from; it sets only the uncertainty of the depths left alone")
     if estimate.significant:
         return f"{measured}; the coupling and the gate use it"
     return (f"{measured}, not significant: {uncalibrated:,} pixels that could hold multipath above the gate's "

@@ -68,6 +68,12 @@ def block_albedo(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig,
     return found.ravel()
 
 
+def white_albedo(blocks: FacingBlocks) -> NDArray[np.float64]:
+    """Albedo per block (Hb*Wb,) where the amplitudes cannot tell it: 1 (white) for every block with a plane, 0
+    for the others (as :func:`block_albedo` has them)."""
+    return blocks.usable.ravel().astype(np.float64)
+
+
 def _tile_albedo(scan: Scan, blocks: FacingBlocks, rays: NDArray, rows: slice, columns: slice,
                  sensor: SensorConfig) -> NDArray[np.float64]:
     """:func:`block_albedo` of one tile of whole blocks (its rays (rows, columns, 3) given), before clipping."""

@@ -11,11 +11,13 @@ at too sharp an angle); a third follows where the second's estimate moves the al
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.footprint._albedo import block_albedo, light_free_albedo
+from mpi_lidar.correction.footprint._albedo import block_albedo, light_free_albedo, white_albedo
 from mpi_lidar.correction.footprint._coupling import PixelCoupling, PlaneCoupling
 from mpi_lidar.correction.footprint._fit import FootprintFit
 from mpi_lidar.correction.footprint._result import NOTHING_MEASURED, EstimateMethod, FootprintEstimate
@@ -42,7 +44,7 @@ MIN_DEPTH_NOISE_M = 1e-5
 def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor: SensorConfig, *,
                        reference: bool = False, max_pixels: int = MAX_FIT_PIXELS,
                        measured_albedo: NDArray | None = None, surfaces: SurfaceLabels | None = None,
-                       noise: NoiseModel | None = None) -> FootprintEstimate:
+                       noise: NoiseModel | None = None, white_partners: bool = False) -> FootprintEstimate:
     """The receiver footprint A_fp [m^2] that best explains the scan's depth near facing surfaces.
 
     Parameters
@@ -66,6 +68,13 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         The blocks' :func:`surface_labels`, where the caller has them already.
     noise : NoiseModel | None
         The scan's noise model, which weighs each pixel's depths (None: the sensor's).
+    white_partners : bool
+        Take every surface as white instead of reading its albedo from the amplitude, for a scan whose amplitude
+        unit is not known (an albedo in the wrong unit is off by the unit's factor, and the estimate by its
+        inverse). The estimate is then the footprint times the albedos of the surfaces the light returns from,
+        A_fp rho_A rho_B ((F5) of :mod:`._coupling`): the product the bias rests on, so the bias of white
+        surfaces at it is the scan's own. ``measured_albedo`` is not read; the amplitude's fit, which measures
+        each surface against its own mean, needs no unit.
 
     Returns
     -------
@@ -103,20 +112,27 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
                             amplitude[rows] / sensor.gamma_r_v2, coupling.rays, coupling.surface,
                             None if reference_depth is None else reference_depth[rows])
 
-    if measured_albedo is None:
+    if white_partners:
+        measured_albedo = white_albedo(blocks)
+    elif measured_albedo is None:
         measured_albedo = block_albedo(scan, blocks, sensor)
     rows = np.flatnonzero(usable)
     first_rows = rows[::FIRST_ROUND_STRIDE]
     first_coupling = pixel_coupling(first_rows)
-    first_albedo = light_free_albedo(first_coupling.plane, measured_albedo, surfaces.components, 0.0)
+    first_albedo = (measured_albedo if white_partners
+                    else light_free_albedo(first_coupling.plane, measured_albedo, surfaces.components, 0.0))
     first_fit = fit(first_rows, first_coupling, first_albedo)
     first = first_fit.solve(method, with_amplitude=False, tolerance=EARLY_ROUND_STEP)
     if not (np.isfinite(first.area_m2) and first.area_m2 > 0):  # no multipath to correct for: one round on all
-        return fit(rows, pixel_coupling(rows), first_albedo).solve(method)
+        found = fit(rows, pixel_coupling(rows), first_albedo).solve(method)
+        return dataclasses.replace(found, white_surfaces=white_partners)
     # Strong multipath bends each surface near its partners, so the planes through its blocks meet at too
     # sharp an angle and predict too much coupling; the planes of the later rounds rest on the anchors less the
     # bias predicted at the first estimate.
     last_coupling = pixel_coupling(rows, None if reference else first_fit.fixed_planes(first.area_m2))
+    if white_partners:  # no albedo to take the multipath's gain off
+        found = fit(rows, last_coupling, first_albedo).solve(method, start_m2=first.area_m2)
+        return dataclasses.replace(found, white_surfaces=True)
     # Multipath adds light, so the amplitude overstates the albedos (at strong multipath on the whole of a
     # surface near its partners): each round's albedos are the measured ones less the gain the multipath gives
     # at the estimate before it, and a round that moves them by more than ALBEDO_STEP is followed by another.

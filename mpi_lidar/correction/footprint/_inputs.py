@@ -108,14 +108,16 @@ class PlaneModelInputs:
 
 def plane_model_inputs(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig, area_m2: float,
                        surfaces: SurfaceLabels | None = None, measured_albedo: NDArray | None = None,
-                       tile_pixels: int = BAND_PIXELS) -> PlaneModelInputs:
+                       tile_pixels: int = BAND_PIXELS, white_surfaces: bool = False) -> PlaneModelInputs:
     """A scan's :class:`PlaneModelInputs` at footprint ``area_m2`` [m^2].
 
     Per pixel from the partner planes, and where a pixel lies on no plane from the facing blocks, each partner
     weighted by its surface's albedo (from the amplitude) over the incidence cosine
     (:meth:`mpi_lidar.scans.geometry.FacingBlocks.equivalent_rho_aba`). Without facing blocks or at a footprint of
     zero, the blocks' estimate of no multipath. ``surfaces`` (:func:`surface_labels`) and ``measured_albedo``
-    (:func:`block_albedo`, its tiles of ``tile_pixels``) are worked out where not given.
+    (:func:`block_albedo`, its tiles of ``tile_pixels``) are worked out where not given. ``white_surfaces``: the
+    albedos are taken, not measured (:func:`white_albedo`, a scan whose amplitude unit is not known), so no
+    multipath's gain is taken off them.
     """
     if blocks.pairs.a.size == 0 or area_m2 <= 0:
         return PlaneModelInputs(blocks.equivalent_rho_aba(0.0, np.zeros(blocks.usable.size)))
@@ -125,5 +127,6 @@ def plane_model_inputs(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig, a
         surfaces = surface_labels(blocks)
     fallback = blocks.equivalent_rho_aba(area_m2, partner_albedo(blocks, measured_albedo, surfaces.components))
     plane = PlaneCoupling(scan, blocks, surfaces, sensor)
-    albedo = light_free_albedo(plane, measured_albedo, surfaces.components, area_m2)
+    albedo = (measured_albedo if white_surfaces
+              else light_free_albedo(plane, measured_albedo, surfaces.components, area_m2))
     return PlaneModelInputs(fallback, plane, albedo, area_m2)

@@ -38,6 +38,9 @@ class FootprintEstimate:
         How the scans measured it (sorted, each once): against their planes or a reference depth.
     scans : int
         How many scans were pooled.
+    white_surfaces : bool
+        Whether it was measured with every surface taken as white (a scan whose amplitude unit is not known):
+        then it is the footprint times the albedos the light returns from, not the receiver's own.
     """
 
     area_m2: float
@@ -46,6 +49,7 @@ class FootprintEstimate:
     surfaces: int
     methods: tuple[EstimateMethod, ...] = (EstimateMethod.PLANES,)
     scans: int = 1
+    white_surfaces: bool = False
 
     @property
     def method(self) -> str:
@@ -74,7 +78,8 @@ class FootprintEstimate:
     def to_dict(self) -> dict[str, object]:
         """JSON-ready summary (non-finite numbers as None)."""
         fields: dict[str, object] = {"area_m2": self.area_m2, "sigma_m2": self.sigma_m2, "pixels": self.pixels,
-                                     "surfaces": self.surfaces, "method": self.method, "scans": self.scans}
+                                     "surfaces": self.surfaces, "method": self.method, "scans": self.scans,
+                                  "albedos": "white" if self.white_surfaces else "measured"}
         out = {k: (v if not isinstance(v, float) or np.isfinite(v) else None) for k, v in fields.items()}
         out.update(significance=round(self.significance, 2), significant=self.significant)
         return out

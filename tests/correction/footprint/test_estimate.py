@@ -3,6 +3,8 @@ correction and calibration do with it."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import zarr
@@ -304,6 +306,30 @@ def test_correct__a_significant_estimate_is_used_and_reported(tiny_geometric_mod
     given = correct_scan(scan, tiny_geometric_model,
                          CorrectionOptions(footprint_area_m2=correction.calibration.area_m2))
     assert np.array_equal(given.depth, correction.depth, equal_nan=True)  # auto is the number it found
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("albedo", [0.8, 0.3])
+def test_correct__a_scan_in_another_unit_measures_the_footprint_for_white_surfaces(tiny_geometric_model, albedo):
+    # Amplitudes in counts (4000 per V^2) read as V^2 make every surface far brighter than white: the unit is
+    # contradicted and the model is not applied. The footprint, measured with white surfaces, is the true one
+    # times the albedos the light returns from, rho_A rho_B (F5), and the uncertainty of the depths left alone
+    # covers the multipath the correction in V^2 corrects (before: an albedo clipped at 1.5 read the footprint
+    # 2-3x too small, and 49 % of the bright corner's multipath pixels were covered).
+    true_m2 = 0.04
+    scan = rendered(corner(90.0, 2.0, albedo), true_m2, seed=0)
+    in_v2 = correct_scan(scan, tiny_geometric_model)
+    in_counts = correct_scan(replace(scan, amplitude=scan.amplitude * np.float32(4000.0)), tiny_geometric_model)
+    assert not in_counts.reading.unit_trusted and in_counts.counts()["corrected"] == 0
+    found = in_counts.calibration
+    assert found.significant and found.white_surfaces and not in_v2.calibration.white_surfaces
+    assert 1 / 1.3 <= found.area_m2 / (true_m2 * albedo**2) <= 1.3
+    multipath = np.isin(in_v2.flags, [Flag.CORRECTED, Flag.BEYOND_PRIOR])
+    error = np.abs(in_counts.depth - scan.reference_depth)[multipath]
+    assert multipath.sum() > 1000 and np.median(error) > 1.5e-3  # the multipath is there, left alone
+    assert 0.6 <= (error <= in_counts.uncertainty_m[multipath]).mean() <= 0.85
+    assert any("taken as white" in note for note in correction_notes(in_counts))
+    assert in_counts.calibration.to_dict()["albedos"] == "white"
 
 
 @pytest.mark.unit
