@@ -330,6 +330,10 @@ def test_correct__a_scan_in_another_unit_measures_the_footprint_for_white_surfac
     assert 0.6 <= (error <= in_counts.uncertainty_m[multipath]).mean() <= 0.85
     assert any("taken as white" in note for note in correction_notes(in_counts))
     assert in_counts.calibration.to_dict()["albedos"] == "white"
+    # Nothing of it rests on the unit: a unit far smaller than V^2 (contradicted too) measures the same footprint.
+    in_smaller = correct_scan(replace(scan, amplitude=scan.amplitude / np.float32(4000.0)), tiny_geometric_model)
+    assert not in_smaller.reading.unit_trusted
+    assert in_smaller.calibration.area_m2 == pytest.approx(found.area_m2, rel=0.01)
 
 
 @pytest.mark.unit
