@@ -27,6 +27,7 @@ from mpi_lidar.correction.footprint import (
     estimate_footprint,
     plane_model_inputs,
     surface_labels,
+    unbent_planes,
     white_albedo,
 )
 from mpi_lidar.correction.options import AUTO, MAX_FOOTPRINT_AREA_M2, CorrectionOptions, GateName
@@ -213,8 +214,15 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     reaches = _reaches_min_bias(potential, options, bias_m)
     inputs = None
     if with_model_inputs or (surfaces is not None and footprint_m2 > 0):
+        planes = None
+        if surfaces is not None and footprint_m2 > 0:
+            if measured_albedo is None:
+                measured_albedo = (block_albedo(scan, blocks, sensor, options.tile_pixels) if unit_trusted
+                                   else white_albedo(blocks))
+            planes = unbent_planes(scan, blocks, np.isfinite(usable_depth), sensor, footprint_m2, surfaces=surfaces,
+                                   measured_albedo=measured_albedo, white_surfaces=not unit_trusted, noise=noise)
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels,
-                                    white_surfaces=not unit_trusted)
+                                    white_surfaces=not unit_trusted, fitted_planes=planes)
         _add_plane_bias(inputs, blocks, usable_depth, max(scan.frequencies_hz), options, bias_m, reaches)
     # No partner returns more than a white one: a block read above 1 (its own multipath's gain) counts as white.
     left_alone = (None if estimate is None or measured_albedo is None

@@ -7,7 +7,7 @@ import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, analyse_geometry
-from mpi_lidar.correction.footprint import plane_model_inputs
+from mpi_lidar.correction.footprint import block_albedo, plane_model_inputs, unbent_planes
 from mpi_lidar.simulation.scenes import flat_wall, render, room_with_box
 
 pytestmark = pytest.mark.unit
@@ -61,7 +61,10 @@ def test_analyse_geometry__room_bias_map_is_the_larger_of_blocks_and_planes(room
     # Pixels the blocks already hand to the gate keep their bias; the others take the planes' where larger, as
     # PlaneModelInputs.bias_m gives it.
     np.testing.assert_array_equal(bias[block_reaches], block_bias[block_reaches].astype(np.float32))
-    inputs = plane_model_inputs(scan, room_scene.blocks, Config().sensor, 0.073, room_scene.surfaces)
+    sensor, blocks = Config().sensor, room_scene.blocks
+    planes = unbent_planes(scan, blocks, np.isfinite(usable_depth(scan)), sensor, 0.073,
+                           surfaces=room_scene.surfaces, measured_albedo=block_albedo(scan, blocks, sensor))
+    inputs = plane_model_inputs(scan, blocks, sensor, 0.073, room_scene.surfaces, fitted_planes=planes)
     pixels = np.flatnonzero(np.isfinite(usable_depth(scan)) & ~block_reaches)
     planes = inputs.bias_m(pixels, usable_depth(scan)[pixels].astype(np.float64), max(scan.frequencies_hz))
     expected = np.where(np.abs(planes) > block_bias[pixels], planes, block_bias[pixels]).astype(np.float32)

@@ -18,7 +18,7 @@ another and back, A -> B -> C -> A), ``_coupling`` (the multipath model's phasor
 from __future__ import annotations
 
 from mpi_lidar.correction.footprint._albedo import block_albedo, white_albedo
-from mpi_lidar.correction.footprint._estimate import estimate_footprint
+from mpi_lidar.correction.footprint._estimate import estimate_footprint, unbent_planes
 from mpi_lidar.correction.footprint._inputs import PlaneModelInputs, plane_model_inputs
 from mpi_lidar.correction.footprint._result import (
     MIN_INFORMATIVE_PIXELS,
@@ -33,5 +33,5 @@ from mpi_lidar.correction.footprint._surfaces import SurfaceLabels, surface_labe
 __all__ = [
     "MIN_INFORMATIVE_PIXELS", "MIN_SIGNIFICANCE", "NOTHING_MEASURED", "EstimateMethod", "FootprintEstimate",
     "PlaneModelInputs", "SurfaceLabels", "block_albedo", "estimate_footprint", "plane_model_inputs",
-    "pool_estimates", "surface_labels", "white_albedo",
+    "pool_estimates", "surface_labels", "unbent_planes", "white_albedo",
 ]

@@ -37,6 +37,8 @@ EARLY_ROUND_STEP = 1e-2
 # than this share.
 ALBEDO_ROUNDS = 2
 ALBEDO_STEP = 0.02
+# Rounds that refit the planes unbent by the multipath with the coupling of the planes the round before found.
+UNBENDING_ROUNDS = 2
 # Depth noise below this [m] is taken as this.
 MIN_DEPTH_NOISE_M = 1e-5
 
@@ -87,51 +89,30 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         surfaces = surface_labels(blocks)
     # Against a reference every surface, flat or not, measures the bias; the partners are the flat surfaces.
     measured_surfaces = np.where(blocks.usable.ravel(), 0, -1) if reference else surfaces.flat
-    pixels = _fit_pixels(blocks, measured_surfaces, pair_coupling(blocks), valid, max_pixels)
-    if pixels.size == 0:
+    fit_rows = FitRows(scan, blocks, surfaces, valid, sensor, noise, measured_surfaces, max_pixels, reference)
+    if fit_rows.pixels.size == 0:
         return NOTHING_MEASURED
-    ys, xs = np.divmod(pixels, blocks.shape[1])
-    depth = scan.depth[:, ys, xs].astype(np.float64).T
-    amplitude = scan.amplitude[:, ys, xs].astype(np.float64).T
-    noise = noise or NoiseModel.for_sensor(sensor, scan.frequencies_hz)
-    metres_per_rad = noise.metres_per_radian
-    sigma = np.maximum(noise.depth_sigma_m(amplitude), MIN_DEPTH_NOISE_M)
-    usable = np.isfinite(depth).all(1) & np.isfinite(sigma).all(1)
-    reference_depth = None
-    if reference:
-        assert scan.reference_depth is not None, "a scan with a reference depth"
-        reference_depth = scan.reference_depth.ravel()[pixels].astype(np.float64)
     method = EstimateMethod.REFERENCE if reference else EstimateMethod.PLANES
-
-    def pixel_coupling(rows: NDArray, planes: dict[int, NDArray] | None = None) -> PixelCoupling:
-        return PixelCoupling(PlaneCoupling(scan, blocks, surfaces, sensor, planes), pixels[rows], depth[rows, -1])
-
-    def fit(rows: NDArray, coupling: PixelCoupling, albedo: NDArray) -> FootprintFit:
-        phasor, kappa = coupling(albedo)
-        return FootprintFit(depth[rows], sigma[rows], phasor, kappa, metres_per_rad,
-                            amplitude[rows] / sensor.gamma_r_v2, coupling.rays, coupling.surface,
-                            None if reference_depth is None else reference_depth[rows])
-
     if white_partners:
         measured_albedo = white_albedo(blocks)
     elif measured_albedo is None:
         measured_albedo = block_albedo(scan, blocks, sensor)
-    rows = np.flatnonzero(usable)
+    rows = np.flatnonzero(fit_rows.usable)
     first_rows = rows[::FIRST_ROUND_STRIDE]
-    first_coupling = pixel_coupling(first_rows)
+    first_coupling = fit_rows.coupling(first_rows)
     first_albedo = (measured_albedo if white_partners
                     else light_free_albedo(first_coupling.plane, measured_albedo, surfaces.components, 0.0))
-    first_fit = fit(first_rows, first_coupling, first_albedo)
+    first_fit = fit_rows.fit(first_rows, first_coupling, first_albedo)
     first = first_fit.solve(method, with_amplitude=False, tolerance=EARLY_ROUND_STEP)
     if not (np.isfinite(first.area_m2) and first.area_m2 > 0):  # no multipath to correct for: one round on all
-        found = fit(rows, pixel_coupling(rows), first_albedo).solve(method)
+        found = fit_rows.fit(rows, fit_rows.coupling(rows), first_albedo).solve(method)
         return dataclasses.replace(found, white_surfaces=white_partners)
     # Strong multipath bends each surface near its partners, so the planes through its blocks meet at too
     # sharp an angle and predict too much coupling; the planes of the later rounds rest on the anchors less the
     # bias predicted at the first estimate.
-    last_coupling = pixel_coupling(rows, None if reference else first_fit.fixed_planes(first.area_m2))
+    last_coupling = fit_rows.coupling(rows, None if reference else first_fit.fixed_planes(first.area_m2))
     if white_partners:  # no albedo to take the multipath's gain off
-        found = fit(rows, last_coupling, first_albedo).solve(method, start_m2=first.area_m2)
+        found = fit_rows.fit(rows, last_coupling, first_albedo).solve(method, start_m2=first.area_m2)
         return dataclasses.replace(found, white_surfaces=True)
     # Multipath adds light, so the amplitude overstates the albedos (at strong multipath on the whole of a
     # surface near its partners): each round's albedos are the measured ones less the gain the multipath gives
@@ -142,11 +123,82 @@ def estimate_footprint(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor:
         if albedo is not None and _largest_change(albedo, without_gain) <= ALBEDO_STEP:
             break
         albedo = without_gain
-        estimate = fit(rows, last_coupling, albedo).solve(method, start_m2=area)
+        estimate = fit_rows.fit(rows, last_coupling, albedo).solve(method, start_m2=area)
         if not (np.isfinite(estimate.area_m2) and estimate.area_m2 > 0):
             break
         area = estimate.area_m2
     return estimate
+
+
+class FitRows:
+    """The pixels a footprint fit uses (:func:`_fit_pixels` of the surfaces ``measured_surfaces`` (Hb*Wb,)) and
+    their measurements: depth and amplitude (n, F), the depth's noise under ``noise`` (None: the sensor's) and the
+    rows whose every value is finite (``usable``); against the scan's reference depth where ``reference``.
+    :meth:`coupling` and :meth:`fit` build a fit on some of the rows."""
+
+    def __init__(self, scan: Scan, blocks: FacingBlocks, surfaces: SurfaceLabels, valid: NDArray,
+                 sensor: SensorConfig, noise: NoiseModel | None, measured_surfaces: NDArray, max_pixels: int,
+                 reference: bool = False):
+        self.scan, self.blocks, self.surfaces, self.sensor = scan, blocks, surfaces, sensor
+        self.pixels = _fit_pixels(blocks, measured_surfaces, pair_coupling(blocks), valid, max_pixels)
+        ys, xs = np.divmod(self.pixels, blocks.shape[1])
+        self.depth = scan.depth[:, ys, xs].astype(np.float64).T
+        self.amplitude = scan.amplitude[:, ys, xs].astype(np.float64).T
+        noise = noise or NoiseModel.for_sensor(sensor, scan.frequencies_hz)
+        self.metres_per_rad = noise.metres_per_radian
+        self.sigma = np.maximum(noise.depth_sigma_m(self.amplitude), MIN_DEPTH_NOISE_M)
+        self.usable = np.isfinite(self.depth).all(1) & np.isfinite(self.sigma).all(1)
+        self.reference_depth = None
+        if reference:
+            assert scan.reference_depth is not None, "a scan with a reference depth"
+            self.reference_depth = scan.reference_depth.ravel()[self.pixels].astype(np.float64)
+
+    def coupling(self, rows: NDArray, planes: dict[int, NDArray] | None = None) -> PixelCoupling:
+        """The coupling of ``rows`` (their indices), the surfaces on ``planes`` (u by label) where given."""
+        return PixelCoupling(PlaneCoupling(self.scan, self.blocks, self.surfaces, self.sensor, planes),
+                             self.pixels[rows], self.depth[rows, -1])
+
+    def fit(self, rows: NDArray, coupling: PixelCoupling, albedo: NDArray) -> FootprintFit:
+        """The fit of ``rows`` with ``coupling`` (theirs) at the albedos per block ``albedo`` (Hb*Wb,)."""
+        phasor, kappa = coupling(albedo)
+        return FootprintFit(self.depth[rows], self.sigma[rows], phasor, kappa, self.metres_per_rad,
+                            self.amplitude[rows] / self.sensor.gamma_r_v2, coupling.rays, coupling.surface,
+                            None if self.reference_depth is None else self.reference_depth[rows])
+
+
+def unbent_planes(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor: SensorConfig, area_m2: float, *,
+                  surfaces: SurfaceLabels, measured_albedo: NDArray, white_surfaces: bool = False,
+                  noise: NoiseModel | None = None, max_pixels: int = MAX_FIT_PIXELS) -> dict[int, NDArray]:
+    """The planes (u [1/m] by flat-surface label, u . x = 1) of the surfaces whose depths the multipath at
+    footprint ``area_m2`` [m^2] bent, for the coupling of the model's inputs.
+
+    Multipath lengthens a surface's depths towards its partners, so the plane through its blocks turns towards
+    them and puts the partners nearer than they are: on a 90-degree corner at 0.073 m^2 the boards' planes meet
+    2.4 degrees too sharply and the coupling reads 1.28x the render's (1.53x at 0.16 m^2). A surface's plane fitted
+    to its least-coupled pixels less the bias predicted at ``area_m2`` (:meth:`FootprintProblem.fixed_planes`)
+    reads the coupling to 3 % there (8 % at 0.16 m^2); it replaces the one through the blocks where it explains the
+    surface's depths less that bias better (:meth:`FootprintProblem.unbent_planes`): a small surface whose few
+    anchors lie near its partners keeps its blocks' plane. The fit's rows are every third of those
+    :func:`estimate_footprint` uses; the albedos: ``measured_albedo`` (:func:`block_albedo`) less the multipath's
+    gain at ``area_m2``, or as given where ``white_surfaces``. Nothing faces, or a footprint of zero: no planes.
+    """
+    if blocks.pairs.a.size == 0 or not area_m2 > 0:
+        return {}
+    fit_rows = FitRows(scan, blocks, surfaces, valid, sensor, noise, surfaces.flat, max_pixels)
+    rows = np.flatnonzero(fit_rows.usable)[::FIRST_ROUND_STRIDE]
+    if rows.size == 0:
+        return {}
+    coupling = fit_rows.coupling(rows)
+    albedo = (measured_albedo if white_surfaces
+              else light_free_albedo(coupling.plane, measured_albedo, surfaces.components, area_m2))
+    through_blocks = {label: plane.normal / (plane.normal @ plane.centre)
+                      for label, plane in coupling.plane.partners.planes.items()}
+    # The anchors' bias is predicted with the coupling of the planes before: first the blocks' (too large), then
+    # the planes each round found (a third round moves it by about 2 %).
+    fit = fit_rows.fit(rows, coupling, albedo)
+    for _ in range(UNBENDING_ROUNDS):
+        fit = fit_rows.fit(rows, fit_rows.coupling(rows, fit.fixed_planes(area_m2)), albedo)
+    return fit.unbent_planes(area_m2, through_blocks)
 
 
 def _largest_change(before: NDArray, after: NDArray) -> float:

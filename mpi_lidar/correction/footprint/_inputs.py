@@ -108,7 +108,8 @@ class PlaneModelInputs:
 
 def plane_model_inputs(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig, area_m2: float,
                        surfaces: SurfaceLabels | None = None, measured_albedo: NDArray | None = None,
-                       tile_pixels: int = BAND_PIXELS, white_surfaces: bool = False) -> PlaneModelInputs:
+                       tile_pixels: int = BAND_PIXELS, white_surfaces: bool = False,
+                       fitted_planes: dict[int, NDArray] | None = None) -> PlaneModelInputs:
     """A scan's :class:`PlaneModelInputs` at footprint ``area_m2`` [m^2].
 
     Per pixel from the partner planes, and where a pixel lies on no plane from the facing blocks, each partner
@@ -117,7 +118,8 @@ def plane_model_inputs(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig, a
     zero, the blocks' estimate of no multipath. ``surfaces`` (:func:`surface_labels`) and ``measured_albedo``
     (:func:`block_albedo`, its tiles of ``tile_pixels``) are worked out where not given. ``white_surfaces``: the
     albedos are taken, not measured (:func:`white_albedo`, a scan whose amplitude unit is not known), so no
-    multipath's gain is taken off them.
+    multipath's gain is taken off them. ``fitted_planes`` (u [1/m] by flat-surface label, :func:`unbent_planes`)
+    replace those surfaces' planes through their blocks.
     """
     if blocks.pairs.a.size == 0 or area_m2 <= 0:
         return PlaneModelInputs(blocks.equivalent_rho_aba(0.0, np.zeros(blocks.usable.size)))
@@ -126,7 +128,7 @@ def plane_model_inputs(scan: Scan, blocks: FacingBlocks, sensor: SensorConfig, a
     if surfaces is None:
         surfaces = surface_labels(blocks)
     fallback = blocks.equivalent_rho_aba(area_m2, partner_albedo(blocks, measured_albedo, surfaces.components))
-    plane = PlaneCoupling(scan, blocks, surfaces, sensor)
+    plane = PlaneCoupling(scan, blocks, surfaces, sensor, fitted_planes)
     albedo = (measured_albedo if white_surfaces
               else light_free_albedo(plane, measured_albedo, surfaces.components, area_m2))
     return PlaneModelInputs(fallback, plane, albedo, area_m2)

@@ -152,6 +152,29 @@ class FootprintProblem:
         planes = kept._plane_range(kept.bias(area, amplitude=False)[0], kept.anchor)[1]
         return {int(label): planes[k] for k, label in enumerate(kept.labels)}
 
+    def unbent_planes(self, area: float, through_blocks: dict[int, NDArray]) -> dict[int, NDArray]:
+        """The planes of :meth:`fixed_planes` at footprint ``area`` [m^2], by surface label, that explain their
+        surface's depths less the bias predicted there better than its plane through the block centres
+        (``through_blocks``, u [1/m] by label): a smaller median of the standardized residuals over the surface's
+        rows within the model's reach. A plane fitted to anchors that the model's bias does not describe (a small
+        surface lit by light it leaves out) misses the rest of its surface and is not taken."""
+        kept = self.with_fixed_planes
+        bias = kept.bias(area, amplitude=False)[0]
+        labels = kept.labels[kept.surface]
+        reach = abs(area) * kept.coupling <= MAX_FIT_COUPLING
+
+        def spread(plane: NDArray, rows: NDArray) -> float:
+            surface_range = 1.0 / (kept.rays[rows] @ plane)
+            z = (kept.depth[rows] - surface_range[:, None] - bias[rows]) / kept.sigma[rows]
+            return float(np.median(np.abs(z)))
+
+        better = {}
+        for label, plane in self.fixed_planes(area).items():
+            rows = (labels == label) & reach
+            if label in through_blocks and rows.any() and spread(plane, rows) < spread(through_blocks[label], rows):
+                better[label] = plane
+        return better
+
     def _anchor_rows(self) -> NDArray[np.bool_]:
         """Pixels that fix the surfaces' planes: the share ``ANCHOR_SHARE`` of all with the least coupling, and of
         a surface that share leaves under ``MIN_ANCHOR_PIXELS``, its own share with the least coupling.
