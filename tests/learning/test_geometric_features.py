@@ -8,6 +8,7 @@ import pytest
 
 from mpi_lidar.config import Config, PriorConfig
 from mpi_lidar.correction import NO_GEOMETRY_INPUTS_NOTE, CorrectionOptions, Flag, analyse_geometry, correct_scan
+from mpi_lidar.correction.validity import usable_depth_of
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.evaluate import evaluate_model
 from mpi_lidar.learning.features import (
@@ -155,9 +156,9 @@ def test_correct_scan__geometric_model_gets_the_gate_estimates(models):
     corrected = correction.flags.ravel() == Flag.CORRECTED
     assert corrected.sum() > 100
     raw = scan.raw_pixels()
-    usable = np.isfinite(raw).all(1)
-    scene = analyse_geometry(scan, np.where(usable, raw[:, len(FREQS) - 1], np.nan), options, Config().sensor,
-                             with_model_inputs=True)
+    # What the scene geometry read: the usable pixels' depth and the scan's own noise law (its planes rest on both).
+    scene = analyse_geometry(scan, usable_depth_of(raw, correction.flags.ravel()), options, Config().sensor,
+                             with_model_inputs=True, noise=correction.reading.noise)
     inputs = geometry_inputs(*scene.model_inputs.pixels(np.flatnonzero(corrected), raw[corrected, len(FREQS) - 1]))
     assert (inputs[:, 0] > 0).all()
     np.testing.assert_allclose(correction.depth.ravel()[corrected], model.predict_depth(raw[corrected], inputs),
