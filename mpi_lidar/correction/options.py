@@ -178,9 +178,9 @@ class CorrectionOptions(BaseModel):
     # left as measured (flag ambiguous). At 0.999 fewer than 0.1 % of the pixels kept are expected to be
     # unwrapped wrong where the noise model holds (mpi_lidar.physics.unwrap).
     min_unwrap_confidence: Fraction = MIN_UNWRAP_CONFIDENCE
-    min_multipath_bias_m: Annotated[float, Field(ge=0, le=MAX_BIAS_M, strict=True)] = Field(0.004, description=(
-        "Geometry gate: correct pixels whose expected multipath bias reaches this (1 mm suits geometric models on "
-        "weak multipath, see docs/results/scenes.md)."))
+    min_multipath_bias_m: Annotated[float, Field(ge=0, le=MAX_BIAS_M, strict=True)] = Field(0.002, description=(
+        "Geometry gate: correct pixels whose expected multipath bias reaches this (a geometric model corrects a "
+        "bias of 2 mm to below it on the rendered corners and rooms, see docs/results/scenes.md)."))
     geometry_block_m: Annotated[float, Field(gt=0, le=MAX_BLOCK_M, strict=True)] = geometry.DEFAULT_BLOCK_M
     partner_range_m: Annotated[float, Field(gt=0, le=MAX_DEPTH_M, strict=True)] = geometry.DEFAULT_MAX_RANGE_M
     # auto: mpi_lidar.correction.footprint, from the depth and amplitude near the scan's facing surfaces.

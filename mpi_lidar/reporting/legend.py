@@ -62,7 +62,7 @@ FLAG_LEGEND: dict[Flag, FlagLegend] = {
                                   "#10ac84"),
     Flag.NO_MULTIPATH: FlagLegend("M", "valid, no facing surface causes multipath; baseline depth",
                                   "valid, but no surface of the scan faces it closely enough to cause "
-                                  "`min_multipath_bias_m` (4 mm) of bias (geometry gate)", BASELINE_DEPTH, "#f6e58d"),
+                                  "`min_multipath_bias_m` (2 mm) of bias (geometry gate)", BASELINE_DEPTH, "#f6e58d"),
     Flag.UNCALIBRATED: FlagLegend("U", "valid, footprint estimate not significant; baseline depth",
                                   "valid, could hold multipath above the gate's threshold, but the scan's footprint "
                                   "estimate is not significant (`--footprint-area-m2 auto`)", BASELINE_DEPTH,

@@ -88,9 +88,10 @@ def test_left_alone_bias__is_below_the_white_partners_bound_on_a_dark_corner():
 
 @pytest.mark.parametrize(("albedo", "seed"), [(0.1, 1), (0.3, 3), (0.4, 2), (0.6, 2)])
 def test_left_alone_depths__are_covered_near_their_one_sigma_share(pixelwise_model: Path, albedo, seed):
-    # With white partners the corners of albedo 0.3-0.6 covered 86-89 % of these pixels.
+    # With white partners the corners of albedo 0.3-0.6 covered 86-89 % of these pixels. A gate at 4 mm leaves
+    # enough of them alone on these small scans to tell.
     scan = scan_of(albedo, seed)
-    run = correct_scan(scan, load_model(pixelwise_model))
+    run = correct_scan(scan, load_model(pixelwise_model), CorrectionOptions(min_multipath_bias_m=0.004))
     left = (run.estimate == Estimate.FUSED).reshape(scan.shape) & np.isfinite(scan.reference_depth)
     covered = np.abs(run.depth - scan.reference_depth)[left] <= run.uncertainty_m[left]
     assert left.sum() > 500 and 0.60 <= covered.mean() <= 0.76

@@ -43,7 +43,8 @@ def scene(corner_scan) -> SceneGeometry:
 def test_analyse_geometry__given_footprint_gives_bias_map_candidates_and_inputs(scene, corner_scan):
     assert scene.has_geometry and scene.footprint is None and scene.footprint_m2 == 0.041
     assert scene.bias_m is not None and scene.bias_m.dtype == np.float32 and scene.bias_m.shape == corner_scan.shape
-    np.testing.assert_array_equal(scene.reaches_min_bias, (np.abs(scene.bias_m) >= 0.004).ravel())
+    threshold = CorrectionOptions().min_multipath_bias_m
+    np.testing.assert_array_equal(scene.reaches_min_bias, (np.abs(scene.bias_m) >= threshold).ravel())
     assert scene.reaches_min_bias.any() and not scene.reaches_min_bias.all()
     assert scene.model_inputs is not None and scene.uncalibrated is None and scene.notes == ()
 
