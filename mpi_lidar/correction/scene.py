@@ -193,13 +193,17 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     auto = options.footprint_area_m2 == AUTO
     surfaces = surface_labels(blocks) if blocks.pairs.a.size else None
     estimate, uncalibrated, measured_albedo = None, None, None
+
+    def albedos() -> NDArray[np.float64]:
+        """The blocks' albedos from the amplitudes, or white where their unit is not trusted."""
+        return block_albedo(scan, blocks, sensor, options.tile_pixels) if unit_trusted else white_albedo(blocks)
+
     if not auto:
         # Validated options hold a number here; no float() of it, so a bad value fails where it is used.
         footprint_m2 = cast(float, options.footprint_area_m2)
         potential = blocks.block_potential(footprint_m2)
     else:
-        measured_albedo = (block_albedo(scan, blocks, sensor, options.tile_pixels) if unit_trusted
-                           else white_albedo(blocks))
+        measured_albedo = albedos()
         estimate = estimate_footprint(scan, blocks, np.isfinite(usable_depth), sensor, noise=noise,
                                       measured_albedo=measured_albedo, surfaces=surfaces,
                                       white_partners=not unit_trusted)
@@ -217,8 +221,7 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         planes = None
         if surfaces is not None and footprint_m2 > 0:
             if measured_albedo is None:
-                measured_albedo = (block_albedo(scan, blocks, sensor, options.tile_pixels) if unit_trusted
-                                   else white_albedo(blocks))
+                measured_albedo = albedos()
             planes = unbent_planes(scan, blocks, np.isfinite(usable_depth), sensor, footprint_m2, surfaces=surfaces,
                                    measured_albedo=measured_albedo, white_surfaces=not unit_trusted, noise=noise)
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels,

@@ -191,8 +191,7 @@ def unbent_planes(scan: Scan, blocks: FacingBlocks, valid: NDArray, sensor: Sens
     coupling = fit_rows.coupling(rows)
     albedo = (measured_albedo if white_surfaces
               else light_free_albedo(coupling.plane, measured_albedo, surfaces.components, area_m2))
-    through_blocks = {label: plane.normal / (plane.normal @ plane.centre)
-                      for label, plane in coupling.plane.partners.planes.items()}
+    through_blocks = {label: plane.vector for label, plane in coupling.plane.partners.planes.items()}
     # The anchors' bias is predicted with the coupling of the planes before: first the blocks' (too large), then
     # the planes each round found (a third round moves it by about 2 %).
     fit = fit_rows.fit(rows, coupling, albedo)

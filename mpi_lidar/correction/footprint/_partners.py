@@ -85,6 +85,11 @@ class SurfacePlane:
     centre: NDArray[np.float64]
     visible_m: float
 
+    @property
+    def vector(self) -> NDArray[np.float64]:
+        """The plane as u . x = 1 (u (3,) [1/m]), the form the footprint fit's planes take."""
+        return self.normal / (self.normal @ self.centre)
+
 
 @dataclass(frozen=True)
 class Patches:
