@@ -141,7 +141,8 @@ class PlanePartners:
                                                    set(self.patches))
         # The planes each surface receives light from: those its blocks have facing pairs with.
         a, b = blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b]
-        self.facing = {own: {int(p) for p in np.unique(components[b[labels[a] == own]])} & set(self.patches) - {own}
+        receiving = distinct_pairs(labels[a], components[b])
+        self.facing = {own: {p for one, p in receiving if one == own} & set(self.patches) - {own}
                        for own in self.planes}
 
     @functools.cached_property
@@ -381,13 +382,24 @@ def _measured_range(rays: NDArray, nearest: NDArray, blocks: FacingBlocks, block
 def _meeting_surfaces(blocks: FacingBlocks, components: NDArray, planes: dict[int, SurfacePlane]
                       ) -> dict[int, set[int]]:
     """Per modelled surface, the other modelled surfaces it meets: those with which its blocks have facing pairs."""
-    a, b = components[blocks.index[blocks.pairs.a]], components[blocks.index[blocks.pairs.b]]
-    pairs = np.unique(np.concatenate([np.stack([a, b], 1), np.stack([b, a], 1)]), axis=0)
+    facing = distinct_pairs(components[blocks.index[blocks.pairs.a]], components[blocks.index[blocks.pairs.b]])
     found: dict[int, set[int]] = {}
-    for one, other in pairs.tolist():
+    for one, other in facing | {(other, one) for one, other in facing}:
         if one != other and one in planes and other in planes:
             found.setdefault(one, set()).add(other)
     return found
+
+
+def distinct_pairs(first: NDArray, second: NDArray) -> set[tuple[int, int]]:
+    """The distinct pairs (first[i], second[i]) of two label arrays (n,) whose labels are -1 or more.
+
+    Each pair is one integer, so one sort of n numbers finds them: ``np.unique(..., axis=0)`` of the (n, 2)
+    rows sorts them as records, some 20x slower on a scan's tens of thousands of facing block pairs."""
+    if first.size == 0:
+        return set()
+    base = int(max(first.max(), second.max())) + 2
+    codes = np.unique((first.astype(np.int64) + 1) * base + (second.astype(np.int64) + 1))
+    return {(int(one) - 1, int(other) - 1) for one, other in zip(*np.divmod(codes, base), strict=True)}
 
 
 def _bounding_surfaces(members: NDArray, planes: dict[int, SurfacePlane], meeting: set[int]) -> set[int]:

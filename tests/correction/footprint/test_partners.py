@@ -9,7 +9,13 @@ import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction.footprint import surface_labels
-from mpi_lidar.correction.footprint._partners import PlanePartners, SurfacePlane, _narrow_components, on_plane
+from mpi_lidar.correction.footprint._partners import (
+    PlanePartners,
+    SurfacePlane,
+    _narrow_components,
+    distinct_pairs,
+    on_plane,
+)
 from mpi_lidar.correction.footprint._plane_coupling import coupling_at, phasor_sums
 from mpi_lidar.physics.coupling import footprint_coupling, pair_geometry
 from mpi_lidar.scans.geometry import DEFAULT_MIN_COS, facing_blocks
@@ -227,3 +233,12 @@ def test_estimate__strong_multipath_bends_the_boards_but_not_the_partner_planes(
     found = estimate(rendered(corner(120.0, 1.4, 0.9), 0.1))
     assert found.significant
     assert 1 / 1.25 <= found.area_m2 / 0.1 <= 1.25
+
+
+@pytest.mark.unit
+def test_distinct_pairs_are_the_rows_numpy_finds_unique():
+    rng = np.random.default_rng(3)
+    first, second = rng.integers(-1, 7, 5000), rng.integers(-1, 40, 5000)
+    rows = np.unique(np.stack([first, second], 1), axis=0)
+    assert distinct_pairs(first, second) == {(int(a), int(b)) for a, b in rows}
+    assert distinct_pairs(np.zeros(0, np.intp), np.zeros(0, np.intp)) == set()
