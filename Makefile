@@ -25,19 +25,26 @@ test: $(VENV)/.installed system-deps
 test-quick: $(VENV)/.installed
 	$(VENV)/bin/python -m pytest -m unit -q || $(NO_TESTS)
 
-# System packages the tests need: chromium renders the HTML reports (tests/reporting/test_browser.py). Installed
-# here, as root, where /usr/bin/chromium is missing; never by a test. Azurite (npm), the Azure Blob server of the
-# az:// tests (tests/azurite_server.py), goes into .tools/azurite once per version: 3.35 is the last that runs on
-# Node 20.
+# System packages the tests need: chromium renders the HTML reports (tests/reporting/test_browser.py); libllvm19
+# is the CPU backend of Mitsuba's path tracer (the render group: benchmarks/mitsuba_render.py, whose Dr.Jit needs an
+# LLVM of version 19 or later). Installed here, as root, where missing; never by a test. Azurite (npm), the Azure
+# Blob server of the az:// tests (tests/azurite_server.py), goes into .tools/azurite once per version: 3.35 is the
+# last that runs on Node 20.
 CHROMIUM ?= /usr/bin/chromium
+LIBLLVM ?= libllvm19
 AZURITE_VERSION := 3.35.0
 AZURITE_DIR := .tools/azurite
 system-deps: $(AZURITE_DIR)/.installed-$(AZURITE_VERSION)
-	@if [ ! -x $(CHROMIUM) ]; then \
+	@missing=""; \
+	[ -x $(CHROMIUM) ] || missing="chromium"; \
+	if command -v dpkg-query >/dev/null && ! dpkg-query -W -f='$${Status}' $(LIBLLVM) 2>/dev/null | grep -q "ok installed"; then \
+	  missing="$$missing $(LIBLLVM)"; \
+	fi; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-	    DEBIAN_FRONTEND=noninteractive apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium; \
+	    DEBIAN_FRONTEND=noninteractive apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q $$missing; \
 	  else \
-	    echo "make system-deps: $(CHROMIUM) is missing; install chromium as root (apt-get install -y chromium)" >&2; \
+	    echo "make system-deps: missing $$missing; install as root (apt-get install -y $$missing)" >&2; \
 	  fi; \
 	fi
 

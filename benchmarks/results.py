@@ -37,6 +37,7 @@ PAGES = {
     "limits": "benchmarks.limits",
     "mixed-pixels": "benchmarks.mixed_pixels",
     "object-storage": "benchmarks.object_storage",
+    "path-traced": "benchmarks.corner_strength",
     "model-range": "benchmarks.model_range",
     "noise-limit": "benchmarks.noise_limit",
     "point-clouds": "benchmarks.point_clouds",
