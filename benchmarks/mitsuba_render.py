@@ -209,3 +209,63 @@ def _look_along(mi: Any, ray: NDArray) -> Any:
     """The frame at the origin whose +z is ``ray`` (unit (3,))."""
     up = [0.0, 1.0, 0.0] if abs(ray[1]) < 0.9 else [1.0, 0.0, 0.0]
     return mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, 0.0], target=[float(x) for x in ray], up=up)
+
+
+PROFILE_DISTANCES_M = (0.005, 0.015, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2)
+
+
+def bias_profile(angle_deg: float, footprint_m2: float, config: Config, samples: int, columns: int = 96
+                 ) -> list[tuple[float, float, float, float, float]]:
+    """The 31.25 MHz multipath bias [m] across a corner of ``angle_deg`` at 2 m (its middle row), at each of
+    PROFILE_DISTANCES_M from the edge: the project's renderer single-bounce and with three bounces, Mitsuba with
+    one bounce (four path segments) and with nine. Rows (distance [m], the four biases [m])."""
+    import dataclasses
+
+    from mpi_lidar.physics.coupling import DEFAULT_COUPLING_GAIN
+    from mpi_lidar.simulation.scenes import corner, light_transport
+
+    scene = corner(angle_deg, 2.0, 0.8, 3, columns)
+    radius = float(np.sqrt(footprint_m2 / (DEFAULT_COUPLING_GAIN * np.pi)))
+    biases = []
+    for bounces in (None, 3):
+        rendered = scene if bounces is None else dataclasses.replace(scene, notes={**scene.notes, "bounces": 3.0})
+        truth: dict[str, NDArray] = {}
+        light_transport(rendered, config, radius, 0.01, DEFAULT_COUPLING_GAIN, truth)
+        biases.append(truth["bias_m"][:, -1])
+    for depth in (4, DEFAULT_MAX_DEPTH):
+        biases.append(true_bias_m(path_trace(scene, config, footprint_m2, samples=samples, max_depth=depth),
+                                  config).ravel())
+    ranges, _ = first_hits(scene)
+    across = np.abs(ranges * grid_rays(scene.azimuth_rad, scene.elevation_rad).reshape(-1, 3)[:, 0])
+    middle = np.arange(ranges.size) // columns == 1
+    rows = []
+    for distance in PROFILE_DISTANCES_M:
+        nearest = np.flatnonzero(middle)[np.argsort(np.abs(across[middle] - distance))[:2]]  # one per board
+        rows.append((distance, *(float(np.mean(bias[nearest])) for bias in biases)))
+    return rows
+
+
+def main() -> None:
+    import argparse
+    import platform
+    from datetime import date
+
+    parser = argparse.ArgumentParser(description="The multipath bias across a corner: the project's renderer "
+                                                 "against Mitsuba's path tracer.")
+    parser.add_argument("--angle", type=float, default=60.0, help="The corner's angle [deg].")
+    parser.add_argument("--footprint", type=float, default=0.073, help="The receiver footprint [m^2].")
+    parser.add_argument("--samples", type=int, default=32768, help="Paths per pixel.")
+    args = parser.parse_args()
+    config = Config()
+    print(f"corner {args.angle:g} deg at 2 m, albedo 0.8, footprint {args.footprint:g} m^2 (the beam's radius "
+          f"{np.sqrt(args.footprint / np.pi):.3f} m at the pixel's range), {args.samples} paths per pixel; the "
+          "31.25 MHz bias [mm] of the middle row, mean of the two boards\n")
+    print("| across the view from the edge [m] | project, single bounce | project, 3 bounces | path traced, 1 bounce "
+          "| path traced, 9 bounces |\n|---|---|---|---|---|")
+    for distance, *biases in bias_profile(args.angle, args.footprint, config, args.samples):
+        print(f"| {distance:g} | " + " | ".join(f"{1e3 * b:.2f}" for b in biases) + " |")
+    print(f"\n{platform.system()}, {platform.machine()}, Python {platform.python_version()}, {date.today()}")
+
+
+if __name__ == "__main__":
+    main()

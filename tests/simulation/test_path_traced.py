@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
-from benchmarks.mitsuba_render import path_trace, scan_of, true_bias_m
+from benchmarks.mitsuba_render import PROFILE_DISTANCES_M, path_trace, scan_of, true_bias_m
 from mpi_lidar.config import Config
 from mpi_lidar.physics.coupling import DEFAULT_COUPLING_GAIN
 from mpi_lidar.scans.scan import grid_rays
@@ -65,3 +68,13 @@ def test_a_path_traced_scan_reads_its_range_through_the_sensor_model():
     error = scan.depth[-1] - scan.reference_depth
     assert np.abs(error).max() < 0.01 and abs(float(error.mean())) < 2e-3  # Table I noise: about 1 mm per pixel
     assert scan.name.endswith("(path traced)")
+
+
+def test_bias_profile_command__a_row_per_distance_and_more_bias_with_more_bounces():
+    done = subprocess.run([sys.executable, "-m", "benchmarks.mitsuba_render", "--angle", "90", "--samples", "64"],
+                          capture_output=True, text=True, check=True, timeout=300)
+    rows = [line.strip("|").split("|") for line in done.stdout.splitlines() if line.startswith("| 0.")]
+    assert [float(cells[0]) for cells in rows] == list(PROFILE_DISTANCES_M)
+    for cells in rows[2:]:  # from 3 cm on: right at the fold the multi-bounce renderer's occlusion takes some away
+        single, three = float(cells[1]), float(cells[2])
+        assert three >= single > 0, cells  # the higher bounces add light along longer paths in a concave corner
