@@ -129,7 +129,8 @@ def path_traced_case(case: Case, config: Config, rng_seed: list[int], samples: i
     from benchmarks.mitsuba_render import path_trace, scan_of, true_bias_m
 
     scene = case.scene()
-    traced = path_trace(scene, config, case.footprint_m2, samples=samples, seed=1_000_003 * rng_seed[-1])
+    paths_seed = 1_000_003 * (rng_seed[-1] + 101 * rng_seed[0])  # the case and --seed
+    traced = path_trace(scene, config, case.footprint_m2, samples=samples, seed=paths_seed)
     scan, direct = (scan_of(scene, traced, config, np.random.default_rng(rng_seed), direct_only=alone)
                     for alone in (False, True))
     assert scan.reference_depth is not None

@@ -18,9 +18,9 @@ Units: a white Lambertian plane square on at 1 m returns the radiance I / pi of 
 sensor's amplitude Gamma_R there (eq F3 of the footprint docs), so the amplitude is pi Gamma_R / I times the
 radiance; no figure of the scene enters the scale.
 
-Needs the ``render`` dependency group (``uv sync --group render``: mitsuba, mitransient) and an LLVM of version 19
-or later for Dr.Jit's CPU backend (``make render-deps`` installs Debian's libllvm19); :func:`llvm_library` finds
-it.
+Needs the ``render`` dependency group (mitsuba, mitransient: ``make test`` builds .venv with it) and an LLVM of
+version 19 or later for Dr.Jit's CPU backend (``make system-deps`` installs Debian's libllvm19);
+:func:`llvm_library` finds it.
 """
 
 from __future__ import annotations
@@ -58,6 +58,9 @@ MIN_LLVM_VERSION = 19
 LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/llvm-*/lib/libLLVM*.so*")
 
 
+SYNC_RENDER_GROUP = "run .venv/bin/uv sync --frozen (the default groups hold the render group)"
+
+
 class RendererMissingError(RuntimeError):
     """Mitsuba, mitransient or a recent enough LLVM is not installed."""
 
@@ -82,18 +85,18 @@ def _mitsuba() -> Any:
     """Mitsuba on its monochromatic CPU variant, with mitransient's plugins registered."""
     library = llvm_library()
     if library is None:
-        raise RendererMissingError("no LLVM 19+ library found for Mitsuba's CPU backend: run make render-deps "
-                              "(or set DRJIT_LIBLLVM_PATH)")
+        raise RendererMissingError("no LLVM 19+ library found for Mitsuba's CPU backend: run make system-deps "
+                                   "as root (it installs libllvm19) or set DRJIT_LIBLLVM_PATH")
     os.environ.setdefault("DRJIT_LIBLLVM_PATH", library)
     try:
         import mitsuba as mi
     except ImportError as error:
-        raise RendererMissingError("mitsuba is not installed: run make render-deps") from error
+        raise RendererMissingError(f"mitsuba is not installed: {SYNC_RENDER_GROUP}") from error
     mi.set_variant("llvm_ad_mono")
     try:
         import mitransient  # noqa: F401  (registers the transient film and integrator)
     except ImportError as error:
-        raise RendererMissingError("mitransient is not installed: run make render-deps") from error
+        raise RendererMissingError(f"mitransient is not installed: {SYNC_RENDER_GROUP}") from error
     return mi
 
 
