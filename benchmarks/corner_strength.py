@@ -9,7 +9,10 @@ and 90-degree corners at 0.073 m^2, at Table I noise, and corrects each with def
 footprint) and with the true footprint given (``footprint_area_m2``). Per scene it prints the MAE of the 31.25 MHz
 depth and of the output [mm] on the reference mask, within 20 cm of the folds (a corner's edge; a room's folds,
 box and floor included) and within 20 cm of a room's tri-corners; the same with the true footprint; the noise
-floor (the default correction of the same scan rendered without multipath, same noise); the footprint estimated
+floor (the default correction of the same scan rendered without multipath, same noise); the model's lower bound,
+fed the render's exact inputs (every pixel whose true bias reaches 2 mm corrected by the model with the rho_ABA
+and d_AB (F15) of the render's own multipath ratio at the lowest frequency, the others as the default run left
+them); the footprint estimated
 against the true one; the share of corrected pixels whose geometric inputs lie beyond the model's training prior
 (its card's rho_ABA and d_AB ranges); the share of valid pixels within their 1-sigma uncertainty; and the pixels
 made worse by more than three times their noise (|output - reference| > |true multipath bias| + 3 sigma, sigma
@@ -48,6 +51,7 @@ from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, correct_scan
 from mpi_lidar.correction.options import Estimate
 from mpi_lidar.correction.result import Correction
+from mpi_lidar.learning.features import geometry_inputs
 from mpi_lidar.learning.model import CorrectionModel, load_model
 from mpi_lidar.physics.coupling import DEFAULT_COUPLING_GAIN
 from mpi_lidar.physics.noise import NoiseModel
@@ -62,6 +66,9 @@ from mpi_lidar.simulation.scenes import (
 )
 
 STRONG_CORNER_M2 = 0.073
+# The pixels whose true multipath bias reaches this [m] get the model fed the render's exact inputs in the lower
+# bound (the gate's default threshold).
+TRUE_INPUTS_MIN_BIAS_M = 2e-3
 
 
 @dataclass(frozen=True)
@@ -96,6 +103,22 @@ class Rendered:
     true_bias_m: NDArray[np.float64]
     folds: NDArray[np.bool_]
     tri_corners: NDArray[np.bool_]
+    exact_inputs: NDArray[np.float64]
+
+
+def exact_inputs(phasor: NDArray, direct: NDArray, ranges_m: NDArray, config: Config) -> NDArray[np.float64]:
+    """The geometric inputs (n, 2) a render's own light gives its pixels, from their phasors (n, F) with all the
+    light and with the direct return alone and their ranges (n,) [m]: (F15) of the true multipath ratio at the
+    lowest frequency, rho_ABA = |ratio| / (rho_A cos_i) and d_AB its phase over the wavenumber [m], rho_A cos_i
+    read off the direct return (Gamma_R rho_A cos_i / d^2); 0 where the direct return is nothing."""
+    lowest = int(np.argmin(config.frequencies_hz))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = phasor[:, lowest] / direct[:, lowest] - 1.0
+        albedo_cos = np.abs(direct[:, lowest]) * ranges_m**2 / config.sensor.gamma_r_v2
+        rho_aba = np.abs(ratio) / albedo_cos
+    wavenumber = 4 * np.pi * config.frequencies_hz[lowest] / config.sensor.speed_of_light_m_per_s
+    d_ab = np.mod(np.angle(ratio), 2 * np.pi) / wavenumber
+    return geometry_inputs(np.where(np.isfinite(rho_aba), rho_aba, 0.0), np.where(np.isfinite(d_ab), d_ab, 0.0))
 
 
 def render_case(case: Case, config: Config, rng_seed: list[int]) -> Rendered:
@@ -120,7 +143,8 @@ def render_case(case: Case, config: Config, rng_seed: list[int]) -> Rendered:
     points = reference[..., None] * scans[0].rays()
     folds = _near_segments(points, scene.folds) if scene.folds else edge_line_region(scans[0], edge_line(2.0))
     tri = _near_points(points, scene.tri_corners)
-    return Rendered(scans[0], scans[1], truth["bias_m"][:, -1].reshape(h, w), folds, tri)
+    return Rendered(scans[0], scans[1], truth["bias_m"][:, -1].reshape(h, w), folds, tri,
+                    exact_inputs(phasor, direct, d_as, config))
 
 
 def path_traced_case(case: Case, config: Config, rng_seed: list[int], samples: int) -> Rendered:
@@ -136,7 +160,11 @@ def path_traced_case(case: Case, config: Config, rng_seed: list[int], samples: i
     assert scan.reference_depth is not None
     points = scan.reference_depth[..., None] * scan.rays()
     folds = _near_segments(points, scene.folds) if scene.folds else edge_line_region(scan, edge_line(2.0))
-    return Rendered(scan, direct, true_bias_m(traced, config), folds, _near_points(points, scene.tri_corners))
+    f = len(config.frequencies_hz)
+    inputs = exact_inputs(traced.phasor.reshape(f, -1).T, traced.direct.reshape(f, -1).T,
+                          scan.reference_depth.ravel().astype(np.float64), config)
+    return Rendered(scan, direct, true_bias_m(traced, config), folds, _near_points(points, scene.tri_corners),
+                    inputs)
 
 
 def _near_segments(points: NDArray, segments: tuple) -> NDArray[np.bool_]:
@@ -160,11 +188,11 @@ def _near_points(points: NDArray, corners: tuple) -> NDArray[np.bool_]:
 @dataclass(frozen=True)
 class Row:
     """One case's figures: MAE [mm] per region (masked, folds, tri-corners) as (raw, default, true footprint,
-    noise floor); the footprint estimate and its sd [m^2] (NaN: not significant); the shares [1] of corrected
+    true inputs, noise floor); the footprint estimate and its sd [m^2] (NaN: not significant); the shares [1] of corrected
     pixels beyond the prior, of valid pixels within 1 sigma and of pixels made worse by > 3 sigma, and the count
     of the last."""
 
-    mae_mm: dict[str, tuple[float, float, float, float]]
+    mae_mm: dict[str, tuple[float, float, float, float, float]]
     footprint_m2: tuple[float, float]
     beyond_prior: float
     covered: float
@@ -198,13 +226,24 @@ def measure(case: Case, rendered: Rendered, model: CorrectionModel, config: Conf
     reference = scan.reference_depth
     regions = {"masked": usable & scan.reference_mask, "folds": usable & rendered.folds,
                "tri-corners": usable & rendered.tri_corners}
+    exact = _exact_inputs_depth(scan, default, model, rendered)
     mae = {name: (mae_mm(scan.depth[-1], reference, where), mae_mm(default.depth, reference, where),
-                  mae_mm(given.depth, reference, where), mae_mm(floor.depth, reference, where))
+                  mae_mm(given.depth, reference, where), mae_mm(exact, reference, where),
+                  mae_mm(floor.depth, reference, where))
            for name, where in regions.items()}
     worse = _made_worse(scan, default, rendered.true_bias_m, config) & usable
     return Row(mae, _footprint(default), _beyond_prior_share(default), covered_share(default, reference, usable),
                float(worse.sum() / max(usable.sum(), 1)), int(worse.sum()),
                _split(default, reference, regions["masked"], rendered.true_bias_m))
+
+
+def _exact_inputs_depth(scan: Scan, run: Correction, model: CorrectionModel, rendered: Rendered) -> NDArray:
+    """The model's lower bound (H, W) [m]: every pixel whose true bias reaches TRUE_INPUTS_MIN_BIAS_M corrected by
+    the model fed the render's exact inputs, the others as ``run`` left them."""
+    depth = run.depth.astype(np.float64).ravel()
+    strong = (np.abs(np.nan_to_num(rendered.true_bias_m.ravel())) >= TRUE_INPUTS_MIN_BIAS_M) & np.isfinite(depth)
+    depth[strong] = model.predict_depth(scan.raw_pixels()[strong], rendered.exact_inputs[strong])
+    return depth.reshape(scan.shape)
 
 
 def _split(run: Correction, reference: NDArray, where: NDArray, true_bias_m: NDArray) -> dict[str, Split]:
@@ -248,7 +287,7 @@ def _beyond_prior_share(run: Correction) -> float:
     return run.beyond_prior_pixels / corrected if corrected else float("nan")
 
 
-HEADER = ("| scene | masked, raw -> default / true footprint / noise floor [mm] | folds, the same [mm] "
+HEADER = ("| scene | masked, raw -> default / true footprint / true inputs / noise floor [mm] | folds, the same [mm] "
           "| tri-corners, the same [mm] | footprint estimated [m^2] | corrected beyond the prior | within 1 sigma "
           "| made worse by > 3 sigma |\n|---|---|---|---|---|---|---|---|")
 

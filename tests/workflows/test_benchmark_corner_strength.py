@@ -6,9 +6,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
-from benchmarks.corner_strength import HEADER, cases
+from benchmarks.corner_strength import HEADER, cases, exact_inputs
+from mpi_lidar.config import Config
 from tests.model_factory import tiny_model
 
 
@@ -27,7 +29,7 @@ def test_corner_strength__a_row_per_scene_with_its_footprint_and_shares(tmp_path
     rows = _table(done.stdout, HEADER.splitlines()[0])
     assert [cells[0] for cells in rows] == [case.label for case in cases()]
     for cells in rows:
-        assert cells[1].count("->") == 1 and cells[1].split("->")[1].count("/") == 2, cells
+        assert cells[1].count("->") == 1 and cells[1].split("->")[1].count("/") == 3, cells
         assert 0.0 <= float(cells[6].rstrip(" %")) <= 100.0
         assert int(cells[7].split()[0]) >= 0
     assert all(cells[3] == "" for cells in rows if cells[0].startswith("corner")), "a corner has no tri-corner"
@@ -59,3 +61,18 @@ def test_corner_strength__path_traced_by_mitsuba_gives_the_same_rows(tmp_path):
         assert raw > 0 and noise_floor > 0, cells
     strong = [float(cells[1].split("->")[0]) for cells in rows if cells[0].startswith("corner 60")]
     assert strong[0] > 3 * float(rows[0][1].split("->")[0]), "the strong corner's multipath is in the raw depth"
+
+
+@pytest.mark.unit
+def test_exact_inputs__recover_the_two_path_rho_aba_and_d_ab_a_render_was_made_of():
+    config = Config()
+    frequencies = np.asarray(config.frequencies_hz)
+    c = config.sensor.speed_of_light_m_per_s
+    ranges, albedo_cos = np.array([1.5, 2.0, 3.0]), np.array([0.7, 0.4, 0.2])
+    rho_aba, d_ab = np.array([0.3, 1.2, 0.05]), np.array([0.1, 0.35, 0.02])
+    direct = (config.sensor.gamma_r_v2 * albedo_cos / ranges**2)[:, None] * np.exp(
+        4j * np.pi * np.outer(ranges, frequencies) / c)
+    ratio = (rho_aba * albedo_cos)[:, None] * np.exp(4j * np.pi * np.outer(d_ab, frequencies) / c)
+    found = exact_inputs(direct * (1 + ratio), direct, ranges, config)
+    np.testing.assert_allclose(found, np.column_stack([rho_aba, d_ab]), rtol=1e-9)
+    assert exact_inputs(direct, direct, ranges, config)[:, 0].max() < 1e-12, "no multipath: rho_ABA 0"
