@@ -188,9 +188,9 @@ def _near_points(points: NDArray, corners: tuple) -> NDArray[np.bool_]:
 @dataclass(frozen=True)
 class Row:
     """One case's figures: MAE [mm] per region (masked, folds, tri-corners) as (raw, default, true footprint,
-    true inputs, noise floor); the footprint estimate and its sd [m^2] (NaN: not significant); the shares [1] of corrected
-    pixels beyond the prior, of valid pixels within 1 sigma and of pixels made worse by > 3 sigma, and the count
-    of the last."""
+    true inputs, noise floor); the footprint estimate and its sd [m^2] (NaN: not significant); the shares [1] of
+    corrected pixels beyond the prior, of valid pixels within 1 sigma and of pixels made worse by > 3 sigma, and
+    the count of the last."""
 
     mae_mm: dict[str, tuple[float, float, float, float, float]]
     footprint_m2: tuple[float, float]
