@@ -1,6 +1,7 @@
 """Correction per corner strength: room corners and strong two-plane corners, against the truth of the render.
 
 Run: .venv/bin/python -m benchmarks.corner_strength --model DIR [--seed 0] [--shrink 1] [--renderer mitsuba]
+     [--only TEXT]
  or: .venv/bin/python -m benchmarks.corner_strength --partners  (the partners' light summed or the dominant one's)
 
 Renders the rooms of :func:`benchmarks.scenes.room_set` (two walls and a floor, a 0.35 m box, 48 x 64 pixels; the
@@ -359,6 +360,7 @@ def main() -> None:
     parser.add_argument("--renderer", choices=("project", "mitsuba"), default="project",
                         help="Render with the project's renderer or path trace with Mitsuba 3 (the render group).")
     parser.add_argument("--samples", type=int, default=32768, help="Paths per pixel with --renderer mitsuba.")
+    parser.add_argument("--only", default="", help="Only the scenes whose label contains this text.")
     parser.add_argument("--partners", action="store_true",
                         help="Only compare the partners' light summed with the dominant partner's (no model).")
     args = parser.parse_args()
@@ -379,6 +381,8 @@ def main() -> None:
     print(HEADER)
     measured = []
     for index, case in enumerate(cases(args.shrink)):
+        if args.only not in case.label:
+            continue
         rendered = (render_case(case, config, [args.seed, index]) if args.renderer == "project"
                     else path_traced_case(case, config, [args.seed, index], args.samples))
         measured.append((case, measure(case, rendered, model, config)))

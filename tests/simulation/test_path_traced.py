@@ -12,7 +12,7 @@ from benchmarks.mitsuba_render import PROFILE_DISTANCES_M, path_trace, scan_of, 
 from mpi_lidar.config import Config
 from mpi_lidar.physics.coupling import DEFAULT_COUPLING_GAIN
 from mpi_lidar.scans.scan import grid_rays
-from mpi_lidar.simulation.scenes import Rectangle, corner, first_hits, flat_wall, light_transport
+from mpi_lidar.simulation.scenes import Rectangle, corner, first_hits, flat_wall, light_transport, room_with_box
 
 pytestmark = pytest.mark.integration
 CONFIG = Config()
@@ -78,3 +78,23 @@ def test_bias_profile_command__a_row_per_distance_and_more_bias_with_more_bounce
     for cells in rows[2:]:  # from 3 cm on: right at the fold the multi-bounce renderer's occlusion takes some away
         single, three = float(cells[1]), float(cells[2])
         assert three >= single > 0, cells  # the higher bounces add light along longer paths in a concave corner
+
+
+def test_a_rooms_one_sided_faces_return_their_closed_form_towards_the_scanner():
+    # The room's faces reflect on their inner side only (as the project's renderer has them): a face handed to
+    # Mitsuba the wrong way round would return nothing.
+    scene = room_with_box(height=6, width=8)
+    traced = path_trace(scene, CONFIG, 0.002, samples=64)
+    ranges, which = first_hits(scene)
+    rays = grid_rays(scene.azimuth_rad, scene.elevation_rad).reshape(-1, 3)
+    expected = []
+    for ray, distance, surface in zip(rays, ranges, which, strict=True):
+        face = scene.surfaces[surface]
+        assert isinstance(face, Rectangle) and not face.two_sided
+        normal = np.cross(face.half_u, face.half_v)
+        expected.append(CONFIG.sensor.gamma_r_v2 * face.albedo * abs(ray @ normal) / np.linalg.norm(normal)
+                        / distance**2)
+    amplitude = np.abs(traced.direct[-1]).ravel()
+    inside = amplitude > 0.9 * np.asarray(expected)  # a pixel whose ray grazes a face's border returns part
+    assert inside.mean() > 0.9
+    np.testing.assert_allclose(amplitude[inside], np.asarray(expected)[inside], rtol=2e-3)
