@@ -122,6 +122,8 @@ def path_trace(scene: Scene, config: Config, footprint_m2: float, *, samples: in
     c = config.sensor.speed_of_light_m_per_s
     scale = np.pi * config.sensor.gamma_r_v2 / SPOT_INTENSITY
     hit = np.isfinite(ranges)
+    if not hit.any():
+        raise ValueError(f"path_trace: no ray of {scene.name} meets a surface; nothing to render")
     start = 2 * float(ranges[hit].min()) - 0.01
     bins = int(np.ceil((2 * float(ranges[hit].max()) + WINDOW_OPL_M - start) / BIN_OPL_M))
     opl = start + (np.arange(bins) + 0.5) * BIN_OPL_M + NEAR_CLIP_M

@@ -9,7 +9,8 @@ docs/explanation/footprint.md carries the equations (F1)-(F15) the modules cite;
 ``_two_bounce``.
 
 The parts, each private: ``_surfaces`` (the scan's flat surfaces), ``_albedo`` (albedo from amplitude),
-``_partners`` (flat surfaces as planes continued beyond the view), ``_two_bounce`` (light from one partner plane to
+``_partners`` (flat surfaces as planes continued beyond the view), ``_facing_pairs`` (which surfaces meet and
+face, and the block pairs no plane describes), ``_two_bounce`` (light from one partner plane to
 another and back, A -> B -> C -> A), ``_coupling`` (the multipath model's phasors),
 ``_problem`` (the fit's rows, bias model and planes), ``_fit`` (the weighted fit of the footprint), ``_result``
 (:class:`FootprintEstimate`), ``_estimate`` (the rounds of the fit), ``_inputs`` (the model's inputs).

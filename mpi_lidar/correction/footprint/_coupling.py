@@ -25,7 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mpi_lidar.config import SensorConfig
-from mpi_lidar.correction.footprint._partners import BlockPairs, PlanePartners
+from mpi_lidar.correction.footprint._facing_pairs import BlockPairs
+from mpi_lidar.correction.footprint._partners import PlanePartners
 from mpi_lidar.correction.footprint._surfaces import SurfaceLabels
 from mpi_lidar.correction.footprint._two_bounce import partner_bounces
 from mpi_lidar.scans.geometry import FacingBlocks

@@ -37,6 +37,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from mpi_lidar.correction.footprint._facing_pairs import (
+    block_pairs_off_planes,
+    meeting_surfaces,
+    surfaces_facing,
+)
 from mpi_lidar.correction.footprint._plane_coupling import coupling_at, dot3
 from mpi_lidar.scans.geometry import FacingBlocks
 from mpi_lidar.scans.scan import Scan
@@ -99,21 +104,6 @@ class Patches:
     areas_m2: NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class BlockPairs:
-    """Facing block pairs: receiving block A and partner block B (flat block indices), the coupling kappa_B at
-    A_fp = 1 m^2 [1] and the distance A-B [m], each (n,)."""
-
-    receiver: NDArray[np.intp]
-    partner: NDArray[np.intp]
-    kappa: NDArray[np.float64]
-    distance_m: NDArray[np.float64]
-
-    @property
-    def size(self) -> int:
-        return int(self.receiver.size)
-
-
 class PlanePartners:
     """The flat surfaces of a scan as planes with their patches, and the curved partners' block pairs.
 
@@ -137,13 +127,10 @@ class PlanePartners:
         self.partners = sorted(self.patches)
         # A block of each plane's surface, whose albedo stands for the plane's.
         self.partner_block = np.array([np.flatnonzero(components == p)[0] for p in self.partners], dtype=np.intp)
-        self.curved, self.off_plane = _block_pairs(blocks, components, labels, narrow, set(self.planes),
-                                                   set(self.patches))
+        self.curved, self.off_plane = block_pairs_off_planes(blocks, components, labels, narrow, set(self.planes),
+                                                             set(self.patches))
         # The planes each surface receives light from: those its blocks have facing pairs with.
-        a, b = blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b]
-        receiving = distinct_pairs(labels[a], components[b])
-        self.facing = {own: {p for one, p in receiving if one == own} & set(self.patches) - {own}
-                       for own in self.planes}
+        self.facing = surfaces_facing(blocks, labels, components, set(self.planes), set(self.patches))
 
     @functools.cached_property
     def coarse_patches(self) -> dict[int, Patches]:
@@ -332,7 +319,7 @@ def _surface_patches(blocks: FacingBlocks, components: NDArray, planes: dict[int
     # The second neighbour of each ray is the nearest other one (the first is the ray itself).
     spacing = float(np.median(directions.query(block_rays, k=2)[0][:, 1])) if block_rays.shape[0] > 1 else 0.0
     block_centres = blocks.centres.reshape(-1, 3)
-    meeting = _meeting_surfaces(blocks, components, planes)
+    meeting = meeting_surfaces(blocks, components, set(planes))
     found = {}
     for surface, plane in planes.items():
         normal, centre = plane.normal, plane.centre
@@ -379,29 +366,6 @@ def _measured_range(rays: NDArray, nearest: NDArray, blocks: FacingBlocks, block
         return np.where(grazing, offset / along, block_range[nearest])
 
 
-def _meeting_surfaces(blocks: FacingBlocks, components: NDArray, planes: dict[int, SurfacePlane]
-                      ) -> dict[int, set[int]]:
-    """Per modelled surface, the other modelled surfaces it meets: those with which its blocks have facing pairs."""
-    facing = distinct_pairs(components[blocks.index[blocks.pairs.a]], components[blocks.index[blocks.pairs.b]])
-    found: dict[int, set[int]] = {}
-    for one, other in facing | {(other, one) for one, other in facing}:
-        if one != other and one in planes and other in planes:
-            found.setdefault(one, set()).add(other)
-    return found
-
-
-def distinct_pairs(first: NDArray, second: NDArray) -> set[tuple[int, int]]:
-    """The distinct pairs (first[i], second[i]) of two label arrays (n,) whose labels are -1 or more.
-
-    Each pair is one integer, so one sort of n numbers finds them: ``np.unique(..., axis=0)`` of the (n, 2)
-    rows sorts them as records, some 20x slower on a scan's tens of thousands of facing block pairs."""
-    if first.size == 0:
-        return set()
-    base = int(max(first.max(), second.max())) + 2
-    codes = np.unique((first.astype(np.int64) + 1) * base + (second.astype(np.int64) + 1))
-    return {(int(one) - 1, int(other) - 1) for one, other in zip(*np.divmod(codes, base), strict=True)}
-
-
 def _bounding_surfaces(members: NDArray, planes: dict[int, SurfacePlane], meeting: set[int]) -> set[int]:
     """The surfaces of ``meeting`` that bound a surface of block centres ``members`` (k, 3) [m]: those whose plane
     has the whole of it in front (to :data:`FRONT_TOLERANCE_M`). A wall bounds its floor and the floor a box's face;
@@ -445,19 +409,6 @@ def _graded_patches(centre: NDArray, e1: NDArray, e2: NDArray, reach_m: float, r
         side = np.tile(side[split] / 2, 4)
     u, v, side = (np.concatenate([patches[k] for patches in done]) for k in range(3))
     return u, v, side
-
-
-def _block_pairs(blocks: FacingBlocks, components: NDArray, labels: NDArray, narrow: set[int], planes: set[int],
-                 patched: set[int]) -> tuple[BlockPairs, BlockPairs]:
-    """The block pairs the planes do not describe: those of a
-    receiver A on a plane whose partner B is neither a patched plane nor a narrow strip (a curved partner),
-    and all those of a receiver on no plane."""
-    a, b = blocks.index[blocks.pairs.a], blocks.index[blocks.pairs.b]
-    kappa, distance = blocks.pairs.kappa(1.0), blocks.pairs.distance_m
-    on_plane = np.isin(labels[a], sorted(planes))
-    curved = on_plane & ~np.isin(components[b], sorted(patched | narrow))
-    return (BlockPairs(a[curved], b[curved], kappa[curved], distance[curved]),
-            BlockPairs(a[~on_plane], b[~on_plane], kappa[~on_plane], distance[~on_plane]))
 
 
 def on_plane(rays: NDArray, plane: SurfacePlane) -> NDArray[np.float64]:

@@ -9,11 +9,11 @@ import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction.footprint import surface_labels
+from mpi_lidar.correction.footprint._facing_pairs import distinct_pairs
 from mpi_lidar.correction.footprint._partners import (
     PlanePartners,
     SurfacePlane,
     _narrow_components,
-    distinct_pairs,
     on_plane,
 )
 from mpi_lidar.correction.footprint._plane_coupling import coupling_at, phasor_sums
