@@ -116,18 +116,39 @@ class SceneGeometry:
         return self.blocks is not None
 
 
-def scene_blocks(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, noise: NoiseModel | None = None
-                 ) -> geometry.FacingBlocks | None:
+def scene_blocks(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, noise: NoiseModel | None = None,
+                 block_pixels: int | None = None) -> geometry.FacingBlocks | None:
     """The scan's facing blocks from the highest-frequency depth of its usable pixels ``usable_depth`` (H*W,) [m]
     (NaN elsewhere), in tiles of ``options.tile_pixels``, their planes judged against that depth's noise under
-    ``noise`` (None: against their own residuals); None for a scan without geometry."""
+    ``noise`` (None: against their own residuals); None for a scan without geometry. ``block_pixels``: the
+    blocks' side [px] (None: about ``options.geometry_block_m``)."""
     rays = scan.ray_rows()
     if rays is None:
         return None
     sigma = None if noise is None else depth_sigma_map(scan, usable_depth, noise, options.tile_pixels)
     return geometry.facing_blocks(usable_depth.reshape(scan.shape), rays, block_m=options.geometry_block_m,
                                   max_range_m=options.partner_range_m, band_pixels=options.tile_pixels,
-                                  depth_sigma=sigma)
+                                  depth_sigma=sigma, block_pixels=block_pixels)
+
+
+def finer_scene_blocks(scan: Scan, usable_depth: NDArray, options: CorrectionOptions, noise: NoiseModel | None,
+                       blocks: geometry.FacingBlocks) -> geometry.FacingBlocks | None:
+    """:func:`scene_blocks` on a finer grid than ``blocks`` where the scan is coarse
+    (:func:`~mpi_lidar.scans.geometry.finer_block_pixels`) and some of the finer blocks face each other; None
+    elsewhere.
+
+    A footprint fit that settles nowhere on a coarse scan's blocks is measured again on these: a room seen in
+    a few dozen pixels is a handful of blocks a surface, most of them along its folds, and the fit has too little
+    of each surface left to measure on (at 24 x 32 pixels no room of the corner-strength benchmark measured its
+    footprint on blocks of 4 x 4 pixels, every one on blocks of 2 x 2)."""
+    rays = scan.ray_rows()
+    if rays is None:
+        return None
+    finer = geometry.finer_block_pixels(usable_depth.reshape(scan.shape), rays, options.geometry_block_m)
+    if finer is None or finer >= blocks.block_pixels:
+        return None
+    found = scene_blocks(scan, usable_depth, options, noise, block_pixels=finer)
+    return found if found is not None and found.pairs.a.size else None
 
 
 def depth_sigma_map(scan: Scan, usable_depth: NDArray, noise: NoiseModel, tile_pixels: int) -> NDArray[np.float32]:
@@ -194,19 +215,32 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     surfaces = surface_labels(blocks) if blocks.pairs.a.size else None
     estimate, uncalibrated, measured_albedo = None, None, None
 
-    def albedos() -> NDArray[np.float64]:
+    def albedos(of: geometry.FacingBlocks) -> NDArray[np.float64]:
         """The blocks' albedos from the amplitudes, or white where their unit is not trusted."""
-        return block_albedo(scan, blocks, sensor, options.tile_pixels) if unit_trusted else white_albedo(blocks)
+        return block_albedo(scan, of, sensor, options.tile_pixels) if unit_trusted else white_albedo(of)
+
+    def measured_on(of: geometry.FacingBlocks) -> tuple[FootprintEstimate, NDArray[np.float64], SurfaceLabels | None]:
+        """The footprint estimate on the blocks ``of``, their albedos and surfaces."""
+        albedo, labels = albedos(of), surface_labels(of) if of.pairs.a.size else None
+        found = estimate_footprint(scan, of, np.isfinite(usable_depth), sensor, noise=noise, measured_albedo=albedo,
+                                   surfaces=labels, white_partners=not unit_trusted)
+        return found, albedo, labels
 
     if not auto:
         # Validated options hold a number here; no float() of it, so a bad value fails where it is used.
         footprint_m2 = cast(float, options.footprint_area_m2)
+        finer = finer_scene_blocks(scan, usable_depth, options, noise, blocks) if footprint_m2 > 0 else None
+        if finer is not None:  # no fit to settle: a coarse scan's surfaces are resolved better on finer blocks
+            blocks, surfaces = finer, surface_labels(finer)
         potential = blocks.block_potential(footprint_m2)
     else:
-        measured_albedo = albedos()
-        estimate = estimate_footprint(scan, blocks, np.isfinite(usable_depth), sensor, noise=noise,
-                                      measured_albedo=measured_albedo, surfaces=surfaces,
-                                      white_partners=not unit_trusted)
+        estimate, measured_albedo, surfaces = measured_on(blocks)
+        finer = (None if estimate.significant or estimate.pixels == 0
+                 else finer_scene_blocks(scan, usable_depth, options, noise, blocks))
+        if finer is not None:
+            on_finer = measured_on(finer)
+            if _better_estimate(on_finer[0], estimate):
+                blocks, (estimate, measured_albedo, surfaces) = finer, on_finer
         if estimate.significant:
             footprint_m2 = estimate.area_m2
         else:
@@ -221,7 +255,7 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         planes = None
         if surfaces is not None and footprint_m2 > 0:
             if measured_albedo is None:
-                measured_albedo = albedos()
+                measured_albedo = albedos(blocks)
             planes = unbent_planes(scan, blocks, np.isfinite(usable_depth), sensor, footprint_m2, surfaces=surfaces,
                                    measured_albedo=measured_albedo, white_surfaces=not unit_trusted, noise=noise)
         inputs = plane_model_inputs(scan, blocks, sensor, footprint_m2, surfaces, measured_albedo, options.tile_pixels,
@@ -232,6 +266,13 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
                   else blocks.block_potential(uncertainty_footprint_m2(estimate), np.minimum(measured_albedo, 1.0)))
     return SceneGeometry(blocks, surfaces, estimate, footprint_m2, potential, bias_m, reaches, uncalibrated,
                          inputs if with_model_inputs else None, left_alone_potential=left_alone)
+
+
+def _better_estimate(finer: FootprintEstimate, metric: FootprintEstimate) -> bool:
+    """Whether a coarse scan's footprint estimate on finer blocks replaces the one on the metric blocks (which is
+    not significant): where it is significant, or where it bounds the footprint (a finite sd) and the other does
+    not (its uncertainty then carries that bound, not the cap)."""
+    return finer.significant or (bool(np.isfinite(finer.sigma_m2)) and not np.isfinite(metric.sigma_m2))
 
 
 def uncertainty_footprint_m2(estimate: FootprintEstimate) -> float:
@@ -245,11 +286,15 @@ def rms_footprint_m2(estimate: FootprintEstimate) -> float:
     root mean square of the footprint under the estimate's uncertainty, hypot(estimate, sd) (the bias grows about
     as the footprint, so its mean square is the bias at this footprint's, squared), capped at
     :data:`~mpi_lidar.correction.options.MAX_FOOTPRINT_AREA_M2` (as the estimate's upper bound for the pixels
-    left uncalibrated); 0 where nothing was measured (no facing surfaces to tell it: the scan then says nothing
-    of its multipath)."""
+    left uncalibrated). A fit that settled nowhere on facing surfaces (sd infinite) bounds nothing below the cap,
+    so the cap it is; 0 where nothing was measured (no facing surfaces to tell it: the scan then says nothing of
+    its multipath)."""
+    if estimate.pixels == 0:
+        return 0.0
+    if not np.isfinite(estimate.sigma_m2):
+        return MAX_FOOTPRINT_AREA_M2
     area = max(float(estimate.area_m2), 0.0) if np.isfinite(estimate.area_m2) else 0.0
-    sd = float(estimate.sigma_m2) if np.isfinite(estimate.sigma_m2) else 0.0
-    return min(float(np.hypot(area, sd)), MAX_FOOTPRINT_AREA_M2)
+    return min(float(np.hypot(area, float(estimate.sigma_m2))), MAX_FOOTPRINT_AREA_M2)
 
 
 def _reaches_min_bias(potential: geometry.BlockPotential, options: CorrectionOptions,

@@ -24,14 +24,15 @@ def estimate(area: float, sd: float, pixels: int = 1000) -> FootprintEstimate:
     return FootprintEstimate(area_m2=area, sigma_m2=sd, pixels=pixels, surfaces=2)
 
 
-@pytest.mark.parametrize(("area", "sd", "expected"), [
-    (0.03, 0.04, 0.05),  # the root mean square of a footprint of mean 0.03 and sd 0.04
-    (-0.39, 0.39, 0.39),  # a negative estimate: no footprint is negative, its spread alone
-    (0.5, 2.0, MAX_FOOTPRINT_AREA_M2),  # capped as the uncalibrated pixels' upper bound
-    (float("nan"), float("inf"), 0.0),  # nothing measured: the scan says nothing of its multipath
+@pytest.mark.parametrize(("area", "sd", "pixels", "expected"), [
+    (0.03, 0.04, 1000, 0.05),  # the root mean square of a footprint of mean 0.03 and sd 0.04
+    (-0.39, 0.39, 1000, 0.39),  # a negative estimate: no footprint is negative, its spread alone
+    (0.5, 2.0, 1000, MAX_FOOTPRINT_AREA_M2),  # capped as the uncalibrated pixels' upper bound
+    (float("nan"), float("inf"), 1000, MAX_FOOTPRINT_AREA_M2),  # facing surfaces, a fit that settled nowhere
+    (float("nan"), float("inf"), 0, 0.0),  # nothing measured: the scan says nothing of its multipath
 ])
-def test_rms_footprint__is_the_footprints_root_mean_square_under_its_uncertainty(area, sd, expected):
-    assert rms_footprint_m2(estimate(area, sd)) == pytest.approx(expected, abs=1e-12)
+def test_rms_footprint__is_the_footprints_root_mean_square_under_its_uncertainty(area, sd, pixels, expected):
+    assert rms_footprint_m2(estimate(area, sd, pixels)) == pytest.approx(expected, abs=1e-12)
 
 
 def test_uncertainty_footprint__is_a_significant_estimates_own():

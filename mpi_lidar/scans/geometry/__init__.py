@@ -16,6 +16,7 @@ from mpi_lidar.scans.geometry._blocks import (
     block_row_bands,
     block_size_pixels,
     block_tiles,
+    finer_block_pixels,
     nanmedian_last,
     to_blocks,
 )
@@ -39,6 +40,6 @@ __all__ = [
     "BAND_PIXELS", "DEFAULT_BLOCK_M", "DEFAULT_MAX_RANGE_M", "DEFAULT_MIN_COS", "EDGE_JUMP_M", "FACING_SIGMAS",
     "MAX_BLOCK_PIXELS", "NO_COUPLING_ROOT", "BlockPotential", "EquivalentRhoAba", "FacingBlocks", "FacingPairs",
     "MultipathPotential", "RayRowsLike", "block_row_bands", "block_size_pixels", "block_tiles", "facing_blocks",
-    "fit_block_planes", "multipath_potential", "nanmedian_last", "pixel_solid_angle", "plane_uncertainty",
-    "point_cloud", "surface_normals", "to_blocks",
+    "finer_block_pixels", "fit_block_planes", "multipath_potential", "nanmedian_last", "pixel_solid_angle",
+    "plane_uncertainty", "point_cloud", "surface_normals", "to_blocks",
 ]

@@ -15,6 +15,10 @@ BAND_PIXELS = 262_144
 # Largest block side [px]. Blocks keep their metric size up to it, so a finer grid has bigger blocks, not
 # more of them: the facing pairs grow with the square of the block count.
 MAX_BLOCK_PIXELS = 512
+# Smallest block side [px] for the metric size (a plane through 16 pixels keeps the noise of its normal small) and
+# the side of the finer grid a coarse scan may be measured on (a plane still rests on 4 pixels).
+MIN_BLOCK_PIXELS = 4
+FINER_BLOCK_PIXELS = 2
 
 
 class RayRowsLike(Protocol):
@@ -28,12 +32,25 @@ class RayRowsLike(Protocol):
 
 
 def block_size_pixels(depth: NDArray, rays: NDArray | RayRowsLike, block_m: float) -> int:
-    """Side of a square pixel block spanning about ``block_m`` [m] at the scan's median range (4 to
-    :data:`MAX_BLOCK_PIXELS`).
+    """Side of a square pixel block spanning about ``block_m`` [m] at the scan's median range
+    (:data:`MIN_BLOCK_PIXELS` to :data:`MAX_BLOCK_PIXELS`).
 
     ``rays`` (H, W, 3) may be anything that gives rows of rays by slicing (:class:`mpi_lidar.scans.scan.RayRows`):
     only the two centre rows are read.
     """
+    return int(np.clip(_metric_block_pixels(depth, rays, block_m), MIN_BLOCK_PIXELS, MAX_BLOCK_PIXELS))
+
+
+def finer_block_pixels(depth: NDArray, rays: NDArray | RayRowsLike, block_m: float) -> int | None:
+    """:data:`FINER_BLOCK_PIXELS` where the scan is coarse, so that even :data:`MIN_BLOCK_PIXELS` of its pixels span
+    more than ``block_m`` [m] (a room seen in a few dozen pixels: each surface is a handful of blocks, most of
+    them along its folds); None elsewhere."""
+    return FINER_BLOCK_PIXELS if _metric_block_pixels(depth, rays, block_m) < MIN_BLOCK_PIXELS else None
+
+
+def _metric_block_pixels(depth: NDArray, rays: NDArray | RayRowsLike, block_m: float) -> int:
+    """Pixels spanning ``block_m`` [m] at the scan's median range, rounded (:data:`MIN_BLOCK_PIXELS` where the
+    scan gives no pitch)."""
     h, w = rays.shape[:2]
     cy, cx = h // 2, w // 2
     top = min(cy, max(h - 2, 0))
@@ -46,9 +63,9 @@ def block_size_pixels(depth: NDArray, rays: NDArray | RayRowsLike, block_m: floa
     values = np.asarray(depth)
     finite = values[np.isfinite(values) & (values > 0)]
     if not steps or finite.size == 0 or max(steps) <= 0:
-        return 4
+        return MIN_BLOCK_PIXELS
     pitch_m = float(_median(finite)) * max(steps)
-    return int(np.clip(round(block_m / pitch_m), 4, MAX_BLOCK_PIXELS))
+    return round(block_m / pitch_m)
 
 
 def _median(values: NDArray) -> np.floating:

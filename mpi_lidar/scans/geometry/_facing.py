@@ -162,7 +162,8 @@ class FacingBlocks:
 
 def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float = DEFAULT_BLOCK_M,
                   max_range_m: float = DEFAULT_MAX_RANGE_M, min_cos: float = DEFAULT_MIN_COS,
-                  band_pixels: int = BAND_PIXELS, depth_sigma: NDArray | None = None) -> FacingBlocks:
+                  band_pixels: int = BAND_PIXELS, depth_sigma: NDArray | None = None,
+                  block_pixels: int | None = None) -> FacingBlocks:
     """Block planes of a range map (H, W) [m] along unit rays (H, W, 3) and the block pairs that face each other.
 
     This is the costly part of :func:`multipath_potential` (plane fits, the partner search); the footprint
@@ -175,9 +176,12 @@ def facing_blocks(depth: NDArray, rays: NDArray | RayRowsLike, *, block_m: float
     the planes' own residuals stand for it): a pair faces only where both planes turn towards each other
     beyond what that noise gives them (:func:`~mpi_lidar.scans.geometry.plane_uncertainty`), so the noisy
     planes of a flat surface never face each other at any range.
+
+    ``block_pixels`` sets the blocks' side [px] (None: :func:`~mpi_lidar.scans.geometry.block_size_pixels`, about
+    ``block_m``).
     """
     h, w = depth.shape
-    b = block_size_pixels(depth, rays, block_m)
+    b = block_pixels or block_size_pixels(depth, rays, block_m)
     bands = block_tiles(h, w, b, band_pixels)
 
     def band_planes(band: list[tuple[slice, slice]]) -> list[NDArray]:
