@@ -39,6 +39,10 @@ from mpi_lidar.threads import on_cores
 NO_GEOMETRY_NOTE = "no scan geometry: the geometry gate fell back to pixel-wise correction of every valid pixel"
 NO_GEOMETRY_INPUTS_NOTE = ("no scan geometry: the model needs geometric inputs (rho_ABA, d_AB), so it corrects no "
                            "pixel; every valid pixel gets the baseline")
+# The footprint a coarse scan measures on finer blocks strays further from the truth than its sd says: estimate /
+# truth over the half-size rooms of the corner-strength benchmark, rendered by the project and path traced, read
+# 0.68-1.38x (26 % rms in log, docs/results/path-traced.md); a corrected depth's uncertainty carries that share.
+FINER_BLOCKS_SYSTEMATIC_SHARE = 0.26
 # Pixels whose partner-plane bias is worked out at once: the sums over their partners' patches take about a
 # kilobyte a pixel while they are made (as the model's inputs do).
 PLANE_BIAS_PIXELS = 16_384
@@ -229,7 +233,7 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
     if not auto:
         # Validated options hold a number here; no float() of it, so a bad value fails where it is used.
         footprint_m2 = cast(float, options.footprint_area_m2)
-        finer = finer_scene_blocks(scan, usable_depth, options, noise, blocks) if footprint_m2 > 0 else None
+        finer = finer_scene_blocks(scan, usable_depth, options, noise, blocks)
         if finer is not None:  # no fit to settle: a coarse scan's surfaces are resolved better on finer blocks
             blocks, surfaces = finer, surface_labels(finer)
         potential = blocks.block_potential(footprint_m2)
@@ -241,6 +245,7 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
             on_finer = measured_on(finer)
             if _better_estimate(on_finer[0], estimate):
                 blocks, (estimate, measured_albedo, surfaces) = finer, on_finer
+                estimate = dataclasses.replace(estimate, systematic_share=FINER_BLOCKS_SYSTEMATIC_SHARE)
         if estimate.significant:
             footprint_m2 = estimate.area_m2
         else:

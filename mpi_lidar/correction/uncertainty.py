@@ -70,7 +70,7 @@ def footprint_left_open(card: ModelCard, footprint: FootprintEstimate | None) ->
     """
     if footprint is None or not np.isfinite(footprint.area_m2) or footprint.area_m2 <= 0:
         return 0.0
-    relative = float(footprint.sigma_m2 / footprint.area_m2)
+    relative = footprint.relative_sigma
     if card.uncertainty_model is None:
         return relative
     if not card.geometric:

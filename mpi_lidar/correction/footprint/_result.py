@@ -41,6 +41,10 @@ class FootprintEstimate:
     white_surfaces : bool
         Whether it was measured with every surface taken as white (a scan whose amplitude unit is not known):
         then it is the footprint times the albedos the light returns from, not the receiver's own.
+    systematic_share : float
+        A relative uncertainty beyond ``sigma_m2`` that the blocks it was measured on leave (a coarse scan's
+        finer blocks), which a corrected depth's uncertainty carries. The significance is judged without it:
+        it scales with the estimate, so no estimate would pass 1 / share sigmas. [1]
     """
 
     area_m2: float
@@ -50,6 +54,15 @@ class FootprintEstimate:
     methods: tuple[EstimateMethod, ...] = (EstimateMethod.PLANES,)
     scans: int = 1
     white_surfaces: bool = False
+    systematic_share: float = 0.0
+
+    @property
+    def relative_sigma(self) -> float:
+        """The estimate's whole relative uncertainty [1]: its sd over it and the systematic share, in quadrature
+        (inf where nothing was measured)."""
+        if not np.isfinite(self.area_m2) or self.area_m2 <= 0 or not np.isfinite(self.sigma_m2):
+            return float("inf")
+        return float(np.hypot(self.sigma_m2 / self.area_m2, self.systematic_share))
 
     @property
     def method(self) -> str:

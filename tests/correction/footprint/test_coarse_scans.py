@@ -10,8 +10,8 @@ import pytest
 
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, analyse_geometry
-from mpi_lidar.correction.footprint import estimate_footprint
-from mpi_lidar.correction.scene import scene_blocks, uncertainty_footprint_m2
+from mpi_lidar.correction.footprint import FootprintEstimate, estimate_footprint
+from mpi_lidar.correction.scene import FINER_BLOCKS_SYSTEMATIC_SHARE, scene_blocks, uncertainty_footprint_m2
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans import geometry
 from mpi_lidar.simulation.scenes import corner, render, room_with_box
@@ -49,8 +49,14 @@ def test_analyse_geometry__a_coarse_room_measures_its_footprint_on_finer_blocks(
         "the blocks of the metric size leave the fit nothing to settle on"
     scene = analyse_geometry(scan, depth, options, config.sensor)
     assert scene.blocks.block_pixels == 2
-    assert scene.footprint.significant and 0.5 < scene.footprint.area_m2 / ROOM_FOOTPRINT_M2 < 1.5
-    assert scene.footprint_m2 == scene.footprint.area_m2
+    found = scene.footprint
+    assert found.significant and 0.5 < found.area_m2 / ROOM_FOOTPRINT_M2 < 1.5
+    assert scene.footprint_m2 == found.area_m2
+    # The corrected depths carry the finer blocks' spread too; the significance is judged without it.
+    assert found.systematic_share == FINER_BLOCKS_SYSTEMATIC_SHARE
+    relative = np.hypot(found.sigma_m2 / found.area_m2, FINER_BLOCKS_SYSTEMATIC_SHARE)
+    assert found.relative_sigma == pytest.approx(relative)
+    assert found.significance == pytest.approx(found.area_m2 / found.sigma_m2)
 
 
 def test_analyse_geometry__a_given_footprint_works_on_a_coarse_scans_finer_blocks():
@@ -68,3 +74,9 @@ def test_analyse_geometry__a_faint_coarse_room_keeps_the_finer_blocks_bound_not_
     scene = analyse_geometry(scan, usable(scan), CorrectionOptions(), Config().sensor)
     assert scene.blocks.block_pixels == 2 and not scene.footprint.significant
     assert np.isfinite(scene.footprint.sigma_m2) and uncertainty_footprint_m2(scene.footprint) < 0.01
+
+
+def test_relative_sigma__the_sd_and_the_systematic_share_in_quadrature():
+    assert FootprintEstimate(0.05, 0.015, 500, 2).relative_sigma == pytest.approx(0.3)
+    assert FootprintEstimate(0.05, 0.015, 500, 2, systematic_share=0.4).relative_sigma == pytest.approx(0.5)
+    assert FootprintEstimate(float("nan"), float("inf"), 0, 0).relative_sigma == float("inf")
