@@ -239,8 +239,7 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         potential = blocks.block_potential(footprint_m2)
     else:
         estimate, measured_albedo, surfaces = measured_on(blocks)
-        finer = (None if estimate.significant or estimate.pixels == 0
-                 else finer_scene_blocks(scan, usable_depth, options, noise, blocks))
+        finer = finer_scene_blocks(scan, usable_depth, options, noise, blocks) if settled_nowhere(estimate) else None
         if finer is not None:
             on_finer = measured_on(finer)
             if _better_estimate(on_finer[0], estimate):
@@ -273,11 +272,18 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
                          inputs if with_model_inputs else None, left_alone_potential=left_alone)
 
 
+def settled_nowhere(estimate: FootprintEstimate) -> bool:
+    """Whether a footprint fit on facing surfaces settled nowhere (an infinite sd): what sends a coarse scan's fit to
+    finer blocks. An estimate that settled, significant or not, is the scan's answer: trying other blocks until
+    one is significant would find multipath where there is none."""
+    return estimate.pixels > 0 and not np.isfinite(estimate.sigma_m2)
+
+
 def _better_estimate(finer: FootprintEstimate, metric: FootprintEstimate) -> bool:
-    """Whether a coarse scan's footprint estimate on finer blocks replaces the one on the metric blocks (which is
-    not significant): where it is significant, or where it bounds the footprint (a finite sd) and the other does
-    not (its uncertainty then carries that bound, not the cap)."""
-    return finer.significant or (bool(np.isfinite(finer.sigma_m2)) and not np.isfinite(metric.sigma_m2))
+    """Whether a coarse scan's footprint estimate on finer blocks replaces the one on the metric blocks (which
+    settled nowhere): where it bounds the footprint (a finite sd), significant or not (the depths left alone then
+    carry that bound's multipath, not the cap's)."""
+    return bool(np.isfinite(finer.sigma_m2)) and settled_nowhere(metric)
 
 
 def uncertainty_footprint_m2(estimate: FootprintEstimate) -> float:

@@ -16,7 +16,7 @@ from mpi_lidar.config import SensorConfig
 from mpi_lidar.constants import TABLE_SPEED_OF_LIGHT_M_PER_S
 from mpi_lidar.correction.footprint import NOTHING_MEASURED, FootprintEstimate, estimate_footprint, pool_estimates
 from mpi_lidar.correction.options import CorrectionOptions
-from mpi_lidar.correction.scene import finer_scene_blocks, scene_blocks
+from mpi_lidar.correction.scene import finer_scene_blocks, scene_blocks, settled_nowhere
 from mpi_lidar.correction.sensor_reading import read_sensor
 from mpi_lidar.correction.validity import depth_rules_only, usable_depth_of, validity_flags
 from mpi_lidar.errors import MpiLidarError
@@ -97,8 +97,7 @@ def scan_calibration(scan: Scan, options: CorrectionOptions, sensor: SensorConfi
     depths = usable_depth[np.isfinite(usable_depth)].astype(np.float64)
     sample = depths[np.linspace(0, depths.size - 1, min(DEPTH_SAMPLE, depths.size)).astype(np.intp)]
     estimate = estimate_footprint(scan, blocks, valid, sensor, reference=reference)
-    finer = (None if estimate.significant or estimate.pixels == 0
-             else finer_scene_blocks(scan, usable_depth, options, None, blocks))
+    finer = finer_scene_blocks(scan, usable_depth, options, None, blocks) if settled_nowhere(estimate) else None
     if finer is not None:  # a coarse scan measured again on finer blocks, as correction does
         on_finer = estimate_footprint(scan, finer, valid, sensor, reference=reference)
         estimate = on_finer if on_finer.significant else estimate  # calibration pools significant ones alone

@@ -11,7 +11,12 @@ import pytest
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, analyse_geometry
 from mpi_lidar.correction.footprint import FootprintEstimate, estimate_footprint
-from mpi_lidar.correction.scene import FINER_BLOCKS_SYSTEMATIC_SHARE, scene_blocks, uncertainty_footprint_m2
+from mpi_lidar.correction.scene import (
+    FINER_BLOCKS_SYSTEMATIC_SHARE,
+    scene_blocks,
+    settled_nowhere,
+    uncertainty_footprint_m2,
+)
 from mpi_lidar.physics.noise import NoiseModel
 from mpi_lidar.scans import geometry
 from mpi_lidar.simulation.scenes import corner, render, room_with_box
@@ -80,3 +85,9 @@ def test_relative_sigma__the_sd_and_the_systematic_share_in_quadrature():
     assert FootprintEstimate(0.05, 0.015, 500, 2).relative_sigma == pytest.approx(0.3)
     assert FootprintEstimate(0.05, 0.015, 500, 2, systematic_share=0.4).relative_sigma == pytest.approx(0.5)
     assert FootprintEstimate(float("nan"), float("inf"), 0, 0).relative_sigma == float("inf")
+
+
+def test_settled_nowhere__only_a_fit_on_facing_surfaces_with_an_infinite_sd():
+    assert settled_nowhere(FootprintEstimate(float("nan"), float("inf"), 173, 2))
+    assert not settled_nowhere(FootprintEstimate(0.001, 0.002, 900, 3)), "settled, not significant: the answer"
+    assert not settled_nowhere(FootprintEstimate(float("nan"), float("inf"), 0, 0)), "nothing faces: nothing to fit"
