@@ -242,7 +242,7 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         finer = finer_scene_blocks(scan, usable_depth, options, noise, blocks) if settled_nowhere(estimate) else None
         if finer is not None:
             on_finer = measured_on(finer)
-            if _better_estimate(on_finer[0], estimate):
+            if np.isfinite(on_finer[0].sigma_m2):  # it settled: its bound, significant or not, not the cap
                 blocks, (estimate, measured_albedo, surfaces) = finer, on_finer
                 estimate = dataclasses.replace(estimate, systematic_share=FINER_BLOCKS_SYSTEMATIC_SHARE)
         if estimate.significant:
@@ -277,13 +277,6 @@ def settled_nowhere(estimate: FootprintEstimate) -> bool:
     finer blocks. An estimate that settled, significant or not, is the scan's answer: trying other blocks until
     one is significant would find multipath where there is none."""
     return estimate.pixels > 0 and not np.isfinite(estimate.sigma_m2)
-
-
-def _better_estimate(finer: FootprintEstimate, metric: FootprintEstimate) -> bool:
-    """Whether a coarse scan's footprint estimate on finer blocks replaces the one on the metric blocks (which
-    settled nowhere): where it bounds the footprint (a finite sd), significant or not (the depths left alone then
-    carry that bound's multipath, not the cap's)."""
-    return bool(np.isfinite(finer.sigma_m2)) and settled_nowhere(metric)
 
 
 def uncertainty_footprint_m2(estimate: FootprintEstimate) -> float:
