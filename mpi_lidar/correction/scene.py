@@ -216,7 +216,6 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
             return SceneGeometry(notes=(NO_GEOMETRY_INPUTS_NOTE,))
         return SceneGeometry(notes=(NO_GEOMETRY_NOTE,) if options.gate == GateName.GEOMETRY else ())
     auto = options.footprint_area_m2 == AUTO
-    surfaces = surface_labels(blocks) if blocks.pairs.a.size else None
     estimate, uncalibrated, measured_albedo = None, None, None
 
     def albedos(of: geometry.FacingBlocks) -> NDArray[np.float64]:
@@ -235,7 +234,8 @@ def analyse_geometry(scan: Scan, usable_depth: NDArray, options: CorrectionOptio
         footprint_m2 = cast(float, options.footprint_area_m2)
         finer = finer_scene_blocks(scan, usable_depth, options, noise, blocks)
         if finer is not None:  # no fit to settle: a coarse scan's surfaces are resolved better on finer blocks
-            blocks, surfaces = finer, surface_labels(finer)
+            blocks = finer
+        surfaces = surface_labels(blocks) if blocks.pairs.a.size else None
         potential = blocks.block_potential(footprint_m2)
     else:
         estimate, measured_albedo, surfaces = measured_on(blocks)
