@@ -260,6 +260,8 @@ def main() -> None:
     parser.add_argument("--angle", type=float, default=60.0, help="The corner's angle [deg].")
     parser.add_argument("--footprint", type=float, default=0.073, help="The receiver footprint [m^2].")
     parser.add_argument("--samples", type=int, default=32768, help="Paths per pixel.")
+    parser.add_argument("--columns", type=int, default=96,
+                        help="Pixels across the view (3 rows): each is rendered, so fewer are quicker and coarser.")
     args = parser.parse_args()
     config = Config()
     print(f"corner {args.angle:g} deg at 2 m, albedo 0.8, footprint {args.footprint:g} m^2 (the beam's radius "
@@ -267,7 +269,7 @@ def main() -> None:
           "31.25 MHz bias [mm] of the middle row, mean of the two boards\n")
     print("| across the view from the edge [m] | project, single bounce | project, 3 bounces | path traced, 1 bounce "
           "| path traced, 9 bounces |\n|---|---|---|---|---|")
-    for distance, *biases in bias_profile(args.angle, args.footprint, config, args.samples):
+    for distance, *biases in bias_profile(args.angle, args.footprint, config, args.samples, args.columns):
         print(f"| {distance:g} | " + " | ".join(f"{1e3 * b:.2f}" for b in biases) + " |")
     print(f"\n{platform.system()}, {platform.machine()}, Python {platform.python_version()}, {date.today()}")
 

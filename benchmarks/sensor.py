@@ -1,6 +1,6 @@
 """Sensor simulator figures: speed per core of both fidelities, raw and noise-only MAE, depth noise std.
 
-Run: .venv/bin/python -m benchmarks.sensor [--rows N]
+Run: .venv/bin/python -m benchmarks.sensor [--rows N] [--waveform-rows N] [--draws N]
 Prints markdown tables; docs/results/sensor.md records them with machine and date.
 """
 
@@ -61,24 +61,26 @@ def depth_noise_std(d_as: float, rho: float, rows: int) -> tuple[np.ndarray, np.
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=400_000, help="rows for the moment speed and MAE runs")
+    parser.add_argument("--waveform-rows", type=int, default=3_000, help="rows for the waveform speed run")
+    parser.add_argument("--draws", type=int, default=100_000, help="draws per simulated depth noise std")
     args = parser.parse_args()
     freqs = [f"{f / 1e6:g} MHz" for f in Config().frequencies_hz]
     print(f"Machine: {platform.node()} ({platform.machine()}, {platform.python_version()}), {date.today()}\n")
 
     print("| fidelity | samples/s per core (4 frequencies) |\n|---|---|")
     print(f"| moment | {samples_per_second('moment', args.rows):,.0f} |")
-    print(f"| waveform | {samples_per_second('waveform', 3_000, repeats=2):,.0f} |\n")
+    print(f"| waveform | {samples_per_second('waveform', args.waveform_rows, repeats=2):,.0f} |\n")
 
     mae, noise = raw_errors(args.rows)
     print("| | " + " | ".join(freqs) + " |\n|---|" + "---|" * len(freqs))
     print("| raw MAE [mm] | " + " | ".join(f"{1e3 * v:.3f}" for v in mae) + " |")
     print("| noise-only MAE [mm] | " + " | ".join(f"{1e3 * v:.3f}" for v in noise) + " |\n")
 
-    print("Depth noise std without multipath, analytic / simulated (100,000 draws) [mm]\n")
+    print(f"Depth noise std without multipath, analytic / simulated ({args.draws:,} draws) [mm]\n")
     print("| d_AS | rho_SAS | " + " | ".join(freqs) + " |\n|---|---|" + "---|" * len(freqs))
     for d_as in (1.4, 2.4):
         for rho in (0.1, 0.5, 1.0):
-            analytic, simulated = depth_noise_std(d_as, rho, 100_000)
+            analytic, simulated = depth_noise_std(d_as, rho, args.draws)
             cells = " | ".join(f"{1e3 * a:.3f} / {1e3 * s:.3f}" for a, s in zip(analytic, simulated, strict=True))
             print(f"| {d_as} m | {rho} | {cells} |")
 

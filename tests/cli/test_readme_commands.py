@@ -107,7 +107,7 @@ def cases(w: Path) -> dict[str, tuple[list[str | Path], str]]:
         "verify": (["verify", data, w / "frame.scan.zarr"], "ok "),
         "table2": (["table2", "--data", data, "--out", w / "table2", "--trials", 1, "--train-rows", 500,
                     "--svm-rows", 200], "report written to"),
-        "bench": (["bench", "--out", w / "bench", "--quick", "--rows", 600], "report written to"),
+        "bench": (["bench", "--out", w / "bench", "--quick", "--rows", 200], "report written to"),
         "pipeline": (["pipeline", "--out", run, "--config", w / "small.toml", "--trials", 1,
                       "--tune-rows", 1000, "--workers", 0], "test split:"),
     }
@@ -164,7 +164,8 @@ def test_readme_table__every_command_runs(work, monkeypatch, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("command", [["benchmarks.sensor", "--rows", "2000"],
+@pytest.mark.parametrize("command", [["benchmarks.sensor", "--rows", "2000", "--waveform-rows", "200", "--draws",
+                                      "2000"],
                                      ["benchmarks.limits", "--n-test", "20", "--pool", "100", "--scales", "1"]])
 def test_readme_benchmark_commands__run_small(command):
     result = subprocess.run([sys.executable, "-m", *command], capture_output=True, text=True, timeout=300,
