@@ -141,11 +141,12 @@ def test_taps__gaussian_samples_have_the_tap_moments(reciprocal_scene):
 # --- moment and waveform simulators agree in distribution ----------------------------------------------------
 
 OPERATING_POINTS = {
-    # name: (d_AS [m], rho_SAS = rho_SAB = rho_BAS, d_AB [m], rho_ABA); the last two give the multipath
+    # name: (d_AS [m], rho_SAS = rho_SAB = rho_BAS, d_AB [m], rho_ABA); the last two give the multipath.
+    # The low signal is taken with its multipath only: that point holds the direct path of the same signal too
+    # (about 900 photons a bin) and takes the same code path (rounding on, bin-wise moments).
     "high_signal": (1.4, 1.0, 0.0, 0.0),
     "high_signal_multipath": (1.4, 1.0, 0.1, 0.8),
-    "low_signal": (2.4, 0.14, 0.0, 0.0),  # ~400 photons/bin: bin-wise moments
-    "low_signal_multipath": (2.4, 0.14, 0.1, 0.8),
+    "low_signal_multipath": (2.4, 0.14, 0.1, 0.8),  # ~400 photons/bin of the direct path: bin-wise moments
     "few_photons": (2.4, 0.005, 0.0, 0.0),  # ~15 photons/bin: rounding of eq 16 matters
 }
 WAVEFORM_SAMPLES = 1500

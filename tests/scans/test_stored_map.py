@@ -71,10 +71,11 @@ def test_stored_map__ray_directions_stay_in_the_store_and_give_the_same_rays(tmp
 
 
 def tiled(footprint: float | str) -> CorrectionOptions:
-    """Tiles of seven rows and a remainder: they straddle the store's chunk boundary at row 512. Blocks of 10 cm,
-    about 6 x 6 of the coarse render's own pixels (each repeated 4 x 4 times): smaller ones hold too few
-    independent depths for their planes to stand out of the noise."""
-    return CorrectionOptions(footprint_area_m2=footprint, tile_pixels=7 * 160 + 13, geometry_block_m=0.1)
+    """Tiles of 21 rows and a remainder: one of them (rows 504-525) straddles the store's chunk boundary at row
+    512, and most end inside a row of blocks. Blocks of 10 cm, 26 x 26 pixels here, about 6 x 6 of the coarse
+    render's own pixels (each repeated 4 x 4 times): smaller ones hold too few independent depths for their planes
+    to stand out of the noise; the geometry's tiles take 4 of them and a remainder across the width."""
+    return CorrectionOptions(footprint_area_m2=footprint, tile_pixels=21 * 160 + 13, geometry_block_m=0.1)
 
 
 @pytest.fixture(scope="module")

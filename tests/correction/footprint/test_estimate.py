@@ -4,6 +4,7 @@ correction and calibration do with it."""
 from __future__ import annotations
 
 from dataclasses import replace
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -29,11 +30,12 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.scans.geometry import facing_blocks
-from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render, room_corner
+from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, _render, corner, flat_wall, render, room_corner
 from mpi_lidar.workflows.calibrate import calibrate_scans, scan_footprint
 from tests.cli_runner import assert_one_error_line, call_main
 
 _RENDERS: dict[tuple, object] = {}
+_TRANSPORTS: dict[tuple, tuple] = {}
 
 
 def rendered(scene, footprint_m2: float, seed: int = 1, noise: float = 1.0, patch_spacing_m: float | None = None):
@@ -42,6 +44,9 @@ def rendered(scene, footprint_m2: float, seed: int = 1, noise: float = 1.0, patc
     Rendered once per session for the same arguments and shared by the tests that ask for it: its arrays are
     read-only, so no test can change what another sees. Without multipath (a footprint of 0) the partner
     patches add exactly nothing to any pixel, so they are taken coarse: the same scan, bit for bit, sooner.
+    Renders of one scene that differ in the seed or the noise alone share its light transport, which draws
+    nothing and reads neither (the sensor model draws the noise): the same scans, bit for bit, without a
+    second transport (5 s of a room corner's).
     """
     if footprint_m2 == 0 and patch_spacing_m is None:
         patch_spacing_m = 1.0
@@ -49,13 +54,30 @@ def rendered(scene, footprint_m2: float, seed: int = 1, noise: float = 1.0, patc
            seed, noise, patch_spacing_m)
     if key not in _RENDERS:
         config = Config().replace(simulator={"noise_scale": noise})
-        gain = footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
-        scan = render(scene, config, np.random.default_rng(seed), coupling_gain=gain, patch_spacing_m=patch_spacing_m)
+        gain, rng = footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2), np.random.default_rng(seed)
+        with mock.patch.object(_render, "light_transport", _shared_transport(key[:5] + key[7:])):
+            scan = render(scene, config, rng, coupling_gain=gain, patch_spacing_m=patch_spacing_m)
         for value in vars(scan).values():
             if isinstance(value, np.ndarray):
                 value.flags.writeable = False
         _RENDERS[key] = scan
     return _RENDERS[key]
+
+
+def _shared_transport(key: tuple):
+    """:func:`light_transport` as the renderer calls it, worked out once for ``key`` (the scene, the footprint and
+    the patch spacing) and its arrays read-only."""
+    transport = _render.light_transport
+
+    def shared(*args, **kwargs):
+        if key not in _TRANSPORTS:
+            arrays = transport(*args, **kwargs)
+            for array in arrays:
+                array.flags.writeable = False
+            _TRANSPORTS[key] = arrays
+        return _TRANSPORTS[key]
+
+    return shared
 
 
 def estimate(scan, reference: bool = False) -> FootprintEstimate:
