@@ -226,7 +226,7 @@ def test_tune_train_evaluate_table2_commands__quiet_and_keyed(trained, tmp_path:
                                           "--out", str(tmp_path / "report"), home=home, api=prefect_api)
     # Table II compares pixel-wise estimators: without --model (the trained one is geometric) it fits its own.
     table, table_err = run_command("table-2", "--data", trained["data"], "--out", str(tmp_path / "t2"),
-                                   "--trials", "1", "--train-rows", "1500", "--svm-rows", "500",
+                                   "--trials", "1", "--train-rows", "500", "--svm-rows", "200",
                                    home=home, api=prefect_api)
     assert_quiet(evaluate_err)
     assert_quiet(table_err)
