@@ -1,8 +1,6 @@
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 from dataclasses import replace
 
 import numpy as np
@@ -21,6 +19,7 @@ from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import corner, flat_wall, render
 from mpi_lidar.workflows.correct_archive import correct_archive, process_scan
+from tests.cli_runner import call_main
 from tests.scan_factory import inverse_variance_mean, two_path_scan
 
 # The command line's output level: what these tests read (corrected.zarr, metrics.json, report.md); the figures
@@ -172,28 +171,27 @@ def test_process_scan__unwritable_output_fails_cleanly(pixelwise_model, archive)
 
 @pytest.mark.integration
 @pytest.mark.slow
-def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(archive, pixelwise_model, tmp_path):
+def test_correct_cli__batch_with_a_failure_exits_non_zero_and_writes_summary(archive, pixelwise_model, tmp_path,
+                                                                           monkeypatch, capsys):
     bad = tmp_path / "broken.scan.zarr"
     bad.mkdir()
-    command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(archive / "a.scan.zarr"), str(bad),
-               "--model", str(pixelwise_model), "--out", str(tmp_path / "out"), "--workers", "0", "--outputs", "full"]
-    result = subprocess.run(command, capture_output=True, text=True)
-    assert result.returncode == 1
-    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    code, stdout, stderr = call_main(monkeypatch, capsys, "correct", archive / "a.scan.zarr", bad, "--model",
+                                     pixelwise_model, "--out", tmp_path / "out", "--workers", 0, "--outputs", "full")
+    assert code == 1
+    errors = [line for line in stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "broken.scan.zarr" in errors[0]
-    assert re.search(r"^a +unchanged ", result.stdout, re.M)
+    assert re.search(r"^a +unchanged ", stdout, re.M)
     assert (tmp_path / "out" / "summary" / "report.html").exists()
     for name in ("maps.png", "error_hist.png", "point_cloud.png", "raw.ply", "corrected.ply", "report.md"):
         assert (tmp_path / "out" / archive.name / "a" / name).exists(), name  # two folders: nested
 
 
-@pytest.mark.integration
-def test_correct_cli__missing_model_is_one_line_exit_2(archive, tmp_path):
-    command = [sys.executable, "-m", "mpi_lidar.cli", "correct", str(archive), "--model", str(tmp_path / "nope"),
-               "--out", str(tmp_path / "out"), "--workers", "0"]
-    result = subprocess.run(command, capture_output=True, text=True)
-    assert result.returncode == 2
-    assert result.stderr.strip().count("\n") == 0 and result.stderr.startswith("error:")
+@pytest.mark.unit
+def test_correct_cli__missing_model_is_one_line_exit_2(archive, tmp_path, monkeypatch, capsys):
+    code, _, stderr = call_main(monkeypatch, capsys, "correct", archive, "--model", tmp_path / "nope", "--out",
+                                tmp_path / "out", "--workers", 0)
+    assert code == 2
+    assert stderr.strip().count("\n") == 0 and stderr.startswith("error:")
     assert not (tmp_path / "out").exists()
 
 

@@ -1,8 +1,5 @@
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -10,6 +7,7 @@ from mpi_lidar.learning.baselines import PAPER_TABLE2, Baseline, knn, table2, tu
 from mpi_lidar.learning.features import weighted_depth
 from mpi_lidar.reporting.table2 import table2_report
 from mpi_lidar.simulation import dataset
+from tests.cli_runner import call_main
 
 pytestmark = pytest.mark.integration
 
@@ -60,14 +58,11 @@ def test_to_report__table_carries_the_papers_numbers(result):
     assert set(figures) == {"table2_mae.png"}
 
 
-@pytest.mark.slow
-def test_table2_cli__writes_report_and_bad_data_is_one_line(small_dataset, tmp_path):
-    command = [sys.executable, "-m", "mpi_lidar.cli", "table2", "--data", str(small_dataset), "--report",
-               str(tmp_path / "t2"), "--trials", "1", "--train-rows", "1500", "--svm-rows", "500"]
-    done = subprocess.run(command, capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
+def test_table2_cli__writes_report_and_bad_data_is_one_line(small_dataset, tmp_path, monkeypatch, capsys):
+    options = ["--report", tmp_path / "t2", "--trials", 1, "--train-rows", 500, "--svm-rows", 200]
+    code, _, stderr = call_main(monkeypatch, capsys, "table2", "--data", small_dataset, *options)
+    assert code == 0, stderr
     written = {p.name for p in (tmp_path / "t2").iterdir()}
     assert {"report.md", "report.html", "metrics.json", "table2_mae.png"} <= written
-    missing = subprocess.run([*command[:5], str(tmp_path / "absent.zarr"), *command[6:]], capture_output=True,
-                             text=True)
-    assert missing.returncode == 2 and missing.stderr.startswith("error:") and missing.stderr.count("\n") == 1
+    code, _, stderr = call_main(monkeypatch, capsys, "table2", "--data", tmp_path / "absent.zarr", *options)
+    assert code == 2 and stderr.startswith("error:") and stderr.count("\n") == 1

@@ -51,7 +51,7 @@ def test_tune__parallel_trials_on_shared_storage_are_all_accounted_for(storage_u
 @pytest.mark.integration
 def test_tune__rerun_resumes_and_extends_without_repeating(tmp_path, small_dataset, cluster_client):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
-    settings = settings_for(small_dataset)
+    settings = settings_for(small_dataset, num_boost_round=10)  # trials are counted here, not judged
     first = tune.tune(cluster_client, url, "grow", settings, trials=3)
     again = tune.tune(cluster_client, url, "grow", settings, trials=3)
     extended = tune.tune(cluster_client, url, "grow", settings, trials=5)
@@ -63,9 +63,9 @@ def test_tune__rerun_resumes_and_extends_without_repeating(tmp_path, small_datas
 @pytest.mark.integration
 def test_run_one_trial__failing_trial_is_recorded_and_study_goes_on(tmp_path, small_dataset, cluster_client):
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
-    settings = settings_for(small_dataset)
+    settings = settings_for(small_dataset, num_boost_round=10)  # trials are counted here, not judged
     tune.open_study(url, "failing", settings)
-    broken = settings_for(tmp_path / "missing.zarr")
+    broken = settings_for(tmp_path / "missing.zarr", num_boost_round=10)
     number = tune.run_one_trial(url, "failing", broken)
     report = tune.tune(cluster_client, url, "failing", settings, trials=2)
     study = optuna.load_study(study_name="failing", storage=url)

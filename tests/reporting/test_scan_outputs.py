@@ -23,7 +23,6 @@ from mpi_lidar.reporting.thumbnail import FLAG_COLOURS, KEY_ROW_PX
 from mpi_lidar.scans.store import write_scan
 from mpi_lidar.simulation.scenes import cornered_board, render
 from mpi_lidar.workflows.correct_archive import process_scan
-from tests.model_factory import tiny_model
 
 FIELDS = {"raw_range_m", "corrected_range_m", "correction_mm", "flag", "amplitude_v2", "row", "column"}
 
@@ -165,10 +164,10 @@ def test_output_level__is_no_part_of_the_hash_a_higher_level_is_kept_a_lower_one
 
 @pytest.mark.integration
 @pytest.mark.slow
-def test_output_level__scan_without_geometry_says_point_clouds_were_skipped(model_dir, tmp_path):
+def test_output_level__scan_without_geometry_says_point_clouds_were_skipped(pixelwise_model, tmp_path):
     scan = render(cornered_board(height=24, width=32), Config(), np.random.default_rng(1))
     store = write_scan(replace(scan, azimuth_rad=None, elevation_rad=None), tmp_path / "flat.scan.zarr")
-    pixelwise = tiny_model(tmp_path / "model", geometric=False)
+    pixelwise = pixelwise_model
     outcome = process_scan(store, pixelwise, tmp_path / "out", CorrectionOptions(), outputs="full")
     assert "no scan geometry: point clouds and views skipped" in outcome.notes
     assert _listing(Path(outcome.output)) == FILES["full"] - GEOMETRY_FILES
