@@ -4,7 +4,7 @@ Every test carries exactly one of two marks, registered in pyproject.toml:
 
 - ``unit``: pure functions and in-process runs on small inputs (corrections included, with a model trained in
   the process in about a second, ``tests/model_factory.py``); ``make test-quick`` runs only these
-  (``pytest -m unit``), in about two minutes.
+  (``pytest -m unit -n 2``), in two to three minutes.
 - ``integration``: starts a Dask cluster, Prefect, PostgreSQL, a subprocess or a browser, trains a model through
   a cluster, runs a benchmark, or takes more than a few seconds; those that take more than a few seconds also
   carry ``slow``.
