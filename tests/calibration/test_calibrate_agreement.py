@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 from functools import cache
-from unittest import mock
 
 import numpy as np
 import pytest
@@ -18,10 +17,10 @@ from mpi_lidar.correction.footprint import NOTHING_MEASURED
 from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.scans.scan import Scan
 from mpi_lidar.scans.store import write_scan
-from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, _render, render, room_corner
-from mpi_lidar.simulation.scenes._transport import light_transport
+from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, render, room_corner
 from mpi_lidar.workflows.calibrate import ScanEstimate, check_units_agree
 from tests.cli_runner import assert_one_error_line, call_main
+from tests.render_cache import transport_shared_as
 
 
 @cache
@@ -31,21 +30,8 @@ def room(seed: int) -> Scan:
     The seeds share the light transport, which draws nothing (the sensor model draws the noise): the same scans,
     bit for bit, without a second transport (5 s)."""
     gain = 0.02 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2)
-    with mock.patch.object(_render, "light_transport", _room_transport):
+    with transport_shared_as("calibrate-agreement room"):
         return render(room_corner(height=64, width=86), Config(), np.random.default_rng(seed), coupling_gain=gain)
-
-
-_TRANSPORT: list[tuple[np.ndarray, np.ndarray]] = []
-
-
-def _room_transport(*args, **kwargs) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`light_transport` of :func:`room`'s scene, the one scene it renders: worked out once, read-only."""
-    if not _TRANSPORT:
-        arrays = light_transport(*args, **kwargs)
-        for array in arrays:
-            array.flags.writeable = False
-        _TRANSPORT.append(arrays)
-    return _TRANSPORT[0]
 
 
 def measured(source: str, unit: float, sigma: float, significant: bool = True) -> ScanEstimate:

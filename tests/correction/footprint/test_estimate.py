@@ -4,7 +4,6 @@ correction and calibration do with it."""
 from __future__ import annotations
 
 from dataclasses import replace
-from unittest import mock
 
 import numpy as np
 import pytest
@@ -30,12 +29,12 @@ from mpi_lidar.errors import MpiLidarError
 from mpi_lidar.learning.model import load_model
 from mpi_lidar.reporting.correction_notes import correction_notes
 from mpi_lidar.scans.geometry import facing_blocks
-from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, _render, corner, flat_wall, render, room_corner
+from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render, room_corner
 from mpi_lidar.workflows.calibrate import calibrate_scans, scan_footprint
 from tests.cli_runner import assert_one_error_line, call_main
+from tests.render_cache import transport_shared_as
 
 _RENDERS: dict[tuple, object] = {}
-_TRANSPORTS: dict[tuple, tuple] = {}
 
 
 def rendered(scene, footprint_m2: float, seed: int = 1, noise: float = 1.0, patch_spacing_m: float | None = None):
@@ -55,29 +54,13 @@ def rendered(scene, footprint_m2: float, seed: int = 1, noise: float = 1.0, patc
     if key not in _RENDERS:
         config = Config().replace(simulator={"noise_scale": noise})
         gain, rng = footprint_m2 / (np.pi * DEFAULT_FOOTPRINT_RADIUS_M**2), np.random.default_rng(seed)
-        with mock.patch.object(_render, "light_transport", _shared_transport(key[:5] + key[7:])):
+        with transport_shared_as(key[:5] + key[7:]):
             scan = render(scene, config, rng, coupling_gain=gain, patch_spacing_m=patch_spacing_m)
         for value in vars(scan).values():
             if isinstance(value, np.ndarray):
                 value.flags.writeable = False
         _RENDERS[key] = scan
     return _RENDERS[key]
-
-
-def _shared_transport(key: tuple):
-    """:func:`light_transport` as the renderer calls it, worked out once for ``key`` (the scene, the footprint and
-    the patch spacing) and its arrays read-only."""
-    transport = _render.light_transport
-
-    def shared(*args, **kwargs):
-        if key not in _TRANSPORTS:
-            arrays = transport(*args, **kwargs)
-            for array in arrays:
-                array.flags.writeable = False
-            _TRANSPORTS[key] = arrays
-        return _TRANSPORTS[key]
-
-    return shared
 
 
 def estimate(scan, reference: bool = False) -> FootprintEstimate:
