@@ -105,6 +105,8 @@ class Rendered:
     folds: NDArray[np.bool_]
     tri_corners: NDArray[np.bool_]
     exact_inputs: NDArray[np.float64]
+    # The multipath ratio at the lowest frequency (H*W, 2): the single bounces, the higher ones (project renders).
+    true_light: NDArray[np.complex128] | None = None
 
 
 def exact_inputs(phasor: NDArray, direct: NDArray, ranges_m: NDArray, config: Config) -> NDArray[np.float64]:
@@ -144,8 +146,12 @@ def render_case(case: Case, config: Config, rng_seed: list[int]) -> Rendered:
     points = reference[..., None] * scans[0].rays()
     folds = _near_segments(points, scene.folds) if scene.folds else edge_line_region(scans[0], edge_line(2.0))
     tri = _near_points(points, scene.tri_corners)
+    lowest = int(np.argmin(config.frequencies_hz))
+    light = (np.column_stack([truth["single_ratio"][:, :, lowest].sum(1), truth["higher_ratio"][:, lowest]])
+             if "single_ratio" in truth else np.column_stack([phasor[:, lowest] / direct[:, lowest] - 1.0,
+                                                              np.zeros(h * w)]))
     return Rendered(scans[0], scans[1], truth["bias_m"][:, -1].reshape(h, w), folds, tri,
-                    exact_inputs(phasor, direct, d_as, config))
+                    exact_inputs(phasor, direct, d_as, config), light)
 
 
 def path_traced_case(case: Case, config: Config, rng_seed: list[int], samples: int) -> Rendered:

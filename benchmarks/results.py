@@ -33,6 +33,7 @@ PAGES = {
     "correction-diagnosis": "benchmarks.correction_diagnosis",
     "envelope": "benchmarks.envelope",
     "generation": "benchmarks.generation",
+    "light-budget": "benchmarks.light_budget",
     "geometry": "benchmarks.scenes",
     "limits": "benchmarks.limits",
     "mixed-pixels": "benchmarks.mixed_pixels",

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks import light_budget
 from benchmarks.corner_strength import HEADER, cases, exact_inputs
 from mpi_lidar.config import Config
 from tests.model_factory import tiny_model
@@ -68,6 +69,20 @@ def test_corner_strength__path_traced_by_mitsuba_gives_the_same_rows(model):
         assert raw > 0 and noise_floor > 0, cells
     corner_60, corner_90 = (float(cells[1].split("->")[0]) for cells in rows[-2:])
     assert corner_60 > 1.5 * corner_90, "the 60-degree corner's stronger multipath is in the raw depth"
+
+
+@pytest.mark.integration
+def test_light_budget__the_stages_light_on_a_corner_is_its_renders_within_a_few_tens_of_percent():
+    # 24 x 32 pixels a corner: the partner planes' single bounces against the renderer's, which shares their kernel.
+    done = subprocess.run([sys.executable, "-m", "benchmarks.light_budget", "--shrink", "4", "--only", "corner"],
+                          capture_output=True, text=True, check=True, timeout=300)
+    rows = _table(done.stdout, light_budget.HEADER.splitlines()[0])
+    assert [cells[0] for cells in rows] == [case.label for case in cases() if "corner" in case.label]
+    for cells in rows:
+        near, away = (int(count) for count in cells[1].split(" / "))
+        assert near > 50 and away > 50, cells
+        assert all(0.7 <= float(ratio) <= 1.4 for ratio in cells[2].split(" / ")), cells
+        assert cells[4] == "-" and cells[6] == "0%", "two boards exchange no light among partners"
 
 
 @pytest.mark.unit

@@ -88,6 +88,24 @@ class PlaneModelInputs:
         bias[lit] = np.angle(1.0 + np.abs(ratio[lit]) * np.exp(1j * phase)) * metres_per_rad
         return bias
 
+    def light_parts(self, pixels: NDArray, measured_range: NDArray) -> tuple[NDArray[np.complex128],
+                                                                            NDArray[np.complex128]]:
+        """The multipath ratio (n,) (F5) at the lowest frequency of flat pixel indices (n,) whose highest-frequency
+        range is ``measured_range`` (n,) [m], in two parts: the partners' single bounces, and the light among the
+        partner planes ((F16), (F17)); their sum is the ratio the inputs rest on. Zero where no partner plane
+        lights a pixel (or the scan has none): what a light budget compares with a render's own."""
+        single, among = np.zeros(pixels.size, dtype=np.complex128), np.zeros(pixels.size, dtype=np.complex128)
+        if self.plane is None or self.albedo is None or pixels.size == 0:
+            return single, among
+        coupling = PixelCoupling(self.plane, pixels, measured_range, (self.frequency_hz,))
+        bounced, kappa = coupling.at_block_sums(self.albedo, self.plane_phasor, self.pair_phasors, None)
+        every, _ = coupling.at_block_sums(self.albedo, self.plane_phasor, self.pair_phasors, self.two_bounce_phasor)
+        scale = self.area_m2 / np.maximum(self.area_m2 * kappa, 1.0)
+        lit = coupling.on_plane
+        single[lit] = (scale * bounced[:, 0])[lit]
+        among[lit] = (scale * (every[:, 0] - bounced[:, 0]))[lit]
+        return single, among
+
     def _ratio(self, pixels: NDArray, measured_range: NDArray) -> tuple[PixelCoupling, NDArray[np.complex128]]:
         """The pixels' coupling and their multipath ratio (n,) (F5) at the lowest frequency."""
         assert self.plane is not None and self.albedo is not None

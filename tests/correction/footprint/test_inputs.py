@@ -14,7 +14,7 @@ from mpi_lidar.correction.footprint import (
     unbent_planes,
 )
 from mpi_lidar.scans.geometry import facing_blocks
-from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render
+from mpi_lidar.simulation.scenes import DEFAULT_FOOTPRINT_RADIUS_M, corner, flat_wall, render, room_with_box
 
 pytestmark = pytest.mark.unit
 
@@ -44,6 +44,24 @@ def test_plane_model_inputs__two_planes_have_no_two_bounce_light():
     assert inputs.plane.unit_bounces_at_blocks is None and inputs.two_bounce_phasor is None
     bias = inputs.bias_m(np.arange(depth.size), depth, 31.25e6)
     assert np.nanmax(bias) > 1e-3 and np.nanmin(bias) >= 0.0
+
+
+def test_light_parts__sum_to_the_ratio_the_bias_rests_on_and_two_planes_have_no_light_among_partners():
+    """The single bounces and the light among the partners add up to the one two-path ratio of the lowest frequency
+    that :meth:`PlaneModelInputs.bias_m` turns into a bias: its phase is that bias there."""
+    config = Config()
+    lowest = min(config.frequencies_hz)
+    metres_per_rad = config.sensor.speed_of_light_m_per_s / (4 * np.pi * lowest)
+    for scene, three in ((room_with_box(height=48, width=64), True), (corner(90.0, 2.0, 0.8, height=32, width=64),
+                                                                     False)):
+        inputs, depth = inputs_of(scene, 0.073)
+        pixels = np.flatnonzero(np.isfinite(depth))
+        single, among = inputs.light_parts(pixels, depth[pixels])
+        lit = np.abs(single + among) > 0
+        assert lit.sum() > 100
+        np.testing.assert_allclose(np.angle(1.0 + single[lit] + among[lit]) * metres_per_rad,
+                                   inputs.bias_m(pixels, depth[pixels], lowest)[lit], atol=1e-9)
+        assert (np.abs(among[lit]) > 0.01 * np.abs(single[lit])).any() == three
 
 
 def test_plane_model_inputs__at_zero_footprint_the_blocks_estimate_of_no_multipath():
