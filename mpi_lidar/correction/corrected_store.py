@@ -123,12 +123,15 @@ def _strictly_monotonic(angles: NDArray) -> bool:
 
 
 def footprint_record(correction: Correction) -> dict[str, object]:
-    """The scan's own footprint estimate, and the pixels it decided: corrected with it, or left as measured."""
+    """The scan's own footprint estimate (and the depth's and the amplitude's estimates it joins, None where not
+    both fitted), and the pixels it decided: corrected with it, or left as measured."""
     counts = correction.counts()
     estimate = correction.calibration
     if estimate is None:
         raise ValueError("the correction measured no footprint of its own")
-    return {"mode": "auto", **estimate.to_dict(),
+    own = {name: (value if np.isfinite(value) else None)
+           for name, value in (("depth_m2", estimate.depth_m2), ("amplitude_m2", estimate.amplitude_m2))}
+    return {"mode": "auto", **estimate.to_dict(), **own,
             "pixels_corrected_with_it": sum(counts[flag.name.lower()] for flag in MODEL_FLAGS)
             if estimate.significant else 0,
             "pixels_left_uncalibrated": counts["uncalibrated"]}

@@ -46,6 +46,17 @@ def test_correction_notes__each_stage_in_order():
     assert "+1.500, +0.100, -0.100, +0.000 mm otherwise" in notes[5]
 
 
+def test_correction_notes__a_footprint_whose_depth_and_amplitude_disagree_says_so():
+    apart = FootprintEstimate(0.031, 0.004, 1200, 2, depth_m2=0.02, amplitude_m2=0.04)
+    (note,) = correction_notes(Correction(**MAPS, calibration=apart))
+    assert note.endswith("its depth and amplitude measured 0.02 and 0.04 m^2, 2x apart: the footprint, and the "
+                         "correction near edges, may be off by as much")
+    for close in (FootprintEstimate(0.031, 0.004, 1200, 2, depth_m2=0.030, amplitude_m2=0.032),
+                  FootprintEstimate(0.031, 0.004, 1200, 2)):  # agreeing, or no amplitude fitted
+        (note,) = correction_notes(Correction(**MAPS, calibration=close))
+        assert note.endswith("the coupling and the gate use it")
+
+
 def test_reading_notes__a_unit_given_contradicted_or_a_law_not_measured():
     unmeasured = NoiseLaw(float("nan"), float("nan"), float("inf"), float("inf"), 12, float("inf"), False, "too few")
     law, unit = reading_notes(_reading(unmeasured, given=True))

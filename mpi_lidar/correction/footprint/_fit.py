@@ -174,6 +174,7 @@ class FootprintFit(FootprintProblem):
         against each surface's own albedo (one per surface, eliminated).
         """
         amplitude = self._fit_amplitude(depth.methods[0], start_m2=depth.area_m2, tolerance=AMPLITUDE_STEP)
+        depth = replace(depth, depth_m2=depth.area_m2, amplitude_m2=amplitude.area_m2)
         if not (depth.area_m2 > 0 and np.isfinite(amplitude.area_m2) and amplitude.area_m2 > 0
                 and 1 / AMPLITUDE_AGREEMENT <= amplitude.area_m2 / depth.area_m2 <= AMPLITUDE_AGREEMENT):
             # The scan is not what the model describes: not significant.

@@ -45,6 +45,10 @@ class FootprintEstimate:
         A relative uncertainty beyond ``sigma_m2`` that the blocks it was measured on leave (a coarse scan's
         finer blocks), which a corrected depth's uncertainty carries. The significance is judged without it:
         it scales with the estimate, so no estimate would pass 1 / share sigmas. [1]
+    depth_m2, amplitude_m2 : float
+        The depth's and the amplitude's own estimates before they were joined ((F13) of
+        docs/explanation/footprint.md), NaN where the amplitude was not fitted (against a reference depth, several
+        scans pooled). [m^2]
     """
 
     area_m2: float
@@ -55,6 +59,17 @@ class FootprintEstimate:
     scans: int = 1
     white_surfaces: bool = False
     systematic_share: float = 0.0
+    depth_m2: float = float("nan")
+    amplitude_m2: float = float("nan")
+
+    @property
+    def disagreement(self) -> float:
+        """How far apart the depth's and the amplitude's estimates are, the larger over the smaller [1] (NaN where
+        one of them is missing or not above zero)."""
+        pair = (self.depth_m2, self.amplitude_m2)
+        if not all(np.isfinite(pair)) or min(pair) <= 0:
+            return float("nan")
+        return float(max(pair) / min(pair))
 
     @property
     def relative_sigma(self) -> float:

@@ -12,6 +12,7 @@ import zarr
 from mpi_lidar.calibration.profile import read_profile
 from mpi_lidar.config import Config
 from mpi_lidar.correction import CorrectionOptions, Flag, correct_scan
+from mpi_lidar.correction.corrected_store import footprint_record
 from mpi_lidar.correction.footprint import (
     EstimateMethod,
     FootprintEstimate,
@@ -191,6 +192,9 @@ def test_estimate__the_amplitude_joins_the_depth_by_their_relative_uncertainties
     assert low < joined.area_m2 < high
     assert joined.sigma_m2 / joined.area_m2 < depth.sigma_m2 / depth.area_m2
     assert joined.significant
+    # The two measurements it joined (the amplitude's fit starts from the depth's estimate: within its 1 % step).
+    assert joined.depth_m2 == depth.area_m2 and joined.amplitude_m2 == pytest.approx(light.area_m2, rel=0.01)
+    assert joined.disagreement == pytest.approx(high / low, rel=0.01)
 
 
 @pytest.mark.unit
@@ -311,6 +315,10 @@ def test_correct__a_significant_estimate_is_used_and_reported(tiny_geometric_mod
     given = correct_scan(scan, tiny_geometric_model,
                          CorrectionOptions(footprint_area_m2=correction.calibration.area_m2))
     assert np.array_equal(given.depth, correction.depth, equal_nan=True)  # auto is the number it found
+    record = footprint_record(correction)
+    assert record["area_m2"] == correction.calibration.area_m2 and record["significant"]
+    low, high = sorted([record["depth_m2"], record["amplitude_m2"]])
+    assert 0 < low <= record["area_m2"] <= high  # the joined estimate lies between its two measurements
 
 
 @pytest.mark.integration
