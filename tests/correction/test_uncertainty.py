@@ -50,6 +50,10 @@ def test_footprint_left_open__only_what_the_trained_geometric_inputs_did_not_hol
     assert footprint_left_open(_with_uncertainty(geometric_model, geometric=False).card, _footprint(0.5)) == 0.0
     assert footprint_left_open(fitted, None) == 0.0, "a given footprint"
     assert footprint_left_open(card, FootprintEstimate(float("nan"), float("inf"), 0, 0)) == 0.0
+    # A sure estimate whose depth and amplitude read 1.5x apart (a path-traced strong corner): half of log 1.5
+    # joins its 10 % and passes the training's 20 %.
+    apart = replace(_footprint(0.1), depth_m2=0.04, amplitude_m2=0.06)
+    assert footprint_left_open(fitted, apart) == pytest.approx(np.sqrt(0.1**2 + np.log(1.5)**2 / 4 - trained**2))
 
 
 @pytest.mark.unit

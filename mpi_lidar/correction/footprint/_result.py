@@ -73,11 +73,14 @@ class FootprintEstimate:
 
     @property
     def relative_sigma(self) -> float:
-        """The estimate's whole relative uncertainty [1]: its sd over it and the systematic share, in quadrature
-        (inf where nothing was measured)."""
+        """The estimate's whole relative uncertainty [1] (inf where nothing was measured): in quadrature, its sd
+        over it, the systematic share, and half the log distance between its depth's and its amplitude's
+        measurements (the truth may lie nearer either; the significance is judged without the last two)."""
         if not np.isfinite(self.area_m2) or self.area_m2 <= 0 or not np.isfinite(self.sigma_m2):
             return float("inf")
-        return float(np.hypot(self.sigma_m2 / self.area_m2, self.systematic_share))
+        apart = self.disagreement
+        measurements = 0.5 * float(np.log(apart)) if np.isfinite(apart) else 0.0
+        return float(np.hypot(np.hypot(self.sigma_m2 / self.area_m2, self.systematic_share), measurements))
 
     @property
     def method(self) -> str:

@@ -59,7 +59,8 @@ def test_analyse_geometry__a_coarse_room_measures_its_footprint_on_finer_blocks(
     assert scene.footprint_m2 == found.area_m2
     # The corrected depths carry the finer blocks' spread too; the significance is judged without it.
     assert found.systematic_share == FINER_BLOCKS_SYSTEMATIC_SHARE
-    relative = np.hypot(found.sigma_m2 / found.area_m2, FINER_BLOCKS_SYSTEMATIC_SHARE)
+    relative = np.hypot(np.hypot(found.sigma_m2 / found.area_m2, FINER_BLOCKS_SYSTEMATIC_SHARE),
+                        0.5 * np.log(found.disagreement))
     assert found.relative_sigma == pytest.approx(relative)
     assert found.significance == pytest.approx(found.area_m2 / found.sigma_m2)
 
@@ -86,6 +87,15 @@ def test_relative_sigma__the_sd_and_the_systematic_share_in_quadrature():
     assert FootprintEstimate(0.05, 0.015, 500, 2).relative_sigma == pytest.approx(0.3)
     assert FootprintEstimate(0.05, 0.015, 500, 2, systematic_share=0.4).relative_sigma == pytest.approx(0.5)
     assert FootprintEstimate(float("nan"), float("inf"), 0, 0).relative_sigma == float("inf")
+
+
+def test_relative_sigma__adds_half_the_log_distance_between_the_depths_and_the_amplitudes_measurements():
+    # Depth 0.04 and amplitude 0.09 m^2 (2.25x apart): half of log 2.25 = log 1.5 joins the sd's 30 %.
+    apart = FootprintEstimate(0.05, 0.015, 500, 2, depth_m2=0.04, amplitude_m2=0.09)
+    assert apart.relative_sigma == pytest.approx(np.hypot(0.3, np.log(1.5)))
+    assert apart.significant == FootprintEstimate(0.05, 0.015, 500, 2).significant  # judged on the sd alone
+    agreeing = FootprintEstimate(0.05, 0.015, 500, 2, depth_m2=0.05, amplitude_m2=0.05)
+    assert agreeing.relative_sigma == pytest.approx(0.3)
 
 
 def test_settled_nowhere__only_a_fit_on_facing_surfaces_with_an_infinite_sd():
