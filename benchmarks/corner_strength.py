@@ -105,7 +105,8 @@ class Rendered:
     folds: NDArray[np.bool_]
     tri_corners: NDArray[np.bool_]
     exact_inputs: NDArray[np.float64]
-    # The multipath ratio at the lowest frequency (H*W, 2): the single bounces, the higher ones (project renders).
+    # The multipath ratio at the lowest frequency (H*W, 2): the single bounces and the higher ones; path traced,
+    # all the light in the first and NaN in the second (the tracer does not split it).
     true_light: NDArray[np.complex128] | None = None
 
 
@@ -168,10 +169,13 @@ def path_traced_case(case: Case, config: Config, rng_seed: list[int], samples: i
     points = scan.reference_depth[..., None] * scan.rays()
     folds = _near_segments(points, scene.folds) if scene.folds else edge_line_region(scan, edge_line(2.0))
     f = len(config.frequencies_hz)
-    inputs = exact_inputs(traced.phasor.reshape(f, -1).T, traced.direct.reshape(f, -1).T,
-                          scan.reference_depth.ravel().astype(np.float64), config)
+    phasor, alone = traced.phasor.reshape(f, -1).T, traced.direct.reshape(f, -1).T
+    inputs = exact_inputs(phasor, alone, scan.reference_depth.ravel().astype(np.float64), config)
+    lowest = int(np.argmin(config.frequencies_hz))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        light = np.column_stack([phasor[:, lowest] / alone[:, lowest] - 1.0, np.full(phasor.shape[0], np.nan)])
     return Rendered(scan, direct, true_bias_m(traced, config), folds, _near_points(points, scene.tri_corners),
-                    inputs)
+                    inputs, light)
 
 
 def _near_segments(points: NDArray, segments: tuple) -> NDArray[np.bool_]:

@@ -85,6 +85,21 @@ def test_light_budget__the_stages_light_on_a_corner_is_its_renders_within_a_few_
         assert cells[4] == "-" and cells[6] == "0%", "two boards exchange no light among partners"
 
 
+@pytest.mark.integration
+def test_light_budget__path_traced_gives_all_the_light_only():
+    # 24 x 32 pixels a corner at 256 paths: Mitsuba's light is not split into bounces, so only its sum is
+    # compared; the partner planes' light is the independent tracer's within a factor of two (0.85-1.2 measured).
+    done = subprocess.run([sys.executable, "-m", "benchmarks.light_budget", "--shrink", "4", "--only", "corner",
+                           "--renderer", "mitsuba", "--samples", "256"],
+                          capture_output=True, text=True, check=True, timeout=300)
+    assert done.stdout.startswith("Mitsuba 3 path traced, 256 paths per pixel")
+    rows = _table(done.stdout, light_budget.HEADER.splitlines()[0])
+    assert [cells[0] for cells in rows] == [case.label for case in cases() if "corner" in case.label]
+    for cells in rows:
+        assert cells[3] == cells[4] == cells[6] == "-", cells
+        assert all(0.5 <= float(ratio) <= 2.0 for ratio in cells[2].split(" / ")), cells
+
+
 @pytest.mark.unit
 def test_exact_inputs__recover_the_two_path_rho_aba_and_d_ab_a_render_was_made_of():
     config = Config()
