@@ -116,13 +116,21 @@ def exact_inputs(phasor: NDArray, direct: NDArray, ranges_m: NDArray, config: Co
     lowest frequency, rho_ABA = |ratio| / (rho_A cos_i) and d_AB its phase over the wavenumber [m], rho_A cos_i
     read off the direct return (Gamma_R rho_A cos_i / d^2); 0 where the direct return is nothing."""
     lowest = int(np.argmin(config.frequencies_hz))
+    ratio = lowest_ratio(phasor, direct, config)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = phasor[:, lowest] / direct[:, lowest] - 1.0
         albedo_cos = np.abs(direct[:, lowest]) * ranges_m**2 / config.sensor.gamma_r_v2
         rho_aba = np.abs(ratio) / albedo_cos
     wavenumber = 4 * np.pi * config.frequencies_hz[lowest] / config.sensor.speed_of_light_m_per_s
     d_ab = np.mod(np.angle(ratio), 2 * np.pi) / wavenumber
     return geometry_inputs(np.where(np.isfinite(rho_aba), rho_aba, 0.0), np.where(np.isfinite(d_ab), d_ab, 0.0))
+
+
+def lowest_ratio(phasor: NDArray, direct: NDArray, config: Config) -> NDArray[np.complex128]:
+    """The multipath ratio (n,) at the lowest frequency of phasors (n, F) with all the light and with the direct
+    return alone (NaN where the direct return is nothing)."""
+    lowest = int(np.argmin(config.frequencies_hz))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return phasor[:, lowest] / direct[:, lowest] - 1.0
 
 
 def render_case(case: Case, config: Config, rng_seed: list[int]) -> Rendered:
@@ -149,8 +157,7 @@ def render_case(case: Case, config: Config, rng_seed: list[int]) -> Rendered:
     tri = _near_points(points, scene.tri_corners)
     lowest = int(np.argmin(config.frequencies_hz))
     light = (np.column_stack([truth["single_ratio"][:, :, lowest].sum(1), truth["higher_ratio"][:, lowest]])
-             if "single_ratio" in truth else np.column_stack([phasor[:, lowest] / direct[:, lowest] - 1.0,
-                                                              np.zeros(h * w)]))
+             if "single_ratio" in truth else np.column_stack([lowest_ratio(phasor, direct, config), np.zeros(h * w)]))
     return Rendered(scans[0], scans[1], truth["bias_m"][:, -1].reshape(h, w), folds, tri,
                     exact_inputs(phasor, direct, d_as, config), light)
 
@@ -171,9 +178,7 @@ def path_traced_case(case: Case, config: Config, rng_seed: list[int], samples: i
     f = len(config.frequencies_hz)
     phasor, alone = traced.phasor.reshape(f, -1).T, traced.direct.reshape(f, -1).T
     inputs = exact_inputs(phasor, alone, scan.reference_depth.ravel().astype(np.float64), config)
-    lowest = int(np.argmin(config.frequencies_hz))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        light = np.column_stack([phasor[:, lowest] / alone[:, lowest] - 1.0, np.full(phasor.shape[0], np.nan)])
+    light = np.column_stack([lowest_ratio(phasor, alone, config), np.full(phasor.shape[0], np.nan)])
     return Rendered(scan, direct, true_bias_m(traced, config), folds, _near_points(points, scene.tri_corners),
                     inputs, light)
 

@@ -97,13 +97,11 @@ class PlaneModelInputs:
         single, among = np.zeros(pixels.size, dtype=np.complex128), np.zeros(pixels.size, dtype=np.complex128)
         if self.plane is None or self.albedo is None or pixels.size == 0:
             return single, among
-        coupling = PixelCoupling(self.plane, pixels, measured_range, (self.frequency_hz,))
+        coupling, ratio = self._ratio(pixels, measured_range)
         bounced, kappa = coupling.at_block_sums(self.albedo, self.plane_phasor, self.pair_phasors, None)
-        every, _ = coupling.at_block_sums(self.albedo, self.plane_phasor, self.pair_phasors, self.two_bounce_phasor)
-        scale = self.area_m2 / np.maximum(self.area_m2 * kappa, 1.0)
         lit = coupling.on_plane
-        single[lit] = (scale * bounced[:, 0])[lit]
-        among[lit] = (scale * (every[:, 0] - bounced[:, 0]))[lit]
+        single[lit] = (self.area_m2 * bounced[:, 0] / np.maximum(self.area_m2 * kappa, 1.0))[lit]
+        among[lit] = ratio[lit] - single[lit]
         return single, among
 
     def _ratio(self, pixels: NDArray, measured_range: NDArray) -> tuple[PixelCoupling, NDArray[np.complex128]]:
